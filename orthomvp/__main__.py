@@ -1,0 +1,5 @@
+"""``python -m orthomvp``: the command line."""
+
+from orthomvp.cli import main_entry
+
+main_entry()
