@@ -1,0 +1,209 @@
+"""DEM to Cartesian triangle mesh, and mesh export for inspection (PLY, OBJ, GLB).
+
+The mesh lives in a *local* frame: world coordinates minus ``origin`` (a float64 point near the
+DEM centre). Ray casting is float32, and at lunar radius float32 resolves only 0.12 m, while
+local coordinates of a DEM tile keep millimetres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from orthomvp.errors import InputError
+from orthomvp.raster import atomic_path
+from orthomvp.terrain import Terrain
+
+EXPORT_FORMATS = (".ply", ".obj", ".glb")
+
+
+@dataclass
+class TerrainMesh:
+    """A DEM triangulated in the world frame.
+
+    ``mesh.vertices`` are local (world minus ``origin``), float64. ``vertex_post`` gives, for
+    each vertex, its flat post index ``r * cols + c`` in the DEM grid. Each grid cell with four
+    valid corners gives two triangles; a triangle with a hole at any corner is left out.
+    """
+
+    mesh: trimesh.Trimesh
+    origin: np.ndarray
+    vertex_post: np.ndarray
+    grid_shape: tuple[int, int]
+
+    @property
+    def world_vertices(self) -> np.ndarray:
+        """Vertex coordinates in the world frame, float64 (n, 3)."""
+        return self.mesh.vertices + self.origin
+
+    @property
+    def uv(self) -> np.ndarray:
+        """Texture coordinates in [0, 1] from grid position (u along columns, v up the rows)."""
+        rows, cols = self.grid_shape
+        r, c = np.divmod(self.vertex_post, cols)
+        return np.column_stack([(c + 0.5) / cols, 1.0 - (r + 0.5) / rows])
+
+
+def grid_triangles(valid: np.ndarray) -> np.ndarray:
+    """Triangles (as flat post indices, (n, 3)) of a grid, two per cell, skipping holes.
+
+    Cell (c, r)-(c+1, r+1) splits along the diagonal from (c+1, r) to (c, r+1).
+    """
+    rows, cols = valid.shape
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    d, e = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    tris = np.concatenate([np.column_stack([a, d, b]), np.column_stack([b, d, e])])
+    ok = valid.ravel()[tris].all(axis=1)
+    return tris[ok]
+
+
+def terrain_mesh(
+    terrain: Terrain, values: np.ndarray | None = None, origin: np.ndarray | None = None
+) -> TerrainMesh:
+    """Triangulate ``terrain`` (or other ``values`` on its grid) in the world frame.
+
+    ``origin`` defaults to the world position of the valid post nearest the grid centre. Faces
+    are wound so that their normals point up (away from the body centre, or +z in a map frame).
+    """
+    t = terrain if values is None else terrain.with_values(values)
+    pts = t.world_points().reshape(-1, 3)
+    valid = t.valid
+    tris = grid_triangles(valid)
+    if len(tris) == 0:
+        raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
+    if origin is None:
+        rows, cols = t.shape
+        r, c = np.nonzero(valid)
+        k = np.argmin((r - (rows - 1) / 2) ** 2 + (c - (cols - 1) / 2) ** 2)
+        origin = pts[r[k] * cols + c[k]]
+    origin = np.asarray(origin, dtype=np.float64)
+    in_use = np.zeros(len(pts), bool)
+    in_use[tris.ravel()] = True
+    used = np.flatnonzero(in_use)
+    faces = (np.cumsum(in_use) - 1)[tris]
+    local = pts[used] - origin
+    # Wind faces so that the normal points up; checked on the first face, the grid is regular.
+    v0, v1, v2 = local[faces[0]]
+    up = t.up_vectors(pts[used][faces[0, 0]])
+    if np.dot(np.cross(v1 - v0, v2 - v0), up) < 0:
+        faces = faces[:, ::-1]
+    mesh = trimesh.Trimesh(local, faces, process=False, validate=False)
+    return TerrainMesh(mesh, origin, used, t.shape)
+
+
+def colours_from_raster(data: np.ndarray, tmesh: TerrainMesh) -> np.ndarray:
+    """Per-vertex RGBA uint8 colours from a raster on the DEM grid.
+
+    ``data`` is (rows, cols) grey, (rows, cols, 3|4) RGB(A) uint8, or (bands, rows, cols) as read
+    by :func:`orthomvp.raster.read_image`. Float data is stretched between its 1st and 99th
+    percentiles; NaN becomes mid grey.
+    """
+    arr = np.asarray(data)
+    if arr.ndim == 3 and arr.shape[0] in (1, 3, 4) and arr.shape[1:] == tmesh.grid_shape:
+        arr = np.moveaxis(arr, 0, -1)
+    if arr.shape[:2] != tmesh.grid_shape:
+        raise InputError(f"texture raster is {arr.shape[:2]}, the DEM grid is {tmesh.grid_shape}")
+    if arr.ndim == 2:
+        arr = arr[..., None]
+    if arr.shape[-1] == 1:
+        arr = np.repeat(arr, 3, axis=-1)
+    arr = arr[..., :3]
+    if arr.dtype != np.uint8:
+        f = arr.astype(np.float64)
+        finite = np.isfinite(f)
+        if not finite.any():
+            raise InputError("texture raster holds no valid values")
+        lo, hi = np.percentile(f[finite], [1, 99])
+        f = np.clip((f - lo) / max(hi - lo, 1e-12), 0, 1) * 255
+        f[~finite] = 128
+        arr = f.astype(np.uint8)
+    rgb = arr.reshape(-1, 3)[tmesh.vertex_post]
+    return np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
+
+
+def export_mesh(
+    tmesh: TerrainMesh,
+    path: str | Path,
+    texture: np.ndarray | None = None,
+    local: bool = False,
+    target_triangles: int | None = None,
+) -> None:
+    """Write the mesh as PLY (vertex colours), OBJ or GLB (image texture, UVs from the grid).
+
+    Vertices are in the world frame (body-fixed metres) unless ``local`` is set. ``texture`` is a
+    raster on the DEM grid (see :func:`colours_from_raster`). With ``target_triangles`` the mesh
+    is first decimated with Open3D; the texture then travels as vertex colours in every format.
+    Files are written atomically.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in EXPORT_FORMATS:
+        raise InputError(f"{path}: mesh format must be one of {', '.join(EXPORT_FORMATS)}")
+    colours = None if texture is None else colours_from_raster(texture, tmesh)
+    if target_triangles is not None:
+        mesh = decimate(tmesh.mesh, target_triangles, colours)
+    else:
+        mesh = trimesh.Trimesh(tmesh.mesh.vertices, tmesh.mesh.faces, process=False)
+        if colours is not None and suffix == ".ply":
+            mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+        elif colours is not None:
+            from PIL import Image
+
+            rows, cols = tmesh.grid_shape
+            img = np.full((rows * cols, 3), 128, np.uint8)
+            img[tmesh.vertex_post] = colours[:, :3]
+            image = Image.fromarray(img.reshape(rows, cols, 3))
+            mesh.visual = trimesh.visual.TextureVisuals(uv=tmesh.uv, image=image)
+    if not local:
+        mesh.vertices = mesh.vertices + tmesh.origin
+    if suffix == ".obj":
+        _export_obj(mesh, path)
+    else:
+        with atomic_path(path) as tmp:
+            mesh.export(tmp, file_type=suffix[1:])
+
+
+def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
+    """OBJ with its material and texture image beside it, each file written atomically."""
+    from trimesh.exchange.obj import export_obj
+
+    text, files = export_obj(
+        mesh, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl"
+    )
+    for name, blob in files.items():
+        with atomic_path(path.parent / name) as tmp:
+            tmp.write_bytes(blob)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def decimate(
+    mesh: trimesh.Trimesh, target_triangles: int, colours: np.ndarray | None = None
+) -> trimesh.Trimesh:
+    """Quadric decimation with Open3D to about ``target_triangles`` faces.
+
+    ``colours`` (n, 4) uint8 per vertex are carried through (Open3D interpolates them).
+    """
+    import open3d as o3d
+
+    if target_triangles < 4:
+        raise InputError("decimation target must be at least 4 triangles")
+    o3 = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(mesh.vertices)),
+        o3d.utility.Vector3iVector(np.asarray(mesh.faces, dtype=np.int32)),
+    )
+    if colours is not None:
+        o3.vertex_colors = o3d.utility.Vector3dVector(colours[:, :3] / 255.0)
+    small = o3.simplify_quadric_decimation(target_number_of_triangles=int(target_triangles))
+    out = trimesh.Trimesh(
+        np.asarray(small.vertices), np.asarray(small.triangles), process=False, validate=False
+    )
+    if colours is not None:
+        rgb = np.clip(np.asarray(small.vertex_colors) * 255 + 0.5, 0, 255).astype(np.uint8)
+        rgba = np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
+        out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=rgba)
+    return out

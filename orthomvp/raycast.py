@@ -1,0 +1,138 @@
+"""First-hit ray casting against a terrain mesh: Embree (embreex, default) or Open3D.
+
+Both backends work in float32, so the scene is built in the mesh's local frame (see
+:mod:`orthomvp.mesh`) and each ray origin is first moved, in float64, along its ray to the
+near side of the mesh's bounding sphere. The float32 cast then spans only the scene's own size:
+for a tile of tens of kilometres the hit points keep millimetres, even 100 km and more from the
+camera at lunar radius (tested against exact float64 intersections).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from orthomvp.errors import InputError
+from orthomvp.mesh import TerrainMesh
+
+BACKENDS = ("embree", "open3d")
+CHUNK = 1 << 17
+
+
+@dataclass
+class Hits:
+    """Result of :meth:`RayCaster.first_hit` for n rays.
+
+    ``distance`` along the (unit) ray in metres (inf on a miss), ``triangle`` index into the
+    mesh faces (-1), ``barycentric`` (u, v) with hit = (1-u-v) v0 + u v1 + v v2 (NaN), ``points``
+    world xyz float64 (NaN), ``mask`` True where the ray hit.
+    """
+
+    distance: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    points: np.ndarray
+    mask: np.ndarray
+
+
+class RayCaster:
+    """First-hit queries against a :class:`~orthomvp.mesh.TerrainMesh`."""
+
+    def __init__(self, tmesh: TerrainMesh, backend: str = "embree", threads: int | None = None):
+        if backend not in BACKENDS:
+            raise InputError(f"ray-casting backend must be one of {BACKENDS}, not {backend!r}")
+        self.tmesh = tmesh
+        self.backend = backend
+        self.threads = threads or os.cpu_count() or 1
+        self._verts = np.asarray(tmesh.mesh.vertices, dtype=np.float64)
+        self._faces = np.asarray(tmesh.mesh.faces, dtype=np.int64)
+        lo, hi = self._verts.min(axis=0), self._verts.max(axis=0)
+        self._centre = (lo + hi) / 2
+        self._radius = float(np.linalg.norm(hi - lo) / 2) * 1.001 + 1.0
+        v32 = self._verts.astype(np.float32)
+        f32 = self._faces.astype(np.int32)
+        if backend == "embree":
+            from embreex import mesh_construction, rtcore_scene
+
+            self._scene = rtcore_scene.EmbreeScene()
+            mesh_construction.TriangleMesh(self._scene, v32, f32)
+        else:
+            import open3d as o3d
+
+            self._scene = o3d.t.geometry.RaycastingScene()
+            self._scene.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f32.astype(np.uint32)))
+        # The first query builds the acceleration structure; do it now, on one thread.
+        self.raw_cast(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+
+    def raw_cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The bare backend call on float32 local-frame rays: (t, triangle, u, v)."""
+        if self.backend == "embree":
+            out = self._scene.run(origins, directions, output=1)
+            tri = out["primID"].astype(np.int64)
+            return out["tfar"], tri, out["u"], out["v"]
+        import open3d as o3d
+
+        rays = o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
+        out = self._scene.cast_rays(rays, nthreads=self.threads)
+        tri = out["primitive_ids"].numpy().astype(np.int64)
+        tri[tri == np.iinfo(np.uint32).max] = -1
+        uv = out["primitive_uvs"].numpy()
+        return out["t_hit"].numpy(), tri, uv[:, 0], uv[:, 1]
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """First intersection of each ray with the mesh; world-frame float64 in and out.
+
+        ``origins`` and ``directions`` are (n, 3) (or broadcastable, e.g. one origin for many
+        directions); directions need not be unit length. Only hits in front of the origin count.
+        """
+        d = np.asarray(directions, dtype=np.float64)
+        norm = np.linalg.norm(d, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = d / norm
+        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), d.shape)
+        n = len(d)
+        dist = np.full(n, np.inf)
+        tri = np.full(n, -1, np.int64)
+        bary = np.full((n, 2), np.nan)
+        starts = range(0, n, CHUNK)
+
+        def work(s: int) -> None:
+            sl = slice(s, min(s + CHUNK, n))
+            self._cast_chunk(o[sl], unit[sl], dist[sl], tri[sl], bary[sl])
+
+        # Embree calls run one per thread; Open3D threads inside each call.
+        if self.backend == "embree" and self.threads > 1 and n > CHUNK:
+            with ThreadPoolExecutor(self.threads) as pool:
+                list(pool.map(work, starts))
+        else:
+            for s in starts:
+                work(s)
+        mask = tri >= 0
+        points = o + dist[:, None] * unit
+        points[~mask] = np.nan
+        return Hits(dist, tri, bary, points, mask)
+
+    def _cast_chunk(
+        self, o: np.ndarray, d: np.ndarray, dist: np.ndarray, tri: np.ndarray, bary: np.ndarray
+    ) -> None:
+        """Cast one chunk of rays with unit directions ``d``; fill dist, tri, bary in place."""
+        oc = o - (self.tmesh.origin + self._centre)  # relative to the bounding-sphere centre
+        tc = -np.einsum("ij,ij->i", oc, d)  # ray parameter of the closest approach to the centre
+        closest = oc + tc[:, None] * d
+        miss2 = np.einsum("ij,ij->i", closest, closest)
+        reach = np.flatnonzero(miss2 < self._radius**2)  # NaN directions compare False
+        if not reach.size:
+            return
+        # Start each ray at the sphere's near side (or at its origin when already inside).
+        t0 = np.maximum(tc[reach] - np.sqrt(self._radius**2 - miss2[reach]), 0.0)
+        start = oc[reach] + t0[:, None] * d[reach] + self._centre
+        t, hit_tri, u, v = self.raw_cast(start.astype(np.float32), d[reach].astype(np.float32))
+        hit = hit_tri >= 0
+        idx = reach[hit]
+        dist[idx] = t0[hit] + t[hit]
+        tri[idx] = hit_tri[hit]
+        bary[idx, 0] = u[hit]
+        bary[idx, 1] = v[hit]
