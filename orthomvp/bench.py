@@ -1,0 +1,99 @@
+"""Benchmarks reported as ratios against a baseline measured in the same run.
+
+Shared machines are noisy, so every figure is printed next to its baseline: the ray-casting
+wrapper against the bare backend call on the same rays.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from affine import Affine
+from pyproj import CRS
+
+from orthomvp.mesh import terrain_mesh
+from orthomvp.raycast import BACKENDS, RayCaster
+from orthomvp.terrain import Terrain, unit_vector
+
+LUNAR_CRS = "+proj=longlat +R=1737400 +no_defs"
+
+
+def best_time(fn: Callable[[], object], repeat: int = 3) -> float:
+    """The shortest wall-clock time of ``repeat`` calls, seconds."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def bench_terrain(size: int) -> Terrain:
+    """A lunar DEM of ``size`` x ``size`` posts 20 m apart with 300 m rolling relief."""
+    step = np.degrees(20.0 / 1737400.0)
+    r, c = np.mgrid[0:size, 0:size].astype(np.float64)
+    z = 300 * np.sin(c / 37.0) * np.cos(r / 53.0) + 80 * np.sin((c + r) / 11.0)
+    transform = Affine(step, 0, 30.0, 0, -step, 10.0 + size * step)
+    return Terrain(z, transform, CRS.from_proj4(LUNAR_CRS), name="bench")
+
+
+def camera_rays(terrain: Terrain, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` rays from a point 110 km up and 40 km aside, towards random posts of ``terrain``."""
+    rows, cols = terrain.shape
+    rng = np.random.default_rng(seed)
+    c, r = rng.uniform(0, cols - 1, n), rng.uniform(0, rows - 1, n)
+    targets = terrain.to_world(c, r, np.zeros(n))
+    lon, lat = terrain.pixel_to_lonlat(np.array((cols - 1) / 2), np.array((rows - 1) / 2))
+    up = unit_vector(lon, lat)
+    side = np.cross(up, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    origin = (1737400.0 + 110_000.0) * up + 40_000.0 * side
+    return origin, targets - origin
+
+
+def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
+    """Rays per second of :meth:`RayCaster.first_hit` and of the bare backend call per backend."""
+    terrain = bench_terrain(size)
+    tmesh = terrain_mesh(terrain)
+    origin, dirs = camera_rays(terrain, rays)
+    unit = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    o32 = np.tile((origin - tmesh.origin).astype(np.float32), (rays, 1))
+    d32 = unit.astype(np.float32)
+    rows = []
+    for backend in BACKENDS:
+        t0 = time.perf_counter()
+        caster = RayCaster(tmesh, backend)
+        build = time.perf_counter() - t0
+        raw = best_time(lambda c=caster: c.raw_cast(o32, d32))
+        wrapped = best_time(lambda c=caster: c.first_hit(origin, dirs))
+        hits = caster.first_hit(origin, dirs)
+        rows.append(
+            {
+                "backend": backend,
+                "triangles": len(tmesh.mesh.faces),
+                "rays": rays,
+                "build_s": build,
+                "raw_rays_per_s": rays / raw,
+                "wrapper_rays_per_s": rays / wrapped,
+                "ratio": raw / wrapped,
+                "hit_fraction": float(hits.mask.mean()),
+            }
+        )
+    return rows
+
+
+def format_raycast(rows: list[dict]) -> str:
+    """A small text table of :func:`bench_raycast` results."""
+    lines = [
+        f"ray casting: {rows[0]['rays']:,} rays onto {rows[0]['triangles']:,} triangles",
+        f"{'backend':<8} {'build s':>8} {'raw Mray/s':>11} {'wrapper Mray/s':>15} {'ratio':>6}",
+    ]
+    for r in rows:
+        lines.append(
+            f"{r['backend']:<8} {r['build_s']:>8.2f} {r['raw_rays_per_s'] / 1e6:>11.3f} "
+            f"{r['wrapper_rays_per_s'] / 1e6:>15.3f} {r['ratio']:>6.2f}"
+        )
+    lines.append("ratio = wrapper throughput / bare backend call on the same rays, same run")
+    return "\n".join(lines)
