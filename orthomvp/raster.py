@@ -125,12 +125,9 @@ def write_geotiff(
     }
     if arr.shape[1] >= 256 and arr.shape[2] >= 256:
         profile.update(tiled=True, blockxsize=256, blockysize=256)
-    with (
-        warnings.catch_warnings(),
-        atomic_path(path) as tmp,
-        rasterio.open(tmp, "w", **profile) as dst,
-    ):
+    with warnings.catch_warnings(), atomic_path(path) as tmp:
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        dst.write(arr)
-        for i, name in enumerate(band_names or [], start=1):
-            dst.set_band_description(i, name)
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(arr)
+            for i, name in enumerate(band_names or [], start=1):
+                dst.set_band_description(i, name)
