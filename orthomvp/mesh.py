@@ -86,10 +86,12 @@ def terrain_mesh(
     used = np.flatnonzero(in_use)
     faces = (np.cumsum(in_use) - 1)[tris]
     local = pts[used] - origin
-    # Wind faces so that the normal points up; checked on the first face, the grid is regular.
-    v0, v1, v2 = local[faces[0]]
-    up = t.up_vectors(pts[used][faces[0, 0]])
-    if np.dot(np.cross(v1 - v0, v2 - v0), up) < 0:
+    # Wind faces so that the normals point up. All faces share one winding (the grid is regular);
+    # decide it by an area-weighted vote of faces spread over the grid, since a single face can
+    # be degenerate (posts at a pole coincide) and then tells nothing.
+    v = local[faces[:: max(1, len(faces) // 1000)]]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    if np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0:
         faces = faces[:, ::-1]
     mesh = trimesh.Trimesh(local, faces, process=False, validate=False)
     return TerrainMesh(mesh, origin, used, t.shape)
@@ -157,14 +159,52 @@ def export_mesh(
             img = np.full((rows * cols, 3), 128, np.uint8)
             img[tmesh.vertex_post] = colours[:, :3]
             image = Image.fromarray(img.reshape(rows, cols, 3))
-            mesh.visual = trimesh.visual.TextureVisuals(uv=tmesh.uv, image=image)
-    if not local:
-        mesh.vertices = mesh.vertices + tmesh.origin
+            # Name the material (and so the OBJ's texture file) after the output file, so that
+            # two meshes exported to one directory do not share one 'material_0.png'.
+            material = trimesh.visual.material.SimpleMaterial(image=image, name=path.stem)
+            mesh.visual = trimesh.visual.TextureVisuals(uv=tmesh.uv, material=material)
+    offset = np.zeros(3) if local else tmesh.origin
+    if suffix == ".glb":
+        # glTF vertices are float32 (0.12 m at lunar radius): keep them local and carry the
+        # offset, in full precision, as the node's transform.
+        scene = trimesh.Scene()
+        scene.add_geometry(mesh, transform=trimesh.transformations.translation_matrix(offset))
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(scene.export(file_type="glb"))
+        return
+    mesh.vertices = mesh.vertices + offset
     if suffix == ".obj":
         _export_obj(mesh, path)
     else:
-        with atomic_path(path) as tmp:
-            mesh.export(tmp, file_type=suffix[1:])
+        _export_ply(mesh, path)
+
+
+def _export_ply(mesh: trimesh.Trimesh, path: Path) -> None:
+    """Binary PLY with float64 vertices (trimesh writes float32: 0.12 m at lunar radius)."""
+    fields = [("xyz", "<f8", 3)]
+    props = [f"property double {a}" for a in "xyz"]
+    colours = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else None
+    if colours is not None:
+        fields.append(("rgba", "u1", 4))
+        props += [f"property uchar {c}" for c in ("red", "green", "blue", "alpha")]
+    vert = np.empty(len(mesh.vertices), fields)
+    vert["xyz"] = mesh.vertices
+    if colours is not None:
+        vert["rgba"] = colours
+    face = np.empty(len(mesh.faces), [("n", "u1"), ("idx", "<i4", 3)])
+    face["n"] = 3
+    face["idx"] = mesh.faces
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        f"element vertex {len(vert)}",
+        *props,
+        f"element face {len(face)}",
+        "property list uchar int vertex_indices",
+        "end_header\n",
+    ]
+    with atomic_path(path) as tmp:
+        tmp.write_bytes("\n".join(header).encode("ascii") + vert.tobytes() + face.tobytes())
 
 
 def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:

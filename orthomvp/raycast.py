@@ -85,14 +85,17 @@ class RayCaster:
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """First intersection of each ray with the mesh; world-frame float64 in and out.
 
-        ``origins`` and ``directions`` are (n, 3) (or broadcastable, e.g. one origin for many
-        directions); directions need not be unit length. Only hits in front of the origin count.
+        ``origins`` and ``directions`` are (n, 3) or (3,), broadcast against each other (one
+        origin for many directions or one direction for many origins); directions need not be
+        unit length. Only hits in front of the origin count.
         """
-        d = np.asarray(directions, dtype=np.float64)
+        o, d = np.broadcast_arrays(
+            np.atleast_2d(np.asarray(origins, dtype=np.float64)),
+            np.atleast_2d(np.asarray(directions, dtype=np.float64)),
+        )
         norm = np.linalg.norm(d, axis=-1, keepdims=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             unit = d / norm
-        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), d.shape)
         n = len(d)
         dist = np.full(n, np.inf)
         tri = np.full(n, -1, np.int64)
@@ -111,8 +114,8 @@ class RayCaster:
             for s in starts:
                 work(s)
         mask = tri >= 0
-        points = o + dist[:, None] * unit
-        points[~mask] = np.nan
+        points = np.full((n, 3), np.nan)  # (inf * unit on a miss would warn)
+        points[mask] = o[mask] + dist[mask, None] * unit[mask]
         return Hits(dist, tri, bary, points, mask)
 
     def _cast_chunk(
