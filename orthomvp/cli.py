@@ -12,6 +12,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from orthomvp import __version__
 from orthomvp.errors import OrthoMVPError
 
@@ -43,6 +45,34 @@ def _add_dem_options(p: argparse.ArgumentParser) -> None:
         help="world frame of the cameras: body-fixed Cartesian metres (default) or the DEM's "
         "projected CRS taken as Cartesian (easting, northing, height)",
     )
+
+
+def _add_eps_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--eps",
+        type=float,
+        help="visibility tolerance in DEM posts (default: max(4, image ground sample distance "
+        "in posts); see the README)",
+    )
+
+
+def _load_view(image_path: Path, camera_path: Path):  # noqa: ANN202
+    from orthomvp.camera import read_camera
+    from orthomvp.ortho import check_image
+    from orthomvp.raster import read_image
+
+    image = read_image(image_path)
+    return image, check_image(image, read_camera(camera_path), str(image_path))
+
+
+def _warn_partial(vis, terrain, what: str) -> None:  # noqa: ANN001
+    outside = int(((vis.codes == 0) & terrain.valid).sum())
+    if outside:
+        share = 100 * (1 - outside / int(terrain.valid.sum()))
+        print(
+            f"orthomvp: warning: {what} covers {share:.1f}% of the DEM's posts; the rest is nodata",
+            file=sys.stderr,
+        )
 
 
 def _read_terrain(args: argparse.Namespace):  # noqa: ANN202
@@ -118,13 +148,108 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dem_options(p)
 
     p = sub.add_parser(
+        "visibility",
+        help="per-post visibility of one image: the epsilon round-trip test",
+        description="Classify every DEM post for one camera: 0 no data / outside the image, "
+        "1 visible, 2 occluded by terrain, 3 facing away. Written as a uint8 GeoTIFF on the "
+        "DEM grid.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("image", type=Path, help="the image (gives the image size)")
+    p.add_argument("camera", type=Path, help="camera model: .tsai, .pinhole or .json")
+    p.add_argument("-o", "--output", type=Path, required=True, help="VIS.tif")
+    _add_eps_option(p)
+    _add_dem_options(p)
+
+    p = sub.add_parser(
+        "ortho",
+        help="occlusion-aware orthophoto of one image",
+        description="Orthorectify IMAGE through CAMERA onto the DEM grid (all bands, float32, "
+        "NaN = nodata). Posts that are not visible (occluded, facing away, outside) are "
+        "nodata unless --no-occlusion asks for the naive orthophoto.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("image", type=Path)
+    p.add_argument("camera", type=Path, help="camera model: .tsai, .pinhole or .json")
+    p.add_argument("-o", "--output", type=Path, required=True, help="ORTHO.tif")
+    p.add_argument("--visibility", type=Path, metavar="VIS.tif", help="also write visibility")
+    p.add_argument("--interp", choices=("nearest", "bilinear", "cubic"), default="bilinear")
+    p.add_argument(
+        "--no-occlusion",
+        action="store_true",
+        help="naive orthophoto: every post inside the image gets a value (ghosts included)",
+    )
+    p.add_argument(
+        "--res",
+        type=float,
+        nargs=2,
+        metavar=("X", "Y"),
+        help="output pixel size in DEM CRS units (default: the DEM's)",
+    )
+    p.add_argument(
+        "--bounds",
+        type=float,
+        nargs=4,
+        metavar=("LEFT", "BOTTOM", "RIGHT", "TOP"),
+        help="output extent in DEM CRS units (default: the DEM's)",
+    )
+    _add_eps_option(p)
+    _add_dem_options(p)
+
+    p = sub.add_parser(
+        "mosaic",
+        help="one orthophoto from many images, occluded posts filled from other views",
+        description="Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the DEM grid; "
+        "each post takes its value from the visible view with the smallest emission angle. "
+        "--source records which image (1-based, in command-line order; 0 = none) each post "
+        "came from.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("pairs", type=Path, nargs="+", metavar="IMAGE CAMERA")
+    p.add_argument("-o", "--output", type=Path, required=True, help="MOSAIC.tif")
+    p.add_argument("--source", type=Path, metavar="SOURCE.tif", help="also write the sources")
+    p.add_argument("--interp", choices=("nearest", "bilinear", "cubic"), default="bilinear")
+    _add_eps_option(p)
+    _add_dem_options(p)
+
+    p = sub.add_parser(
+        "eps-study",
+        help="sweep the visibility tolerance on a synthetic scene with truth",
+        description="Score the visibility test against the marched truth of a scene written "
+        "by 'orthomvp synth', for a range of epsilons (DEM posts) and optional DEM noise: "
+        "precision, recall and F1 per view (CSV) and a plot (PNG).",
+    )
+    p.add_argument("scene", type=Path, help="a scene directory from 'orthomvp synth'")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("eps-study"),
+        help="output prefix: writes PREFIX.csv and PREFIX.png (default eps-study)",
+    )
+    p.add_argument("--eps", type=float, nargs="+", help="epsilons to try, DEM posts")
+    p.add_argument(
+        "--dem-noise",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        metavar="METRES",
+        help="standard deviations of Gaussian noise added to the DEM (default 0)",
+    )
+
+    p = sub.add_parser(
         "bench",
         help="benchmarks, each reported as a ratio to a baseline measured in the same run",
         description="Ray casting: rays per second through orthomvp's first_hit and through "
-        "the bare backend call on the same rays, for Embree and Open3D.",
+        "the bare backend call on the same rays, for Embree and Open3D. Orthophoto: the "
+        "occlusion-aware orthophoto of one image against the bare Embree cast of one ray per "
+        "post, in the same run.",
     )
-    p.add_argument("--size", type=int, default=1000, help="DEM posts per side (1000)")
+    p.add_argument("--size", type=int, default=1000, help="ray-casting DEM posts per side")
     p.add_argument("--rays", type=int, default=1_000_000, help="number of rays (1,000,000)")
+    p.add_argument(
+        "--ortho-size", type=int, default=2000, help="orthophoto DEM posts per side (2000; 0 skips)"
+    )
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     return parser
 
@@ -155,14 +280,101 @@ def _cmd_mesh(args: argparse.Namespace) -> None:
 
 
 def _cmd_bench(args: argparse.Namespace) -> None:
-    from orthomvp.bench import bench_raycast, format_raycast
+    from orthomvp.bench import bench_ortho, bench_raycast, format_ortho, format_raycast
     from orthomvp.raster import atomic_path
 
-    rows = bench_raycast(args.size, args.rays)
-    print(format_raycast(rows))
+    results: dict = {"raycast": bench_raycast(args.size, args.rays)}
+    print(format_raycast(results["raycast"]))
+    if args.ortho_size:
+        results["ortho"] = bench_ortho(args.ortho_size)
+        print(format_ortho(results["ortho"]))
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps({"raycast": rows}, indent=2))
+            tmp.write_text(json.dumps(results, indent=2))
+
+
+def _cmd_visibility(args: argparse.Namespace) -> None:
+    from orthomvp.raster import write_geotiff
+    from orthomvp.visibility import compute_visibility
+
+    terrain = _read_terrain(args)
+    _, camera = _load_view(args.image, args.camera)
+    vis = compute_visibility(terrain, camera, args.eps, progress=not args.quiet)
+    _warn_partial(vis, terrain, str(args.image))
+    write_geotiff(args.output, vis.codes, terrain.transform, terrain.crs, nodata=0)
+    counts = ", ".join(f"{v:,} {k}" for k, v in vis.counts().items())
+    print(f"wrote {args.output}: {counts}")
+
+
+def _cmd_ortho(args: argparse.Namespace) -> None:
+    from orthomvp.mesh import terrain_mesh
+    from orthomvp.ortho import orthorectify
+    from orthomvp.raster import write_geotiff
+    from orthomvp.raycast import RayCaster
+
+    terrain = _read_terrain(args)
+    image, camera = _load_view(args.image, args.camera)
+    caster = RayCaster(terrain_mesh(terrain))
+    grid = terrain.regrid(args.res, args.bounds) if args.res or args.bounds else terrain
+    ortho = orthorectify(
+        grid,
+        image,
+        camera,
+        not args.no_occlusion,
+        args.eps,
+        args.interp,
+        caster=caster,
+        progress=not args.quiet,
+        post_scale=_post_scale(grid, terrain),
+    )
+    _warn_partial(ortho.visibility, grid, str(args.image))
+    write_geotiff(args.output, ortho.data, ortho.transform, ortho.crs, nodata=np.nan)
+    if args.visibility:
+        write_geotiff(args.visibility, ortho.visibility.codes, grid.transform, grid.crs, nodata=0)
+    filled = int(np.isfinite(ortho.data).all(axis=0).sum())
+    print(f"wrote {args.output}: {filled:,} of {grid.values.size:,} posts filled")
+
+
+def _post_scale(grid, terrain) -> float:  # noqa: ANN001
+    """Size of one output post in DEM posts (for the epsilon test on a resampled grid)."""
+    return float(np.mean(grid.post_spacing()) / np.mean(terrain.post_spacing()))
+
+
+def _cmd_mosaic(args: argparse.Namespace) -> None:
+    from orthomvp.errors import InputError
+    from orthomvp.ortho import mosaic
+    from orthomvp.raster import write_geotiff
+
+    if len(args.pairs) % 2:
+        raise InputError("mosaic needs IMAGE CAMERA pairs: got an odd number of files")
+    terrain = _read_terrain(args)
+    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    result = mosaic(terrain, views, args.eps, args.interp, progress=not args.quiet)
+    write_geotiff(args.output, result.data, result.transform, result.crs, nodata=np.nan)
+    if args.source:
+        write_geotiff(args.source, result.source, result.transform, result.crs, nodata=0)
+    counts = np.bincount(result.source.ravel(), minlength=len(views) + 1)
+    parts = ", ".join(
+        f"{counts[k]:,} from {args.pairs[2 * k - 2]}" for k in range(1, len(views) + 1)
+    )
+    print(f"wrote {args.output}: {parts}; {counts[0]:,} posts visible in no image")
+
+
+def _cmd_eps_study(args: argparse.Namespace) -> None:
+    from orthomvp.epsstudy import DEFAULT_EPS_VALUES, eps_study, plot, write_csv
+
+    eps = tuple(args.eps) if args.eps else DEFAULT_EPS_VALUES
+    rows = eps_study(args.scene, eps, tuple(args.dem_noise))
+    prefix = args.output
+    write_csv(rows, prefix.with_suffix(".csv"))
+    plot(rows, prefix.with_suffix(".png"))
+    for r in rows:
+        if r["eps"] == "default":
+            print(
+                f"{r['view']:>10} noise {r['noise_m']:g} m: default rule F1 visible "
+                f"{r['f1_visible']:.4f}, hidden {r['f1_hidden']:.4f}"
+            )
+    print(f"wrote {prefix.with_suffix('.csv')} and {prefix.with_suffix('.png')}")
 
 
 def _cmd_demo(args: argparse.Namespace) -> None:
@@ -171,7 +383,16 @@ def _cmd_demo(args: argparse.Namespace) -> None:
     run_demo(args.outdir, quiet=args.quiet)
 
 
-COMMANDS = {"synth": _cmd_synth, "mesh": _cmd_mesh, "bench": _cmd_bench, "demo": _cmd_demo}
+COMMANDS = {
+    "synth": _cmd_synth,
+    "mesh": _cmd_mesh,
+    "visibility": _cmd_visibility,
+    "ortho": _cmd_ortho,
+    "mosaic": _cmd_mosaic,
+    "eps-study": _cmd_eps_study,
+    "bench": _cmd_bench,
+    "demo": _cmd_demo,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

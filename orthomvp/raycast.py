@@ -123,15 +123,17 @@ class RayCaster:
     ) -> None:
         """Cast one chunk of rays with unit directions ``d``; fill dist, tri, bary in place."""
         oc = o - (self.tmesh.origin + self._centre)  # relative to the bounding-sphere centre
-        tc = -np.einsum("ij,ij->i", oc, d)  # ray parameter of the closest approach to the centre
-        closest = oc + tc[:, None] * d
-        miss2 = np.einsum("ij,ij->i", closest, closest)
+        if oc.strides[0] == 0:  # one origin for all rays (a broadcast view): keep it (3,)
+            oc = oc[:1]
+        tc = -(d @ oc[0]) if len(oc) == 1 else -np.einsum("ij,ij->i", oc, d)
+        # squared distance of the ray's closest approach to the centre (d is unit length)
+        miss2 = np.einsum("ij,ij->i", oc, oc) - tc * tc
         reach = np.flatnonzero(miss2 < self._radius**2)  # NaN directions compare False
         if not reach.size:
             return
         # Start each ray at the sphere's near side (or at its origin when already inside).
         t0 = np.maximum(tc[reach] - np.sqrt(self._radius**2 - miss2[reach]), 0.0)
-        start = oc[reach] + t0[:, None] * d[reach] + self._centre
+        start = (oc[0] if len(oc) == 1 else oc[reach]) + t0[:, None] * d[reach] + self._centre
         t, hit_tri, u, v = self.raw_cast(start.astype(np.float32), d[reach].astype(np.float32))
         hit = hit_tri >= 0
         idx = reach[hit]

@@ -260,9 +260,9 @@ class Scene:
 # ------------------------------------------------------------------------------ building
 def _texture(rng: np.random.Generator, spacing: float) -> Callable:
     """Band-limited analytic noise albedo in [0.05, 0.95]: a sum of random plane waves with
-    wavelengths from 2 to 16 post spacings."""
+    wavelengths from 3 to 16 post spacings (resolved by every view, even the oblique one)."""
     k = 64
-    wl = spacing * np.exp(rng.uniform(np.log(2.0), np.log(16.0), k))
+    wl = spacing * np.exp(rng.uniform(np.log(3.0), np.log(16.0), k))
     ang = rng.uniform(0, np.pi, k)
     kx, ky = 2 * np.pi * np.cos(ang) / wl, 2 * np.pi * np.sin(ang) / wl
     ph = rng.uniform(0, 2 * np.pi, k)

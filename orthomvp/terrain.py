@@ -37,6 +37,40 @@ def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(lon) * cl, np.sin(lon) * cl, np.sin(lat)], axis=-1)
 
 
+def _difference(p: np.ndarray, axis: int) -> np.ndarray:
+    """Per-step difference of grid points along ``axis``: central, else one-sided where a
+    neighbour is a hole or beyond the border; NaN only for posts with no valid neighbour."""
+    p = np.moveaxis(p, axis, 0)
+    d = np.empty_like(p)
+    d[1:-1] = (p[2:] - p[:-2]) * 0.5
+    d[0] = p[1] - p[0]
+    d[-1] = p[-1] - p[-2]
+    bad = np.isnan(d[..., 0])
+    if bad.any():
+        step = p[1:] - p[:-1]
+        fwd = np.full_like(p, np.nan)
+        fwd[:-1] = step
+        bwd = np.full_like(p, np.nan)
+        bwd[1:] = step
+        d[bad] = np.where(np.isnan(fwd[bad]), bwd[bad], fwd[bad])
+    return np.moveaxis(d, 0, axis)
+
+
+def grid_normals(p: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Unit outward normals (rows, cols, 3) of a grid of world points ``p`` (rows, cols, 3):
+    the cross product of the differences along columns and rows (central differences, one-sided
+    at borders and next to holes), oriented to agree with ``up``. NaN at holes."""
+    a, b = _difference(p, 1), _difference(p, 0)
+    n = np.empty_like(p)
+    n[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    n[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    n[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.sqrt(np.einsum("...i,...i->...", n, n))[..., None]
+    n[np.einsum("...i,...i->...", n, up) < 0] *= -1
+    return n
+
+
 def horizontal_crs(crs: CRS) -> CRS:
     """The horizontal part of a (possibly compound) CRS."""
     if crs.is_compound:
@@ -289,18 +323,9 @@ class Terrain:
         return xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)
 
     def normals(self) -> np.ndarray:
-        """Unit outward surface normals at every post from central differences, (rows, cols, 3).
-
-        One-sided differences at the border; NaN where a neighbour needed is a hole.
-        """
+        """Unit outward surface normals at every post, (rows, cols, 3); see :func:`grid_normals`."""
         p = self.world_points()
-        dc = np.gradient(p, axis=1)
-        dr = np.gradient(p, axis=0)
-        n = np.cross(dc, dr)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        flip = np.sum(n * self.up_vectors(p), axis=-1) < 0
-        n[flip] *= -1
-        return n
+        return grid_normals(p, self.up_vectors(p))
 
     def post_spacing(self) -> tuple[float, float]:
         """Ground distance between neighbouring posts at the grid centre (along c, along r), m."""
@@ -309,3 +334,54 @@ class Terrain:
         h = np.nanmedian(self.values)
         p = self.to_world(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]), np.full(3, h))
         return float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0]))
+
+    def interpolate(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """DEM values at fractional pixel positions, linear on the mesh's own triangles.
+
+        Each cell splits along the diagonal from (c+1, r) to (c, r+1), as in
+        :func:`orthomvp.mesh.grid_triangles`; NaN outside the grid or next to a hole.
+        """
+        rows, cols = self.shape
+        c = np.asarray(c, dtype=np.float64)
+        r = np.asarray(r, dtype=np.float64)
+        inside = (c >= 0) & (c <= cols - 1) & (r >= 0) & (r <= rows - 1)
+        c0 = np.clip(np.floor(np.where(inside, c, 0)), 0, cols - 2).astype(np.int64)
+        r0 = np.clip(np.floor(np.where(inside, r, 0)), 0, rows - 2).astype(np.int64)
+        fx, fy = c - c0, r - r0
+        v = self.values
+        a, b = v[r0, c0], v[r0, c0 + 1]
+        d, e = v[r0 + 1, c0], v[r0 + 1, c0 + 1]
+        lower = fx + fy <= 1
+        out = np.where(
+            lower,
+            a + fx * (b - a) + fy * (d - a),
+            e + (1 - fx) * (d - e) + (1 - fy) * (b - e),
+        )
+        return np.where(inside, out, np.nan)
+
+    def regrid(
+        self, res: tuple[float, float] | None = None, bounds: tuple[float, ...] | None = None
+    ) -> Terrain:
+        """The DEM on another grid of the same CRS: pixel size ``res`` (x, y) and ``bounds``
+        (left, bottom, right, top), both in CRS units (degrees or metres); values interpolated
+        with :meth:`interpolate`. Defaults keep this DEM's resolution and extent."""
+        t = self.transform
+        rows, cols = self.shape
+        left, top = t.c, t.f
+        right, bottom = left + cols * t.a, top + rows * t.e
+        if bounds is not None:
+            left, bottom, right, top = (float(v) for v in bounds)
+            if not (right > left and top > bottom):
+                raise InputError(f"bounds must be left bottom right top, got {bounds}")
+        dx, dy = (abs(t.a), abs(t.e)) if res is None else (float(res[0]), float(res[1]))
+        if not (dx > 0 and dy > 0):
+            raise InputError(f"resolution must be positive, got {res}")
+        n_c = max(int(round((right - left) / dx)), 2)
+        n_r = max(int(round((top - bottom) / dy)), 2)
+        grid = Affine(dx, 0, left, 0, -dy, top)
+        new = replace(self, values=np.zeros((n_r, n_c)), transform=grid)
+        c, r = self.crs_to_pixel(*new.pixel_to_crs(*new.grid()))
+        values = self.interpolate(c, r)
+        if not np.isfinite(values).any():
+            raise InputError("the requested grid does not overlap the DEM")
+        return replace(new, values=values)

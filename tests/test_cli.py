@@ -14,7 +14,7 @@ from affine import Affine
 
 from orthomvp.cli import main
 
-COMMANDS = ("demo", "synth", "mesh", "bench")
+COMMANDS = ("demo", "synth", "mesh", "visibility", "ortho", "mosaic", "eps-study", "bench")
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -122,9 +122,20 @@ def test_mesh_bad_inputs_leave_nothing(tmp_path: Path) -> None:
 
 
 def test_bench_prints_ratios(tmp_path: Path) -> None:
-    proc = run("bench", "--size", "60", "--rays", "20000", "--json", str(tmp_path / "b.json"))
+    proc = run(
+        "bench",
+        "--size",
+        "60",
+        "--rays",
+        "20000",
+        "--ortho-size",
+        "80",
+        "--json",
+        str(tmp_path / "b.json"),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "embree" in proc.stdout and "open3d" in proc.stdout and "ratio" in proc.stdout
+    assert "occlusion-aware orthophoto" in proc.stdout
     assert (tmp_path / "b.json").is_file()
 
 

@@ -35,7 +35,7 @@ def test_scene_directory(crater_dir) -> None:
     dem = Terrain.read(crater_dir / summary["dem"])
     assert dem.shape == (64, 64) and dem.radii[0] == 1737400.0
     assert np.mean(dem.post_spacing()) == pytest.approx(80.0, rel=1e-3)
-    for name, view in summary["views"].items():
+    for view in summary["views"].values():
         cam = read_camera(crater_dir / view["camera"])
         image = read_image(crater_dir / view["image"])
         vis = read_image(crater_dir / view["visibility"])[0]

@@ -1,0 +1,160 @@
+"""Orthophotos on the DEM grid that leave occluded posts empty, and mosaics that fill them.
+
+An orthophoto samples the image at the projection of every post (``cv2.remap``), all bands,
+float32 with NaN as nodata. With occlusion on (the default) only posts whose visibility code is
+1 (visible) get a value; ``occlusion=False`` gives the naive orthophoto of other tools, which
+paints the occluder's pixels again onto every post hidden behind it (ghosts).
+
+Mosaic rule: each post takes its value from the visible view with the smallest emission angle
+(the angle between the DEM's surface normal and the direction to the camera), which is also the
+view with the least foreshortening; posts visible in no view stay nodata.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from affine import Affine
+from pyproj import CRS
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.errors import InputError
+from orthomvp.mesh import terrain_mesh
+from orthomvp.raycast import RayCaster
+from orthomvp.terrain import Terrain
+from orthomvp.visibility import VISIBLE, Visibility, compute_visibility
+
+INTERPOLATION = {
+    "nearest": cv2.INTER_NEAREST,
+    "bilinear": cv2.INTER_LINEAR,
+    "cubic": cv2.INTER_CUBIC,
+}
+
+
+@dataclass
+class Ortho:
+    """An orthophoto: ``data`` (bands, rows, cols) float32, NaN where empty, on the grid given
+    by ``transform`` (pixel corners) and ``crs``; ``visibility`` of the posts it came from."""
+
+    data: np.ndarray
+    transform: Affine
+    crs: CRS
+    visibility: Visibility
+
+
+@dataclass
+class Mosaic:
+    """A mosaic: ``data`` as in :class:`Ortho`; ``source`` (rows, cols) uint8, the 1-based index
+    of the view each post came from (0 where none); ``visibilities`` per view."""
+
+    data: np.ndarray
+    source: np.ndarray
+    transform: Affine
+    crs: CRS
+    visibilities: list[Visibility]
+
+
+def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
+    """Validate a (bands, rows, cols) image and return the camera with the image's size."""
+    if image.ndim != 3 or image.shape[0] < 1 or min(image.shape[1:]) < 2:
+        raise InputError(
+            f"{name}: expected an image of shape (bands, rows, cols), got {image.shape}"
+        )
+    rows, cols = image.shape[1:]
+    if camera.width is not None and (camera.width, camera.height) != (cols, rows):
+        raise InputError(
+            f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"
+        )
+    return camera.with_image_size(cols, rows)
+
+
+def sample_image(image: np.ndarray, uv: np.ndarray, interp: str = "bilinear") -> np.ndarray:
+    """Sample ``image`` (bands, rows, cols) at pixel positions ``uv`` (..., 2) -> (bands, ...).
+
+    NaN positions, positions outside the image and NaN image pixels give NaN.
+    """
+    if interp not in INTERPOLATION:
+        raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
+    shape = uv.shape[:-1]
+    flat = uv.reshape(-1, 2).astype(np.float32)
+    # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
+    n = len(flat)
+    width = 4096
+    pad = (-n) % width
+    maps = np.concatenate([flat, np.full((pad, 2), -1e6, np.float32)]).reshape(-1, width, 2)
+    out = np.empty((image.shape[0], n), np.float32)
+    for b, band in enumerate(image):
+        band = np.ascontiguousarray(band, dtype=np.float32)
+        s = cv2.remap(
+            band,
+            maps[..., 0],
+            maps[..., 1],
+            INTERPOLATION[interp],
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=np.nan,
+        )
+        out[b] = s.reshape(-1)[:n]
+    out[:, ~np.isfinite(flat).all(axis=1)] = np.nan
+    return out.reshape((image.shape[0], *shape))
+
+
+def orthorectify(
+    terrain: Terrain,
+    image: np.ndarray,
+    camera: PinholeCamera,
+    occlusion: bool = True,
+    eps: float | None = None,
+    interp: str = "bilinear",
+    visibility: Visibility | None = None,
+    caster: RayCaster | None = None,
+    progress: bool = False,
+    post_scale: float = 1.0,
+) -> Ortho:
+    """Orthophoto of ``image`` (bands, rows, cols) through ``camera`` onto ``terrain``'s grid.
+
+    With ``occlusion`` only visible posts (code 1) get values; without it, every post that
+    projects inside the image does (the naive orthophoto, facing-away and occluded included).
+    """
+    camera = check_image(image, camera)
+    vis = visibility or compute_visibility(
+        terrain, camera, eps, caster, progress, post_scale=post_scale
+    )
+    data = sample_image(image, vis.uv, interp)
+    keep = vis.codes == VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)
+    data[:, ~keep] = np.nan
+    return Ortho(data, terrain.transform, terrain.crs, vis)
+
+
+def mosaic(
+    terrain: Terrain,
+    views: list[tuple[np.ndarray, PinholeCamera]],
+    eps: float | None = None,
+    interp: str = "bilinear",
+    progress: bool = False,
+) -> Mosaic:
+    """One orthophoto from several (image, camera) views: each post from its best visible view
+    (smallest emission angle). All images must have the same number of bands."""
+    if not views:
+        raise InputError("a mosaic needs at least one image")
+    bands = {img.shape[0] for img, _ in views}
+    if len(bands) != 1:
+        raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
+    caster = RayCaster(terrain_mesh(terrain))
+    rows, cols = terrain.shape
+    data = np.full((bands.pop(), rows, cols), np.nan, np.float32)
+    source = np.zeros((rows, cols), np.uint8)
+    best = np.full((rows, cols), np.inf)
+    visibilities = []
+    for k, (image, camera) in enumerate(views, start=1):
+        ortho = orthorectify(
+            terrain, image, camera, True, eps, interp, caster=caster, progress=progress
+        )
+        vis = ortho.visibility
+        visibilities.append(vis)
+        better = (vis.codes == VISIBLE) & (vis.emission < best) & np.isfinite(ortho.data).all(0)
+        data[:, better] = ortho.data[:, better]
+        source[better] = k
+        best[better] = vis.emission[better]
+    return Mosaic(data, source, terrain.transform, terrain.crs, visibilities)

@@ -1,0 +1,184 @@
+"""Visibility, orthophotos and mosaics on the crater scene, scored against marched truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from affine import Affine
+from pyproj import CRS
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.epsstudy import classify, eps_study
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.ortho import mosaic, orthorectify, sample_image
+from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
+from orthomvp.synth import look_at
+from orthomvp.terrain import Terrain, unit_vector
+from orthomvp.visibility import compute_visibility, default_eps
+
+
+@pytest.fixture(scope="module")
+def scene(crater_dir):
+    return load_scene(crater_dir)
+
+
+def test_visibility_f1_against_marched_truth(scene) -> None:
+    view = scene.views["oblique"]
+    vis = compute_visibility(scene.terrain, view.camera)
+    keep = away_from_boundaries(view.truth)
+    scores = classification_scores(vis.codes, view.truth, keep)
+    assert scores["f1_visible"] >= 0.99, scores
+    assert scores["f1_hidden"] >= 0.95, scores
+    # the facing-away class on its own, and occlusion on its own
+    for code in (2, 3):
+        t, p = (view.truth == code) & keep, (vis.codes == code) & keep
+        assert (t & p).sum() / max(t.sum(), 1) > 0.95
+    nadir = compute_visibility(scene.terrain, scene.views["nadir"].camera)
+    assert (nadir.codes == 1).all()
+
+
+def test_orthophoto_has_no_ghosts_and_matches_radiance(scene) -> None:
+    view = scene.views["oblique"]
+    keep = away_from_boundaries(view.truth)
+    hidden = np.isin(view.truth, (2, 3)) & keep
+    ortho = orthorectify(scene.terrain, view.image, view.camera)
+    naive = orthorectify(scene.terrain, view.image, view.camera, occlusion=False)
+    ghosts = (np.isfinite(ortho.data[0]) & hidden).sum()
+    assert hidden.sum() > 100
+    assert ghosts <= 0.005 * hidden.sum(), f"{ghosts} ghosts among {hidden.sum()} hidden posts"
+    assert np.isfinite(naive.data[0])[hidden].all()  # the naive orthophoto fills them all
+    visible = (view.truth == 1) & keep & np.isfinite(ortho.data[0])
+    corr = np.corrcoef(ortho.data[0][visible], scene.radiance[visible])[0, 1]
+    assert corr >= 0.98, f"orthophoto vs true radiance: r = {corr:.4f}"
+    assert ortho.transform == scene.terrain.transform and ortho.data.dtype == np.float32
+
+
+def test_mosaic_fills_hidden_posts(scene) -> None:
+    oblique, nadir = scene.views["oblique"], scene.views["nadir"]
+    result = mosaic(scene.terrain, [(oblique.image, oblique.camera), (nadir.image, nadir.camera)])
+    hidden = np.isin(oblique.truth, (2, 3)) & away_from_boundaries(oblique.truth)
+    filled = np.isfinite(result.data[0])[hidden].mean()
+    assert filled >= 0.99
+    assert (result.source[hidden] == 2).all()
+    # where both see a post, the smaller emission angle wins
+    both = (result.visibilities[0].codes == 1) & (result.visibilities[1].codes == 1)
+    e0, e1 = result.visibilities[0].emission, result.visibilities[1].emission
+    np.testing.assert_array_equal(result.source[both], np.where(e0 < e1, 1, 2)[both])
+    visible = np.isfinite(result.data[0]) & away_from_boundaries(oblique.truth)
+    assert np.corrcoef(result.data[0][visible], scene.radiance[visible])[0, 1] > 0.98
+
+
+def test_eps_rule_and_study(crater_dir) -> None:
+    np.testing.assert_array_equal(default_eps(np.array([0.5, 4.0, 7.5])), [4.0, 4.0, 7.5])
+    rows = eps_study(crater_dir, eps_values=(0.05, 4.0, 500.0))
+    oblique = {r["eps"]: r for r in rows if r["view"] == "oblique"}
+    assert oblique["default"]["f1_visible"] >= 0.99
+    # an epsilon larger than the tile lets every occluded post through: recall of hidden drops
+    assert oblique[500.0]["recall_hidden"] < oblique[4.0]["recall_hidden"]
+
+
+def test_classify_matches_a_fresh_run(scene) -> None:
+    view = scene.views["oblique"]
+    vis = compute_visibility(scene.terrain, view.camera)
+    again = compute_visibility(scene.terrain, view.camera, eps=1.5)
+    np.testing.assert_array_equal(classify(vis, 1.5), again.codes)
+
+
+def test_sample_image_against_exact_bilinear() -> None:
+    rng = np.random.default_rng(0)
+    img = rng.random((2, 30, 40)).astype(np.float32)
+    uv = np.column_stack([rng.uniform(0, 39, 500), rng.uniform(0, 29, 500)])
+    out = sample_image(img, uv, "bilinear")
+    c0, r0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    fx, fy = uv[:, 0] - c0, uv[:, 1] - r0
+    c1, r1 = np.minimum(c0 + 1, 39), np.minimum(r0 + 1, 29)
+    for b in range(2):
+        i = img[b]
+        expected = (
+            i[r0, c0] * (1 - fx) * (1 - fy)
+            + i[r0, c1] * fx * (1 - fy)
+            + i[r1, c0] * (1 - fx) * fy
+            + i[r1, c1] * fx * fy
+        )
+        np.testing.assert_allclose(out[b], expected, atol=2e-3)  # cv2 uses 5-bit weights
+    nearest = sample_image(img, np.array([[3.2, 4.7], [np.nan, 1.0], [-5.0, 2.0]]), "nearest")
+    assert nearest[0, 0] == img[0, 5, 3] and np.isnan(nearest[:, 1:]).all()
+
+
+def _flat_terrain() -> Terrain:
+    step = np.degrees(50.0 / 1737400.0)
+    return Terrain(
+        np.zeros((40, 40)),
+        Affine(step, 0, 10.0, 0, -step, 0.5),
+        CRS.from_proj4("+proj=longlat +R=1737400"),
+    )
+
+
+def _camera_at(terrain: Terrain, height: float, offset_m: float = 0.0) -> PinholeCamera:
+    lon, lat = terrain.pixel_to_lonlat(np.array(19.5), np.array(19.5))
+    up = unit_vector(lon, lat)
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    north = np.cross(up, east)
+    target = 1737400.0 * up + offset_m * east
+    centre = (1737400.0 + height) * up + offset_m * east
+    return PinholeCamera(
+        2000.0, 2000.0, 100.0, 100.0, centre, look_at(centre, target, north), width=200, height=200
+    )
+
+
+def test_bad_geometry_is_reported() -> None:
+    terrain = _flat_terrain()
+    good = _camera_at(terrain, 100_000.0)
+    assert (compute_visibility(terrain, good).codes == 1).all()
+    below = _camera_at(terrain, -5_000.0)
+    with pytest.raises(GeometryError, match="behind|below|faces away"):
+        compute_visibility(terrain, below)
+    aside = _camera_at(terrain, 100_000.0, offset_m=60_000.0)
+    with pytest.raises(GeometryError, match="does not cover"):
+        compute_visibility(terrain, aside)
+    with pytest.raises(InputError, match="image size"):
+        compute_visibility(terrain, good.with_image_size(None, None))
+    with pytest.raises(InputError, match="eps"):
+        compute_visibility(terrain, good, eps=-1.0)
+    image = np.ones((1, 100, 100), np.float32)
+    with pytest.raises(InputError, match="camera says"):
+        orthorectify(terrain, image, good)
+
+
+def test_partial_coverage_and_holes() -> None:
+    terrain = _flat_terrain()
+    values = terrain.values.copy()
+    values[5:9, 5:9] = np.nan
+    terrain = terrain.with_values(values)
+    cam = _camera_at(terrain, 100_000.0).with_image_size(110, 200)  # cuts off the east side
+    image = np.ones((3, 200, 110), np.float32)
+    ortho = orthorectify(terrain, image, cam)
+    codes = ortho.visibility.codes
+    assert np.isnan(ortho.data[:, 5:9, 5:9]).all() and (codes[5:9, 5:9] == 0).all()
+    # posts next to the hole keep a normal (one-sided differences) and stay visible
+    assert (codes[4, 4:10] == 1).all() and (codes[9, 4:10] == 1).all()
+    assert (codes[:, :25] != 0).sum() == 25 * 40 - 16 and (codes[:, -5:] == 0).all()
+    assert ortho.data.shape == (3, 40, 40)
+
+
+def test_interpolate_and_regrid() -> None:
+    t = _flat_terrain()
+    c, r = t.grid()
+    linear = t.with_values(3.0 * c - 2.0 * r + 7.0)
+    rng = np.random.default_rng(2)
+    cc, rr = rng.uniform(0, 39, 300), rng.uniform(0, 39, 300)
+    np.testing.assert_allclose(linear.interpolate(cc, rr), 3.0 * cc - 2.0 * rr + 7.0)
+    assert np.isnan(linear.interpolate(np.array([-0.1, 39.2]), np.array([3.0, 3.0]))).all()
+    # on a curved surface, integer positions give the posts back
+    curved = t.with_values(np.sin(c / 3.0) * np.cos(r / 5.0) * 100)
+    np.testing.assert_allclose(curved.interpolate(c, r), curved.values)
+    # regridding at half the pixel size: new posts sit between the old ones
+    half = linear.regrid(res=(abs(t.transform.a) / 2, abs(t.transform.e) / 2))
+    assert half.shape == (80, 80)
+    oc, orow = t.crs_to_pixel(*half.pixel_to_crs(*half.grid()))
+    np.testing.assert_allclose(oc[0, :3], [-0.25, 0.25, 0.75])
+    inside = np.isfinite(half.values)
+    np.testing.assert_allclose(half.values[inside], (3.0 * oc - 2.0 * orow + 7.0)[inside])
+    assert inside.sum() == 78 * 78
+    with pytest.raises(InputError, match="overlap"):
+        t.regrid(bounds=(50.0, 10.0, 51.0, 11.0))
