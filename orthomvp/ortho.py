@@ -119,7 +119,7 @@ def orthorectify(
     """
     camera = check_image(image, camera)
     vis = visibility or compute_visibility(
-        terrain, camera, eps, caster, progress, post_scale=post_scale
+        terrain, camera, eps, caster, progress, post_scale=post_scale, occlusion=occlusion
     )
     data = sample_image(image, vis.uv, interp)
     keep = vis.codes == VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)

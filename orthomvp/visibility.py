@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
@@ -113,6 +113,7 @@ def compute_visibility(
     progress: bool = False,
     threads: int | None = None,
     post_scale: float = 1.0,
+    occlusion: bool = True,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -120,7 +121,8 @@ def compute_visibility(
     built on this terrain's mesh otherwise). When ``terrain`` is a resampled output grid and
     ``caster`` holds the original DEM, ``post_scale`` is the size of one grid post in DEM
     posts, so that eps and the reported misses stay in DEM posts. Work is done in tiles of
-    posts, in parallel.
+    posts, in parallel. With ``occlusion=False`` no ray is cast: posts inside the image and
+    facing the camera are all called visible (what a naive orthophoto assumes).
     """
     if camera.width is None or camera.height is None:
         raise InputError("the camera needs its image size (width, height) for visibility")
@@ -156,11 +158,14 @@ def compute_visibility(
         spacing = np.mean(terrain.post_spacing()) / post_scale
         t_eps = np.full(p.shape[:-1], float(eps)) if eps else default_eps(t_gsd / spacing)
         facing = cos_e > 0
-        cast = inside & facing
+        cast = inside & facing & occlusion
         t_codes = np.where(inside, np.where(facing, VISIBLE, FACING_AWAY), NODATA).astype(np.uint8)
         t_miss = np.full(p.shape[:-1], np.nan)
         if cast.any():
-            _, d = camera.ray(t_uv[cast])
+            if isinstance(camera.distortion, NullDistortion):
+                d = p[cast] - camera.center  # the pinhole's own ray through the post's pixel
+            else:
+                _, d = camera.ray(t_uv[cast])
             hits = caster.first_hit(camera.center, d)
             dist = np.full(len(d), np.inf)
             if hits.mask.any():

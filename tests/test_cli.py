@@ -142,6 +142,6 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
 def test_demo(tmp_path: Path) -> None:
     proc = run("demo", str(tmp_path / "demo"))
     assert proc.returncode == 0, proc.stderr
-    for name in ("overview.png", "crater.ply", "crater.glb", "scene/dem.tif"):
+    for name in ("overview.png", "orthophotos.png", "crater.ply", "crater.glb", "mosaic.tif"):
         assert (tmp_path / "demo" / name).is_file(), name
-    assert "agree with the marched truth" in proc.stdout
+    assert "ghosts among" in proc.stdout and "orthomvp 0" in proc.stdout

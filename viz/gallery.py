@@ -6,10 +6,12 @@ Run from the repository root: ``python viz/gallery.py``. Pictures from the real 
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from pathlib import Path
 
-from orthomvp.demo import DEMO_SIZE, overview_figure
+from orthomvp.demo import run_demo
+from orthomvp.epsstudy import eps_study, plot, write_csv
 from orthomvp.synth import make_scene
 
 HERE = Path(__file__).resolve().parent
@@ -17,10 +19,22 @@ HERE = Path(__file__).resolve().parent
 
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
-        scene_dir = Path(tmp) / "scene"
-        make_scene("crater", size=DEMO_SIZE, spacing=50.0).write(scene_dir)
-        overview_figure(scene_dir, HERE / "overview.png")
-    print(f"wrote {HERE / 'overview.png'}")
+        demo = Path(tmp) / "demo"
+        run_demo(demo, quiet=True)
+        for name in ("overview.png", "orthophotos.png"):
+            shutil.copy(demo / name, HERE / name)
+        # the epsilon study behind the default rule: the default crater scene (40 m posts,
+        # image GSD 0.8 posts) and DEMs with 0, 5 and 10 m of noise
+        scene = Path(tmp) / "crater"
+        make_scene("crater").write(scene)
+        rows = eps_study(scene, noise=(0.0, 5.0, 10.0))
+        write_csv(rows, HERE / "eps-study.csv")
+        plot(
+            rows,
+            HERE / "eps-study.png",
+            "crater scene, oblique view: visibility test vs marched truth (dotted: default)",
+        )
+    print(f"wrote the README pictures into {HERE}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,86 @@
+"""Matplotlib figures for the demo, the README gallery and reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from orthomvp.raster import atomic_path
+
+VIS_COLOURS = ["#404040", "#d9d9d9", "#2ca02c", "#1f3b73"]
+VIS_LABELS = ["outside / no data", "visible", "occluded", "facing away"]
+
+
+def _pyplot():  # noqa: ANN202
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: str | Path) -> None:  # noqa: ANN001
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format=Path(path).suffix.lstrip(".") or "png")
+    _pyplot().close(fig)
+
+
+def _visibility_axes(ax, codes: np.ndarray, title: str) -> None:  # noqa: ANN001
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    ax.imshow(codes, cmap=ListedColormap(VIS_COLOURS), vmin=-0.5, vmax=3.5, interpolation="nearest")
+    ax.set_title(title)
+    present = [k for k in range(4) if (codes == k).any()]
+    handles = [Patch(color=VIS_COLOURS[k], label=VIS_LABELS[k]) for k in present]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2, fontsize=8)
+
+
+def scene_overview(
+    dem: np.ndarray,
+    spacing: float,
+    image: np.ndarray,
+    truth: np.ndarray,
+    path: str | Path,
+    view: str = "oblique",
+) -> None:
+    """Shaded DEM, a rendered image and its truth visibility side by side."""
+    from matplotlib.colors import LightSource
+
+    plt = _pyplot()
+    shade = LightSource(azdeg=315, altdeg=35).hillshade(dem, dx=spacing, dy=spacing)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.8), constrained_layout=True)
+    axes[0].imshow(shade, cmap="gray")
+    axes[0].set_title("DEM (shaded relief)")
+    axes[1].imshow(image, cmap="gray")
+    axes[1].set_title(f"rendered '{view}' image (raw frame)")
+    _visibility_axes(axes[2], truth, "truth visibility of that view")
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    _save(fig, path)
+
+
+def ortho_comparison(
+    naive: np.ndarray, aware: np.ndarray, mosaic: np.ndarray, path: str | Path
+) -> None:
+    """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), constrained_layout=True)
+    finite = np.concatenate([a[np.isfinite(a)] for a in (naive, aware, mosaic)])
+    lo, hi = np.percentile(finite, [1, 99])
+    titles = [
+        "naive orthophoto (ghosts in the hidden areas)",
+        "orthomvp: occluded posts left empty",
+        "mosaic: filled from the near-nadir view",
+    ]
+    for ax, img, title in zip(axes, (naive, aware, mosaic), titles, strict=True):
+        ax.set_facecolor("#c0392b")
+        ax.imshow(np.ma.masked_invalid(img), cmap="gray", vmin=lo, vmax=hi)
+        ax.set_title(title, fontsize=10)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.text(0.5, 0.01, "red: nodata", ha="center", fontsize=9, color="#c0392b")
+    _save(fig, path)
