@@ -105,10 +105,14 @@ def colours_from_raster(data: np.ndarray, tmesh: TerrainMesh) -> np.ndarray:
     percentiles; NaN becomes mid grey.
     """
     arr = np.asarray(data)
-    if arr.ndim == 3 and arr.shape[0] in (1, 3, 4) and arr.shape[1:] == tmesh.grid_shape:
-        arr = np.moveaxis(arr, 0, -1)
+    if arr.ndim == 3 and arr.shape[1:] == tmesh.grid_shape and arr.shape[2] not in (3, 4):
+        arr = np.moveaxis(arr[:3] if arr.shape[0] >= 3 else arr[:1], 0, -1)
     if arr.shape[:2] != tmesh.grid_shape:
-        raise InputError(f"texture raster is {arr.shape[:2]}, the DEM grid is {tmesh.grid_shape}")
+        size = arr.shape[1:] if arr.ndim == 3 and arr.shape[0] < 5 else arr.shape[:2]
+        raise InputError(
+            f"the texture raster is {size[1]} x {size[0]} (columns x rows) but the DEM grid is "
+            f"{tmesh.grid_shape[1]} x {tmesh.grid_shape[0]}: give a raster on the DEM grid"
+        )
     if arr.ndim == 2:
         arr = arr[..., None]
     if arr.shape[-1] == 1:

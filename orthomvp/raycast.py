@@ -106,8 +106,9 @@ class RayCaster:
             sl = slice(s, min(s + CHUNK, n))
             self._cast_chunk(o[sl], unit[sl], dist[sl], tri[sl], bary[sl])
 
-        # Embree calls run one per thread; Open3D threads inside each call.
-        if self.backend == "embree" and self.threads > 1 and n > CHUNK:
+        # Chunks run in parallel threads (both backends release the GIL): Embree calls are
+        # single-threaded, and for Open3D the float64 work on one chunk overlaps the next cast.
+        if self.threads > 1 and n > CHUNK:
             with ThreadPoolExecutor(self.threads) as pool:
                 list(pool.map(work, starts))
         else:

@@ -259,18 +259,6 @@ class Terrain:
             return lon
         return self.centre_lon + (lon - self.centre_lon + np.pi) % (2 * np.pi) - np.pi
 
-    def value_to_height(self, value: np.ndarray, lat: np.ndarray) -> np.ndarray:
-        """DEM values to heights above the reference surface (identity unless radius values)."""
-        if not self.radius_values:
-            return np.asarray(value, dtype=np.float64)
-        return np.asarray(value, dtype=np.float64) - self.reference_radius(lat)
-
-    def reference_radius(self, lat: np.ndarray) -> np.ndarray:
-        """Distance from the body centre to the reference surface at planetocentric ``lat``."""
-        a, b = self.radii
-        lat = np.asarray(lat, dtype=np.float64)
-        return a * b / np.hypot(b * np.cos(lat), a * np.sin(lat))
-
     # ---------------------------------------------------------------- map <-> world frame
     def to_world(self, c: np.ndarray, r: np.ndarray, value: np.ndarray) -> np.ndarray:
         """Eqs. (1)-(4): pixel-centre ``(c, r)`` with DEM ``value`` to world xyz, (..., 3) metres.
