@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -413,6 +414,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug, not a user error: still one line, unless debugging
+        if os.environ.get("ORTHOMVP_DEBUG"):
+            raise
+        print(
+            f"orthomvp: error: internal error ({type(exc).__name__}: {exc}); rerun with "
+            "ORTHOMVP_DEBUG=1 for a traceback and please report it",
+            file=sys.stderr,
+        )
+        return 2
     return 0
 
 
