@@ -17,7 +17,7 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import orthorectify
 from orthomvp.raycast import BACKENDS, RayCaster
-from orthomvp.synth import look_at
+from orthomvp.synth import ViewSpec, orbital_camera
 from orthomvp.terrain import Terrain, unit_vector
 
 LUNAR_CRS = "+proj=longlat +R=1737400 +no_defs"
@@ -103,25 +103,10 @@ def format_raycast(rows: list[dict]) -> str:
 
 
 def bench_camera(terrain: Terrain, emission_deg: float = 30.0) -> PinholeCamera:
-    """A camera 110 km up, ``emission_deg`` off the vertical at the tile centre, whose image
+    """A camera 110 km up, ``emission_deg`` off the vertical towards the east, whose image
     (about one pixel per post) covers the whole DEM."""
-    rows, cols = terrain.shape
-    lon, lat = terrain.pixel_to_lonlat(np.array((cols - 1) / 2), np.array((rows - 1) / 2))
-    up = unit_vector(lon, lat)
-    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
-    north = np.cross(up, east)
-    target = (1737400.0 + float(np.nanmedian(terrain.values))) * up
-    e = np.radians(emission_deg)
-    dist = 110_000.0 / np.cos(e)
-    centre = target + dist * (np.sin(e) * east + np.cos(e) * up)
-    rot = look_at(centre, target, north)
-    f = dist / np.mean(terrain.post_spacing())
-    cam = PinholeCamera(f, f, 0.0, 0.0, centre, rot)
-    c, r = terrain.grid()
-    uv, _ = cam.project(terrain.world_points()[:: max(rows // 50, 1), :: max(cols // 50, 1)])
-    lo, hi = np.nanmin(uv.reshape(-1, 2), axis=0) - 4, np.nanmax(uv.reshape(-1, 2), axis=0) + 4
-    w, h = (int(np.ceil(v)) for v in hi - lo)
-    return PinholeCamera(f, f, -lo[0], -lo[1], centre, rot, width=w, height=h)
+    view = ViewSpec("bench", emission_deg, 90.0)
+    return orbital_camera(terrain, view, float(np.mean(terrain.post_spacing())))
 
 
 def bench_ortho(size: int = 2000) -> dict:

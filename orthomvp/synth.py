@@ -324,10 +324,8 @@ def _hills(extent: float, rng: np.random.Generator) -> tuple[Callable, dict]:
 def _plane(lon0: float, lat0: float, rng: np.random.Generator) -> tuple[Callable, dict]:
     """A true 3D plane through the point at height -1500 m above the tile centre, tilted by a
     few degrees; its height above the sphere is n.x0 / n.e - R (eq. 14)."""
-    e0 = unit_vector(np.array(lon0), np.array(lat0))
+    e0, east, north = local_frame(lon0, lat0)
     x0 = (MOON_RADIUS - 1500.0) * e0
-    east = np.array([-np.sin(lon0), np.cos(lon0), 0.0])
-    north = np.cross(e0, east)
     tilt, az = np.radians(rng.uniform(4, 8)), rng.uniform(0, 2 * np.pi)
     n = np.cos(tilt) * e0 + np.sin(tilt) * (np.cos(az) * east + np.sin(az) * north)
     scale_x = MOON_RADIUS * np.cos(lat0)
@@ -365,6 +363,13 @@ VIEWS = {
     ],
 }
 DEFAULTS = {"planar": (64, 40.0), "crater": (160, 40.0), "hills": (128, 30.0)}
+
+
+def local_frame(lon: float, lat: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Body-fixed unit vectors (up, east, north) at planetocentric ``lon``, ``lat`` (radians)."""
+    up = unit_vector(np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64))
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    return up, east, np.cross(up, east)
 
 
 def look_at(centre: np.ndarray, target: np.ndarray, north: np.ndarray) -> np.ndarray:
@@ -413,14 +418,11 @@ def make_scene(
         dlon, 0, lonlat_deg[0] - dlon * size / 2, 0, -dlat, lonlat_deg[1] + dlat * size / 2
     )
     grid = Terrain(np.zeros((size, size)), transform, CRS.from_proj4(MOON_CRS), name=kind)
-    e0 = unit_vector(np.array(lon0), np.array(lat0))
-    east = np.array([-np.sin(lon0), np.cos(lon0), 0.0])
-    north = np.cross(e0, east)
+    e0, east, north = local_frame(lon0, lat0)
     sun_el, sun_az = np.radians(40.0), np.radians(120.0)
     sun = np.cos(sun_el) * (np.sin(sun_az) * east + np.cos(sun_az) * north) + np.sin(sun_el) * e0
     scene = Scene(kind, grid, height, albedo, lon0, lat0, sun, {})
     terrain = scene.terrain = grid.with_values(height(*scene.post_local()))
-    heights = terrain.values
     scene.info.update(
         spacing=spacing,
         seed=seed,
@@ -429,27 +431,39 @@ def make_scene(
         gsd={},
         extra=extra,
     )
-    target = (MOON_RADIUS + float(np.median(heights))) * e0
-    corners = terrain.to_world(
-        np.array([0, size - 1, 0, size - 1] * 2, float),
-        np.array([0, 0, size - 1, size - 1] * 2, float),
-        np.repeat([heights.min(), heights.max()], 4),
-    )
+    gsd = gsd_ratio * spacing
     for view in VIEWS[kind]:
-        em, az = np.radians(view.emission), np.radians(view.azimuth)
-        horiz = np.sin(az) * east + np.cos(az) * north
-        # Camera `altitude` above the target, seen at emission angle `em` from the target.
-        dist = view.altitude / np.cos(em)
-        centre = target + dist * (np.sin(em) * horiz + np.cos(em) * e0)
-        rot = look_at(centre, target, north)
-        gsd = gsd_ratio * spacing
-        f = dist / gsd
-        cam = PinholeCamera(f, f, 0.0, 0.0, centre, rot)
-        uv, _ = cam.project(corners)
-        lo, hi = uv.min(axis=0) - 6, uv.max(axis=0) + 6
-        width, height_px = (int(np.ceil(v)) for v in hi - lo)
-        cam = PinholeCamera(f, f, -lo[0], -lo[1], centre, rot, width=width, height=height_px)
-        scene.cameras[view.name] = cam
+        scene.cameras[view.name] = orbital_camera(terrain, view, gsd)
         scene.info["emission"][view.name] = view.emission
         scene.info["gsd"][view.name] = gsd
     return scene
+
+
+def orbital_camera(
+    terrain: Terrain, view: ViewSpec, gsd: float, margin: float = 6.0
+) -> PinholeCamera:
+    """A pinhole camera placed as ``view`` says over the centre of a body-frame ``terrain``,
+    looking at that centre (at the median height), with ground sample distance ``gsd`` metres
+    there and an image just large enough (plus ``margin`` pixels) to hold the whole DEM."""
+    rows, cols = terrain.shape
+    up, east, north = local_frame(
+        *terrain.pixel_to_lonlat(np.array((cols - 1) / 2), np.array((rows - 1) / 2))
+    )
+    heights = terrain.values[terrain.valid]
+    target = (terrain.radii[0] + float(np.median(heights))) * up
+    corners = terrain.to_world(
+        np.array([0, cols - 1, 0, cols - 1] * 2, float),
+        np.array([0, 0, rows - 1, rows - 1] * 2, float),
+        np.repeat([heights.min(), heights.max()], 4),
+    )
+    em, az = np.radians(view.emission), np.radians(view.azimuth)
+    horiz = np.sin(az) * east + np.cos(az) * north
+    # `altitude` above the target, seen from the target at emission angle `em`
+    dist = view.altitude / np.cos(em)
+    centre = target + dist * (np.sin(em) * horiz + np.cos(em) * up)
+    rot = look_at(centre, target, north)
+    f = dist / gsd
+    uv, _ = PinholeCamera(f, f, 0.0, 0.0, centre, rot).project(corners)
+    lo, hi = uv.min(axis=0) - margin, uv.max(axis=0) + margin
+    width, height = (int(np.ceil(v)) for v in hi - lo)
+    return PinholeCamera(f, f, -lo[0], -lo[1], centre, rot, width=width, height=height)
