@@ -36,7 +36,11 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
         oblique, nadir = scene.views["oblique"], scene.views["nadir"]
         aware = orthorectify(terrain, oblique.image, oblique.camera, caster=caster)
         naive = orthorectify(terrain, oblique.image, oblique.camera, occlusion=False, caster=caster)
-        mos = mosaic(terrain, [(oblique.image, oblique.camera), (nadir.image, nadir.camera)])
+        mos = mosaic(
+            terrain,
+            [(oblique.image, oblique.camera), (nadir.image, nadir.camera)],
+            caster=caster,
+        )
         for name, data in (
             ("oblique-ortho.tif", aware.data),
             ("oblique-naive.tif", naive.data),

@@ -19,7 +19,7 @@ from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
-from orthomvp.visibility import Visibility, compute_visibility, default_eps
+from orthomvp.visibility import Visibility, compute_visibility
 
 DEFAULT_EPS_VALUES = tuple(np.round(np.geomspace(0.02, 20, 19), 3))
 CSV_FIELDS = (
@@ -63,9 +63,8 @@ def eps_study(
         for name, view in scene.views.items():
             vis = compute_visibility(terrain, view.camera, caster=caster)
             keep = away_from_boundaries(view.truth)
-            spacing = np.mean(terrain.post_spacing())
-            rule = default_eps(vis.gsd / spacing)
-            for eps, label in [(e, float(e)) for e in eps_values] + [(rule, "default")]:
+            # vis.eps holds the default rule (no eps was given) at every post that was cast
+            for eps, label in [(e, float(e)) for e in eps_values] + [(vis.eps, "default")]:
                 scores = classification_scores(classify(vis, eps), view.truth, keep)
                 rows.append({"noise_m": sigma, "view": name, "eps": label, **scores})
     return rows

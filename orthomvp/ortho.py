@@ -133,15 +133,17 @@ def mosaic(
     eps: float | None = None,
     interp: str = "bilinear",
     progress: bool = False,
+    caster: RayCaster | None = None,
 ) -> Mosaic:
     """One orthophoto from several (image, camera) views: each post from its best visible view
-    (smallest emission angle). All images must have the same number of bands."""
+    (smallest emission angle). All images must have the same number of bands. ``caster``
+    reuses a ray caster built on this terrain's mesh (one is built otherwise)."""
     if not views:
         raise InputError("a mosaic needs at least one image")
     bands = {img.shape[0] for img, _ in views}
     if len(bands) != 1:
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
-    caster = RayCaster(terrain_mesh(terrain))
+    caster = caster or RayCaster(terrain_mesh(terrain))
     rows, cols = terrain.shape
     data = np.full((bands.pop(), rows, cols), np.nan, np.float32)
     source = np.zeros((rows, cols), np.uint8)

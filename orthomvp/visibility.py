@@ -137,6 +137,7 @@ def compute_visibility(
     gsd = np.full((rows, cols), np.nan)
     eps_out = np.full((rows, cols), np.nan)
     focal = 0.5 * (camera.fu + camera.fv) / camera.pitch
+    spacing = np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -155,7 +156,6 @@ def compute_visibility(
         rng = np.linalg.norm(to_cam, axis=-1)
         cos_e = np.einsum("...i,...i->...", n, to_cam) / rng
         t_gsd = rng / focal / np.maximum(cos_e, 0.1)
-        spacing = np.mean(terrain.post_spacing()) / post_scale
         t_eps = np.full(p.shape[:-1], float(eps)) if eps else default_eps(t_gsd / spacing)
         facing = cos_e > 0
         cast = inside & facing & occlusion
