@@ -214,6 +214,56 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dem_options(p)
 
     p = sub.add_parser(
+        "fit",
+        help="refine the DEM with the multi-view plane fitter (MVP)",
+        description="Fit a plane (height, normal) at every DEM post to the images in which "
+        "the post is visible, so that the images projected onto it agree (MVP paper eqs. "
+        "11-21; coarse to fine, Levenberg-Marquardt, outlier views dropped). Writes the "
+        "refined DEM (heights in the input's convention, NaN where fewer than 2 views see a "
+        "post) and, on request, the other per-post results, all on the DEM grid.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("pairs", type=Path, nargs="+", metavar="IMAGE CAMERA")
+    p.add_argument("-o", "--output", type=Path, required=True, help="FITTED.tif")
+    p.add_argument(
+        "--normals",
+        type=Path,
+        metavar="N.tif",
+        help="write the fitted normals: n_theta, n_phi (eq. 11, degrees) and the tilt from the "
+        "local vertical (degrees)",
+    )
+    p.add_argument("--cost", type=Path, metavar="C.tif", help="write the final cost (eq. 20)")
+    p.add_argument("--views", type=Path, metavar="V.tif", help="write the number of views used")
+    p.add_argument(
+        "--uncertainty",
+        type=Path,
+        metavar="U.tif",
+        help="write the 1-sigma height uncertainty (metres) and a converged flag (band 2)",
+    )
+    p.add_argument("--hwin", type=int, default=10, help="window half-size in posts (10)")
+    p.add_argument("--sigma", type=float, help="Gaussian window sigma in posts (default hwin / 2)")
+    p.add_argument(
+        "--levels", type=int, default=3, help="coarse-to-fine pyramid levels (3; 1 = off)"
+    )
+    p.add_argument(
+        "--reject-below",
+        type=float,
+        default=0.5,
+        metavar="RHO",
+        help="drop a view whose patch correlates with the other views' mean below RHO (0.5)",
+    )
+    p.add_argument("--no-reject", action="store_true", help="keep every view (no outliers)")
+    p.add_argument(
+        "--deconvolve",
+        type=int,
+        default=1,
+        metavar="STEPS",
+        help="Van Cittert steps from plane heights to surface heights (1; 0 = plane heights)",
+    )
+    _add_eps_option(p)
+    _add_dem_options(p)
+
+    p = sub.add_parser(
         "eps-study",
         help="sweep the visibility tolerance on a synthetic scene with truth",
         description="Score the visibility test against the marched truth of a scene written "
@@ -361,6 +411,62 @@ def _cmd_mosaic(args: argparse.Namespace) -> None:
     print(f"wrote {args.output}: {parts}; {counts[0]:,} posts visible in no image")
 
 
+def _cmd_fit(args: argparse.Namespace) -> None:
+    from orthomvp.errors import InputError
+    from orthomvp.mvp import FitOptions, fit_dem
+    from orthomvp.raster import write_geotiff
+
+    if len(args.pairs) % 2:
+        raise InputError("fit needs IMAGE CAMERA pairs: got an odd number of files")
+    if len(args.pairs) < 4:
+        raise InputError("fit needs at least 2 IMAGE CAMERA pairs")
+    if args.hwin < 1 or (args.sigma is not None and not args.sigma > 0) or args.levels < 1:
+        raise InputError("--hwin and --levels must be >= 1 and --sigma positive")
+    terrain = _read_terrain(args)
+    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    opts = FitOptions(
+        hwin=args.hwin,
+        sigma=args.sigma,
+        levels=args.levels,
+        reject_below=None if args.no_reject else args.reject_below,
+        deconvolve=max(args.deconvolve, 0),
+    )
+    res = fit_dem(
+        terrain,
+        [v[0] for v in views],
+        [v[1] for v in views],
+        opts,
+        eps=args.eps,
+        progress=not args.quiet,
+    )
+    t, crs = terrain.transform, terrain.crs
+    write_geotiff(args.output, res.heights.astype(np.float32), t, crs, nodata=np.nan)
+    if args.normals:
+        up = terrain.up_vectors(terrain.world_points())
+        tilt = np.degrees(np.arccos(np.clip(np.sum(res.normals * up, axis=-1), -1, 1)))
+        bands = np.stack([res.n_theta, res.n_phi, tilt]).astype(np.float32)
+        names = ["n_theta_deg", "n_phi_deg", "tilt_deg"]
+        write_geotiff(args.normals, bands, t, crs, nodata=np.nan, band_names=names)
+    if args.cost:
+        write_geotiff(args.cost, res.cost.astype(np.float32), t, crs, nodata=np.nan)
+    if args.views:
+        write_geotiff(args.views, res.views.astype(np.uint8), t, crs)
+    if args.uncertainty:
+        bands = np.stack([res.sigma_h, np.where(res.resolved, res.converged, np.nan)])
+        names = ["sigma_h_m", "converged"]
+        write_geotiff(
+            args.uncertainty, bands.astype(np.float32), t, crs, nodata=np.nan, band_names=names
+        )
+    ok = res.resolved
+    shift = res.heights[ok] - res.initial[ok]
+    print(
+        f"wrote {args.output}: {int(ok.sum()):,} of {ok.size:,} posts fitted "
+        f"({int(res.converged.sum()):,} converged); change from the input: median "
+        f"{np.median(shift):+.2f}, RMS {np.sqrt(np.mean(shift**2)):.2f}; median uncertainty "
+        f"{np.nanmedian(res.sigma_h[ok]):.2f}"
+    )
+
+
 def _cmd_eps_study(args: argparse.Namespace) -> None:
     from orthomvp.epsstudy import DEFAULT_EPS_VALUES, eps_study, plot, write_csv
 
@@ -390,6 +496,7 @@ COMMANDS = {
     "visibility": _cmd_visibility,
     "ortho": _cmd_ortho,
     "mosaic": _cmd_mosaic,
+    "fit": _cmd_fit,
     "eps-study": _cmd_eps_study,
     "bench": _cmd_bench,
     "demo": _cmd_demo,

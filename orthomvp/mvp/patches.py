@@ -1,0 +1,227 @@
+"""Orthoimage patches through homographies, their normalisation, and the MVP objective.
+
+Section 3.3 of the MVP paper. For a batch of B posts and K views, each view's image is sampled
+(bilinear, ``cv2.remap``) on the patch grid through its homography; the patches are normalised
+by their Gaussian-weighted mean and standard deviation (eq. 19), the albedo A is their mean
+(eq. 21) and the objective is
+
+    f = sum_k sum_z g(z) (A(z) - I_k(z))^2        (eq. 20, with sum_z g(z) = 1)
+
+over the views taking part (weights ``W`` in {0, 1}). With n views, f = (n - 1) (1 - mean
+pairwise weighted correlation of the patches), so 0 is perfect agreement. Derivatives with
+respect to the plane parameters come from image gradients (sampled with the image) and the
+exact derivatives of the homographies, through the normalisation; they give the Gauss-Newton
+normal equations of the residuals sqrt(g) (A - I_k).
+
+The patch grid is (i, j) * step posts around the post, |i|, |j| <= hwin; coarse pyramid levels
+use a larger step on a smaller image (see :class:`ViewStack`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.errors import InputError
+
+MIN_STD = 1e-6  # relative to the image's own standard deviation: flatter patches carry nothing
+
+
+def gaussian_window(hwin: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Patch offsets ``(S, 2)`` (c, r) in steps, |i|, |j| <= hwin, and the Gaussian window
+    ``g`` (S,) with standard deviation ``sigma`` steps, normalised to sum 1 (float32)."""
+    if hwin < 1 or not sigma > 0:
+        raise InputError(f"hwin must be >= 1 and sigma > 0, got hwin={hwin}, sigma={sigma}")
+    j, i = np.mgrid[-hwin : hwin + 1, -hwin : hwin + 1]
+    offsets = np.stack([i.ravel(), j.ravel()], axis=-1).astype(np.float32)
+    g = np.exp(-(offsets**2).sum(axis=1) / (2.0 * sigma**2))
+    return offsets, (g / g.sum()).astype(np.float32)
+
+
+def undistorted_image(image: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, PinholeCamera]:
+    """Resample a (rows, cols) image of a camera with lens distortion into the image of the
+    same camera without it (same size and intrinsics), so that homographies apply."""
+    if isinstance(camera.distortion, NullDistortion):
+        return image, camera
+    rows, cols = image.shape
+    v, u = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    focal = np.array([camera.fu, camera.fv])
+    offset = np.array([camera.cu, camera.cv])
+    und = np.stack([u, v], axis=-1) * camera.pitch
+    src = camera.distortion.distort(und, focal, offset) / camera.pitch
+    out = cv2.remap(
+        image.astype(np.float32),
+        src[..., 0].astype(np.float32),
+        src[..., 1].astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    return out, replace(camera, distortion=NullDistortion())
+
+
+@dataclass
+class ViewStack:
+    """The K views prepared for sampling.
+
+    ``levels[L][k]``: view k at pyramid level L (image reduced 2**L times by ``cv2.pyrDown``) as
+    a (rows, cols, 3) float32 array of value and its c and r gradients per pixel. ``F`` (K, 3, 4)
+    projection matrices (eq. 9) of the undistorted level-0 images; level L pixel = level-0 pixel
+    / 2**L. ``sizes[L][k]`` = (cols, rows).
+    """
+
+    levels: list[list[np.ndarray]]
+    F: np.ndarray
+    sizes: list[list[tuple[int, int]]]
+    cameras: list[PinholeCamera]
+
+    @classmethod
+    def build(
+        cls, images: list[np.ndarray], cameras: list[PinholeCamera], n_levels: int
+    ) -> ViewStack:
+        """From single-band (rows, cols) images (NaN allowed: filled with the mean) and their
+        cameras; ``n_levels`` pyramid levels."""
+        levels: list[list[np.ndarray]] = [[] for _ in range(n_levels)]
+        sizes: list[list[tuple[int, int]]] = [[] for _ in range(n_levels)]
+        Fs, cams = [], []
+        for image, camera in zip(images, cameras, strict=True):
+            img = np.asarray(image, dtype=np.float32)
+            finite = np.isfinite(img)
+            if not finite.any():
+                raise InputError("an image holds no valid pixels")
+            img = np.where(finite, img, np.float32(img[finite].mean()))
+            img, camera = undistorted_image(img, camera)
+            Fs.append(camera.F)
+            cams.append(camera)
+            for level in range(n_levels):
+                if level:
+                    img = cv2.pyrDown(img)
+                gr, gc = np.gradient(img)
+                levels[level].append(np.ascontiguousarray(np.stack([img, gc, gr], axis=-1)))
+                sizes[level].append((img.shape[1], img.shape[0]))
+        return cls(levels, np.stack(Fs), sizes, cams)
+
+
+@dataclass
+class Evaluation:
+    """The objective at B planes: ``cost`` (B,) eq. 20 (inf where fewer than 2 views take
+    part); ``used`` (B, K) views that took part; ``JTJ`` (B, 3, 3) and ``JTr`` (B, 3) the
+    Gauss-Newton normal equations; ``JgJ`` (B, 3, 3) the same with squared window weights (for
+    the uncertainty); ``loo`` (B, K) each view's weighted correlation with the mean of the other
+    views (leave-one-out albedo); ``patches`` (B, K, S) the normalised patches and ``albedo``
+    (B, S), when asked for."""
+
+    cost: np.ndarray
+    used: np.ndarray
+    JTJ: np.ndarray | None = None
+    JTr: np.ndarray | None = None
+    JgJ: np.ndarray | None = None
+    loo: np.ndarray | None = None
+    patches: np.ndarray | None = None
+    albedo: np.ndarray | None = None
+
+
+def sample_patches(
+    images: list[np.ndarray], H: np.ndarray, offsets: np.ndarray, channels: int = 3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sample K ``images`` (rows, cols, 3) through homographies ``H`` (B, K, 3, 3) (patch
+    offsets to pixels) at ``offsets`` (S, 2). Returns samples (B, K, S, channels) and the
+    pixel positions u, v and 1/w, each (B, K, S) float32."""
+    Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)
+    xyw = Hf @ _homogeneous(offsets)  # (B, K, 3, S)
+    iw = 1.0 / xyw[:, :, 2]
+    u = xyw[:, :, 0] * iw
+    v = xyw[:, :, 1] * iw
+    B, K, S = u.shape
+    out = np.empty((B, K, S, channels), np.float32)
+    for k, img in enumerate(images):
+        src = img if channels == img.shape[-1] else np.ascontiguousarray(img[..., :channels])
+        for b0 in range(0, B, 32000):  # cv2.remap maps hold fewer than 32768 rows
+            sl = slice(b0, b0 + 32000)
+            s = cv2.remap(
+                src, u[sl, k], v[sl, k], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+            )
+            out[sl, k] = s.reshape(-1, S, channels)
+    return out, u, v, iw
+
+
+def evaluate(
+    images: list[np.ndarray],
+    H: np.ndarray,
+    W: np.ndarray,
+    offsets: np.ndarray,
+    g: np.ndarray,
+    dH: np.ndarray | None = None,
+    keep_patches: bool = False,
+) -> Evaluation:
+    """The objective (eq. 20) at B planes seen through K views.
+
+    ``H`` (B, K, 3, 3): homographies from patch offsets to image pixels (any scale, w > 0);
+    ``W`` (B, K) bool: views allowed to take part; ``dH`` (B, K, P, 3, 3): derivatives of H
+    with respect to P plane parameters, on the same scale as H, to get the normal equations.
+    """
+    jac = dH is not None
+    smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1)
+    It = smp[..., 0]
+    m = It @ g
+    c = It - m[..., None]
+    sd = np.sqrt(np.maximum((c * c) @ g, 0.0))
+    scale = np.array([np.std(img[..., 0]) for img in images], np.float32)
+    used = W & (sd > MIN_STD * np.maximum(scale, 1e-30))
+    usedf = used.astype(np.float32)
+    n = usedf.sum(axis=1)
+    Ik = c / np.where(used, sd, 1.0)[..., None]
+    Ik *= usedf[..., None]
+    nn = np.maximum(n, 1.0)
+    A = Ik.sum(axis=1) / nn[:, None]
+    R = (A[:, None, :] - Ik) * usedf[..., None]
+    cost = ((R * R) @ g).sum(axis=1)
+    cost = np.where(n >= 2, cost, np.inf)
+    out = Evaluation(cost.astype(np.float64), used)
+    # leave-one-out albedo correlation of each view
+    Aloo = (nn[:, None, None] * A[:, None, :] - Ik) / np.maximum(nn - 1.0, 1.0)[:, None, None]
+    num = (Ik * Aloo) @ g
+    den = np.sqrt(np.maximum((Aloo * Aloo) @ g, 1e-30))
+    out.loo = np.where(used & (n[:, None] >= 2), num / den, np.nan)
+    if keep_patches:
+        out.patches, out.albedo = Ik, A
+    if not jac:
+        return out
+    # d(raw sample)/d(param) = grad O . d(u, v)/d(param), with
+    # d(u, v) = (d(x, y) - (u, v) dw) / w and d(x, y, w) = dH (oc, or, 1)
+    a = smp[..., 1] * iw
+    b = smp[..., 2] * iw
+    cc = -(a * u + b * v)
+    dHs = (dH / H[:, :, None, 2:3, 2:3]).astype(np.float32)
+    D = dHs @ _homogeneous(offsets)  # (B, K, P, 3, S)
+    dIt = a[:, :, None] * D[:, :, :, 0]
+    dIt += b[:, :, None] * D[:, :, :, 1]
+    dIt += cc[:, :, None] * D[:, :, :, 2]  # (B, K, P, S)
+    # through eq. 19: dI = (dIt - <1, dIt> - I <I, dIt>) / sd, with <x, y> = sum g x y
+    dm = dIt @ g
+    ds = dIt @ (Ik * g)[..., None]
+    dI = dIt - dm[..., None]
+    dI -= Ik[:, :, None, :] * ds
+    dI *= (usedf / np.where(used, sd, 1.0))[..., None, None]
+    dA = dI.sum(axis=1) / nn[:, None, None]  # (B, P, S)
+    # residuals sqrt(g) (A - I_k): sum_k <dR_k, dR_k> = sum_k <dI_k, dI_k> - n <dA, dA>, and
+    # sum_k <dR_k, R_k> = -sum_k <dI_k, R_k> because sum_k R_k = 0
+    nf = n[:, None, None]
+    dIg = dI * g
+    out.JTJ = (
+        np.sum(dIg @ np.swapaxes(dI, -1, -2), axis=1) - nf * ((dA * g) @ np.swapaxes(dA, -1, -2))
+    ).astype(np.float64)
+    out.JTr = -np.sum(dI @ (R * g)[..., None], axis=1)[..., 0].astype(np.float64)
+    g2 = g * g
+    out.JgJ = (
+        np.sum((dIg * g) @ np.swapaxes(dI, -1, -2), axis=1)
+        - nf * ((dA * g2) @ np.swapaxes(dA, -1, -2))
+    ).astype(np.float64)
+    return out
+
+
+def _homogeneous(offsets: np.ndarray) -> np.ndarray:
+    """(3, S) float32 rows c, r, 1 of patch offsets (S, 2)."""
+    return np.vstack([offsets.T, np.ones(len(offsets))]).astype(np.float32)

@@ -1,0 +1,218 @@
+"""Plane geometry of the MVP model: a tangent plane per DEM post and its homographies.
+
+Section 3.2 of the MVP paper. A plane at post z' = (c', r') has a height h (in the DEM's own
+convention: height above the reference surface, or radius with ``radius_values``) and a normal n
+(eq. 11, angles (n_theta, n_phi) = longitude and latitude of n in the world frame). Every DEM
+grid pixel z near z' names a *height line*, the set of world points that the DEM can put at z;
+the patch of the plane is where those lines cross the plane, and projecting it through a camera
+F gives the homography ``H = F G`` from grid pixels (c, r, 1) to image pixels (eq. 17).
+
+Two exact-to-second-order models of the height lines:
+
+- *central* (a sphere in the body frame, the paper's case): every line runs from the body centre
+  along e(z) (eq. 3), e is linearised around z' as ``[e; 1] = L S_z [z; 1]`` (eqs. 5-7, with the
+  Jacobian's sign corrected and S in radians), and ``G = P L S`` (eqs. 15-16), up to scale.
+  Only e's direction matters here, so its second-order radial error has no effect.
+- *parallel* (an ellipsoid, or the map frame): the lines are taken as parallel to the post's
+  own height direction u', through the points X(z, h0) of the surface at the post's height,
+  linearised around z'. Then ``G`` is affine.
+
+In both, G is linear in n (the plane does not depend on |n|) and affine in h; the fitter uses
+this for exact derivatives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from orthomvp.terrain import Terrain, unit_vector
+
+FD_STEP = 0.5  # pixels, for the local affine maps of projected CRSs and ellipsoids
+
+
+def normal_from_angles(n_theta: np.ndarray, n_phi: np.ndarray) -> np.ndarray:
+    """Eq. (11): unit normal (..., 3) in the world frame from its longitude ``n_theta`` and
+    latitude ``n_phi`` (radians)."""
+    return unit_vector(np.asarray(n_theta, dtype=np.float64), np.asarray(n_phi, dtype=np.float64))
+
+
+def angles_from_normal(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of eq. (11): (n_theta, n_phi) in radians of normals ``n`` (..., 3), any length."""
+    n = np.asarray(n, dtype=np.float64)
+    return np.arctan2(n[..., 1], n[..., 0]), np.arctan2(n[..., 2], np.hypot(n[..., 0], n[..., 1]))
+
+
+def lonlat_jacobian(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Eq. (5), corrected: d e / d(lon, lat), (..., 3, 2), for planetocentric radians.
+
+    The paper prints +cos(lon) sin(lat) in the first row; the derivative of cos(lon) cos(lat)
+    with respect to lat is -cos(lon) sin(lat).
+    """
+    lon, lat = np.broadcast_arrays(np.asarray(lon, float), np.asarray(lat, float))
+    sl, cl, sp, cp = np.sin(lon), np.cos(lon), np.sin(lat), np.cos(lat)
+    zero = np.zeros_like(lon)
+    d_lon = np.stack([-sl * cp, cl * cp, zero], axis=-1)
+    d_lat = np.stack([-cl * sp, -sl * sp, cp], axis=-1)
+    return np.stack([d_lon, d_lat], axis=-1)
+
+
+def L_matrix(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Eq. (7): (..., 4, 3) affine map ``[e; 1] = L [lon; lat; 1]`` (radians), the first-order
+    Taylor expansion of eq. (3) around (lon, lat)."""
+    J = lonlat_jacobian(lon, lat)
+    e = unit_vector(np.asarray(lon, float), np.asarray(lat, float))
+    theta = np.stack(np.broadcast_arrays(np.asarray(lon, float), np.asarray(lat, float)), -1)
+    out = np.zeros(J.shape[:-2] + (4, 3))
+    out[..., :3, :2] = J
+    out[..., :3, 2] = e - np.einsum("...ij,...j->...i", J, theta)
+    out[..., 3, 2] = 1.0
+    return out
+
+
+def local_S(terrain: Terrain, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) affine map from pixel-centre ``(c, r, 1)`` to body ``(lon, lat, 1)`` in
+    radians near each ``(c, r)``: eq. (2) in radians for geographic CRSs (exact), the local
+    Jacobian by central differences for projected CRSs."""
+    c = np.asarray(c, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    out = np.zeros(c.shape + (3, 3))
+    out[..., 2, 2] = 1.0
+    if terrain.crs.is_geographic:
+        S = terrain.S
+        out[..., :2, :] = np.radians(S[:2])
+        # longitudes near the grid centre, as pixel_to_lonlat returns them
+        lon0, _ = terrain.pixel_to_lonlat(c, r)
+        lon_raw, _ = terrain.pixel_to_lonlat(c, r, wrap=False)
+        out[..., 0, 2] += lon0 - lon_raw
+        return out
+    h = FD_STEP
+    lon_c1, lat_c1 = terrain.pixel_to_lonlat(c + h, r)
+    lon_c0, lat_c0 = terrain.pixel_to_lonlat(c - h, r)
+    lon_r1, lat_r1 = terrain.pixel_to_lonlat(c, r + h)
+    lon_r0, lat_r0 = terrain.pixel_to_lonlat(c, r - h)
+    lon, lat = terrain.pixel_to_lonlat(c, r)
+    out[..., 0, 0], out[..., 1, 0] = (lon_c1 - lon_c0) / (2 * h), (lat_c1 - lat_c0) / (2 * h)
+    out[..., 0, 1], out[..., 1, 1] = (lon_r1 - lon_r0) / (2 * h), (lat_r1 - lat_r0) / (2 * h)
+    out[..., 0, 2] = lon - out[..., 0, 0] * c - out[..., 0, 1] * r
+    out[..., 1, 2] = lat - out[..., 1, 0] * c - out[..., 1, 1] * r
+    return out
+
+
+@dataclass
+class PostLines:
+    """The height lines around a batch of B posts (see the module docstring).
+
+    ``central``: the model. ``M`` (B, 3, 3): grid ``(c, r, 1)`` to e(z) (central) or to
+    X(z, h0) (parallel), metres. ``a``, ``b`` (B, 3): the post's own point at height h is
+    ``a + h b``; ``b`` is the post's height direction (unit, except for central models, where it
+    is e' and h is scaled by 1). ``up`` (B, 3): unit height direction at the post.
+    """
+
+    central: bool
+    c: np.ndarray
+    r: np.ndarray
+    M: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+    @property
+    def up(self) -> np.ndarray:
+        return self.b / np.linalg.norm(self.b, axis=-1, keepdims=True)
+
+    def point(self, h: np.ndarray) -> np.ndarray:
+        """x' = a + h b (eq. 13 in the central model), (B, 3) metres."""
+        return self.a + np.asarray(h, dtype=np.float64)[..., None] * self.b
+
+    def take(self, index: np.ndarray) -> PostLines:
+        """The lines of a subset of the posts."""
+        return PostLines(
+            self.central, self.c[index], self.r[index], self.M[index], self.a[index], self.b[index]
+        )
+
+
+def uses_central_model(terrain: Terrain) -> bool:
+    """True where the paper's central height lines are exact: a spherical body in the body
+    frame (heights above the sphere, or radii)."""
+    return terrain.world == "body" and (terrain.is_sphere or terrain.radius_values)
+
+
+def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -> PostLines:
+    """Height lines around posts at pixel centres ``c``, ``r`` (B,) with current values ``h0``
+    (B,) in the DEM's convention (used by the parallel model as the linearisation height)."""
+    c = np.asarray(c, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    h0 = np.asarray(h0, dtype=np.float64)
+    if uses_central_model(terrain):
+        lon, lat = terrain.pixel_to_lonlat(c, r)
+        M = np.einsum("...ij,...jk->...ik", L_matrix(lon, lat), local_S(terrain, c, r))[..., :3, :]
+        e = unit_vector(lon, lat)
+        r0 = 0.0 if terrain.radius_values else terrain.radii[0]
+        return PostLines(True, c, r, M, r0 * e, e)
+    s = FD_STEP
+    X = terrain.to_world(c, r, h0)
+    dXdc = (terrain.to_world(c + s, r, h0) - terrain.to_world(c - s, r, h0)) / (2 * s)
+    dXdr = (terrain.to_world(c, r + s, h0) - terrain.to_world(c, r - s, h0)) / (2 * s)
+    up = terrain.to_world(c, r, h0 + 0.5) - terrain.to_world(c, r, h0 - 0.5)
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    M = np.stack([dXdc, dXdr, X - dXdc * c[..., None] - dXdr * r[..., None]], axis=-1)
+    return PostLines(False, c, r, M, X - h0[..., None] * up, up)
+
+
+def plane_map(lines: PostLines, h: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """``G`` (B, 4, 3) with ``[X; 1] ~ G [c; r; 1]``: grid pixels to the points of the plane
+    through ``a + h b`` with normal ``n`` (B, 3, any length). Linear in n, affine in h.
+
+    Central: ``G = [(n.x') M; n^T M]`` (= P L S of eqs. 15-16 times n.x').
+    Parallel: ``G = [(n.u) M + u ((n.x') e3^T - n^T M); (n.u) e3^T]``.
+    """
+    n = np.asarray(n, dtype=np.float64)
+    k = np.einsum("...i,...i->...", n, lines.point(h))
+    nM = np.einsum("...i,...ij->...j", n, lines.M)
+    G = np.zeros(n.shape[:-1] + (4, 3))
+    if lines.central:
+        G[..., :3, :] = k[..., None, None] * lines.M
+        G[..., 3, :] = nM
+        return G
+    u = lines.b
+    nu = np.einsum("...i,...i->...", n, u)
+    row = -nM
+    row[..., 2] += k
+    G[..., :3, :] = nu[..., None, None] * lines.M + u[..., :, None] * row[..., None, :]
+    G[..., 3, 2] = nu
+    return G
+
+
+def exact_plane_point(
+    terrain: Terrain, lines: PostLines, h: np.ndarray, n: np.ndarray, c: np.ndarray, r: np.ndarray
+) -> np.ndarray:
+    """Reference for tests and plots, without linearisation: where the exact height line of
+    grid pixel ``(c, r)`` meets the plane (``lines`` name only the post), (..., 3) metres.
+    ``h`` and ``n`` broadcast against ``c`` and ``r``."""
+    x0 = lines.point(h)
+    n = np.asarray(n, dtype=np.float64)
+    if lines.central:
+        lon, lat = terrain.pixel_to_lonlat(c, r)
+        e = unit_vector(lon, lat)
+        return (np.sum(n * x0, -1) / np.sum(n * e, -1))[..., None] * e
+    # parallel lines through X(z, h0) along the local height direction at z
+    h0 = np.einsum("...i,...i->...", x0 - lines.a, lines.b) / np.einsum(
+        "...i,...i->...", lines.b, lines.b
+    )
+    base = terrain.to_world(c, r, h0)
+    up = terrain.to_world(c, r, h0 + 0.5) - terrain.to_world(c, r, h0 - 0.5)
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    t = np.sum(n * (x0 - base), -1) / np.sum(n * up, -1)
+    return base + t[..., None] * up
+
+
+def tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (B, 3) orthogonal to unit ``n`` and to each other (t1 roughly east)."""
+    ref = np.zeros_like(n)
+    ref[..., 2] = 1.0
+    polar = np.abs(n[..., 2]) > 0.9
+    ref[polar] = (1.0, 0.0, 0.0)
+    t1 = np.cross(ref, n)
+    t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
+    return t1, np.cross(n, t1)
