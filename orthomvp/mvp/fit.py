@@ -35,7 +35,7 @@ from tqdm import tqdm
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp.deconvolve import deconvolve
-from orthomvp.mvp.patches import Evaluation, ViewStack, evaluate, gaussian_window
+from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
 from orthomvp.mvp.plane import PostLines, angles_from_normal, plane_map, post_lines, tangent_basis
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import VISIBLE
@@ -93,6 +93,7 @@ class FitResult:
     sigma_h: np.ndarray
     initial: np.ndarray
     view_mask: np.ndarray
+    samples: int = 0
 
     @property
     def resolved(self) -> np.ndarray:
@@ -197,10 +198,9 @@ def _levenberg_marquardt(
 ) -> tuple[np.ndarray, Evaluation, np.ndarray]:
     """Minimise f per post from ``theta`` (B, 3) with view mask ``W``. Returns theta, the
     evaluation (with normal equations) at it, and a converged flag (B,)."""
-    images = stack.levels[level]
     B = len(theta)
     H, dH = model.homographies(theta, level)
-    ev = evaluate(images, H, W, offsets, g, dH)
+    ev = stack.evaluate(level, H, W, offsets, g, dH)
     lam = np.full(B, 1e-3)
     converged = np.zeros(B, bool)
     active = np.isfinite(ev.cost)
@@ -228,7 +228,7 @@ def _levenberg_marquardt(
         )
         sub = model.take(idx)
         Ht, dHt = sub.homographies(trial, level)
-        evt = evaluate(images, Ht, W[idx], offsets, g, dHt)
+        evt = stack.evaluate(level, Ht, W[idx], offsets, g, dHt)
         before = ev.cost[idx]
         better = evt.cost <= before * (1 + 1e-7)
         stalled = predicted <= PREDICTED_TOL * np.maximum(before, 1e-3)
@@ -290,7 +290,7 @@ def _fit_batch(
     if opts.reject_below is not None:
         for _ in range(K - 2):
             H, _ = model.take(todo).homographies(theta[todo], 0, derivatives=False)
-            ev = evaluate(stack.levels[0], H, W[todo], offsets, g)
+            ev = stack.evaluate(0, H, W[todo], offsets, g)
             loo = np.where(ev.used, ev.loo, np.inf)
             worst = np.argmin(loo, axis=1)
             bad = (loo[np.arange(len(todo)), worst] < opts.reject_below) & (ev.used.sum(1) > 2)
@@ -300,7 +300,7 @@ def _fit_batch(
             W[todo, worst[bad]] = False
             theta[todo], conv[todo] = run(todo, W[todo])
     H, dH = model.homographies(theta, 0)
-    ev = evaluate(stack.levels[0], H, W, offsets, g, dH)
+    ev = stack.evaluate(0, H, W, offsets, g, dH)
     return _summarise(model, theta, ev, conv)
 
 
@@ -428,6 +428,7 @@ def fit_dem(
         for _ in pool.map(work, tiles):
             bar.update()
     bar.close()
+    out.samples = stack.samples
     out.heights = deconvolve(out.plane_heights, opts.hwin, opts.window_sigma, opts.deconvolve)
     if not out.resolved.any():
         raise GeometryError("no post is visible in 2 or more images: nothing to fit")

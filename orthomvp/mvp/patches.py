@@ -19,7 +19,8 @@ use a larger step on a smaller image (see :class:`ViewStack`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import threading
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -76,6 +77,24 @@ class ViewStack:
     F: np.ndarray
     sizes: list[list[tuple[int, int]]]
     cameras: list[PinholeCamera]
+    samples: int = 0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def evaluate(
+        self,
+        level: int,
+        H: np.ndarray,
+        W: np.ndarray,
+        offsets: np.ndarray,
+        g: np.ndarray,
+        dH: np.ndarray | None = None,
+        keep_patches: bool = False,
+    ) -> Evaluation:
+        """:func:`evaluate` on the images of ``level``, counting the bilinear samples taken
+        (positions times channels) in ``samples``."""
+        with self._lock:
+            self.samples += H.shape[0] * H.shape[1] * len(g) * (1 if dH is None else 3)
+        return evaluate(self.levels[level], H, W, offsets, g, dH, keep_patches)
 
     @classmethod
     def build(
