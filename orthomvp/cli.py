@@ -294,12 +294,17 @@ def build_parser() -> argparse.ArgumentParser:
         description="Ray casting: rays per second through orthomvp's first_hit and through "
         "the bare backend call on the same rays, for Embree and Open3D. Orthophoto: the "
         "occlusion-aware orthophoto of one image against the bare Embree cast of one ray per "
-        "post, in the same run.",
+        "post, in the same run. MVP: the plane fit of a synthetic hills DEM from its 4 views "
+        "against bare cv2.remap of as many bilinear samples from the same images, in the same "
+        "run.",
     )
     p.add_argument("--size", type=int, default=1000, help="ray-casting DEM posts per side")
     p.add_argument("--rays", type=int, default=1_000_000, help="number of rays (1,000,000)")
     p.add_argument(
         "--ortho-size", type=int, default=2000, help="orthophoto DEM posts per side (2000; 0 skips)"
+    )
+    p.add_argument(
+        "--mvp-size", type=int, default=96, help="MVP fit DEM posts per side (96; 0 skips)"
     )
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     return parser
@@ -331,7 +336,14 @@ def _cmd_mesh(args: argparse.Namespace) -> None:
 
 
 def _cmd_bench(args: argparse.Namespace) -> None:
-    from orthomvp.bench import bench_ortho, bench_raycast, format_ortho, format_raycast
+    from orthomvp.bench import (
+        bench_mvp,
+        bench_ortho,
+        bench_raycast,
+        format_mvp,
+        format_ortho,
+        format_raycast,
+    )
     from orthomvp.raster import atomic_path
 
     results: dict = {"raycast": bench_raycast(args.size, args.rays)}
@@ -339,6 +351,9 @@ def _cmd_bench(args: argparse.Namespace) -> None:
     if args.ortho_size:
         results["ortho"] = bench_ortho(args.ortho_size)
         print(format_ortho(results["ortho"]))
+    if args.mvp_size:
+        results["mvp"] = bench_mvp(args.mvp_size)
+        print(format_mvp(results["mvp"]))
     if args.json:
         with atomic_path(args.json) as tmp:
             tmp.write_text(json.dumps(results, indent=2))

@@ -63,6 +63,18 @@ def undistorted_image(image: np.ndarray, camera: PinholeCamera) -> tuple[np.ndar
     return out, replace(camera, distortion=NullDistortion())
 
 
+DERIVATIVE = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], np.float32) / 12.0
+
+
+def image_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d/dc and d/dr of a (rows, cols) float32 image, per pixel: the fourth-order central
+    difference, which keeps 80% of the slope of a 3.75-pixel wave where the plain central
+    difference keeps 60%."""
+    gc = cv2.filter2D(image, -1, DERIVATIVE, borderType=cv2.BORDER_REPLICATE)
+    gr = cv2.filter2D(image, -1, DERIVATIVE.T, borderType=cv2.BORDER_REPLICATE)
+    return gc, gr
+
+
 @dataclass
 class ViewStack:
     """The K views prepared for sampling.
@@ -117,7 +129,7 @@ class ViewStack:
             for level in range(n_levels):
                 if level:
                     img = cv2.pyrDown(img)
-                gr, gc = np.gradient(img)
+                gc, gr = image_gradients(img)
                 levels[level].append(np.ascontiguousarray(np.stack([img, gc, gr], axis=-1)))
                 sizes[level].append((img.shape[1], img.shape[0]))
         return cls(levels, np.stack(Fs), sizes, cams)

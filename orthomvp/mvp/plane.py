@@ -9,13 +9,15 @@ F gives the homography ``H = F G`` from grid pixels (c, r, 1) to image pixels (e
 
 Two exact-to-second-order models of the height lines:
 
-- *central* (a sphere in the body frame, the paper's case): every line runs from the body centre
-  along e(z) (eq. 3), e is linearised around z' as ``[e; 1] = L S_z [z; 1]`` (eqs. 5-7, with the
-  Jacobian's sign corrected and S in radians), and ``G = P L S`` (eqs. 15-16), up to scale.
-  Only e's direction matters here, so its second-order radial error has no effect.
-- *parallel* (an ellipsoid, or the map frame): the lines are taken as parallel to the post's
-  own height direction u', through the points X(z, h0) of the surface at the post's height,
-  linearised around z'. Then ``G`` is affine.
+- *central* (the body frame, the paper's case): every line runs from a centre C along a
+  direction d(z). On a sphere C is the body centre and d = e(z) (eq. 3), linearised around z' as
+  ``[e; 1] = L S_z [z; 1]`` (eqs. 5-7, with the Jacobian's sign corrected and S in radians),
+  and ``G = P L S`` (eqs. 15-16), up to scale; only e's direction matters here, so its
+  second-order radial error has no effect. On an ellipsoid the height lines are its normals,
+  which near the post pass close to the post's centre of mean curvature: C is that point and
+  d(z) the (linearised) direction from C to the surface at z.
+- *parallel* (the map frame): the lines are vertical, through the points X(z, h0) =
+  (easting, northing, h0), which are affine in z: then ``G`` is affine and exact.
 
 In both, G is linear in n (the plane does not depend on |n|) and affine in h; the fitter uses
 this for exact derivatives.
@@ -104,10 +106,10 @@ def local_S(terrain: Terrain, c: np.ndarray, r: np.ndarray) -> np.ndarray:
 class PostLines:
     """The height lines around a batch of B posts (see the module docstring).
 
-    ``central``: the model. ``M`` (B, 3, 3): grid ``(c, r, 1)`` to e(z) (central) or to
-    X(z, h0) (parallel), metres. ``a``, ``b`` (B, 3): the post's own point at height h is
-    ``a + h b``; ``b`` is the post's height direction (unit, except for central models, where it
-    is e' and h is scaled by 1). ``up`` (B, 3): unit height direction at the post.
+    ``central``: the model. ``M`` (B, 3, 3): grid ``(c, r, 1)`` to the line direction d(z)
+    (central) or to the base point X(z, h0) (parallel), metres. ``centre`` (B, 3): C of the
+    central model (zeros on a sphere). ``a``, ``b`` (B, 3): the post's own point at height h is
+    ``a + h b``, with ``b`` the post's unit height direction.
     """
 
     central: bool
@@ -116,6 +118,7 @@ class PostLines:
     M: np.ndarray
     a: np.ndarray
     b: np.ndarray
+    centre: np.ndarray
 
     @property
     def up(self) -> np.ndarray:
@@ -128,14 +131,30 @@ class PostLines:
     def take(self, index: np.ndarray) -> PostLines:
         """The lines of a subset of the posts."""
         return PostLines(
-            self.central, self.c[index], self.r[index], self.M[index], self.a[index], self.b[index]
+            self.central,
+            self.c[index],
+            self.r[index],
+            self.M[index],
+            self.a[index],
+            self.b[index],
+            self.centre[index],
         )
 
 
 def uses_central_model(terrain: Terrain) -> bool:
-    """True where the paper's central height lines are exact: a spherical body in the body
-    frame (heights above the sphere, or radii)."""
-    return terrain.world == "body" and (terrain.is_sphere or terrain.radius_values)
+    """True in the body frame (height lines from a centre), False in the map frame."""
+    return terrain.world == "body"
+
+
+def _curvature_radius(terrain: Terrain, lat: np.ndarray) -> np.ndarray:
+    """Mean radius of curvature of the reference ellipsoid at geodetic ``lat`` (radians):
+    the harmonic mean of the meridional (M) and prime-vertical (N) radii, metres."""
+    a, b = terrain.radii
+    e2 = 1.0 - (b / a) ** 2
+    w = 1.0 - e2 * np.sin(lat) ** 2
+    N = a / np.sqrt(w)
+    M = a * (1.0 - e2) / w**1.5
+    return 2.0 / (1.0 / M + 1.0 / N)
 
 
 def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -> PostLines:
@@ -144,37 +163,55 @@ def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -
     c = np.asarray(c, dtype=np.float64)
     r = np.asarray(r, dtype=np.float64)
     h0 = np.asarray(h0, dtype=np.float64)
-    if uses_central_model(terrain):
+    st = FD_STEP
+    if terrain.world == "body" and (terrain.is_sphere or terrain.radius_values):
         lon, lat = terrain.pixel_to_lonlat(c, r)
         M = np.einsum("...ij,...jk->...ik", L_matrix(lon, lat), local_S(terrain, c, r))[..., :3, :]
         e = unit_vector(lon, lat)
         r0 = 0.0 if terrain.radius_values else terrain.radii[0]
-        return PostLines(True, c, r, M, r0 * e, e)
-    s = FD_STEP
+        return PostLines(True, c, r, M, r0 * e, e, np.zeros_like(e))
     X = terrain.to_world(c, r, h0)
-    dXdc = (terrain.to_world(c + s, r, h0) - terrain.to_world(c - s, r, h0)) / (2 * s)
-    dXdr = (terrain.to_world(c, r + s, h0) - terrain.to_world(c, r - s, h0)) / (2 * s)
     up = terrain.to_world(c, r, h0 + 0.5) - terrain.to_world(c, r, h0 - 0.5)
     up /= np.linalg.norm(up, axis=-1, keepdims=True)
-    M = np.stack([dXdc, dXdr, X - dXdc * c[..., None] - dXdr * r[..., None]], axis=-1)
-    return PostLines(False, c, r, M, X - h0[..., None] * up, up)
+    a = X - h0[..., None] * up
+    if terrain.world == "body":  # an ellipsoid: lines through the centre of curvature
+        _, lat = terrain.pixel_to_lonlat(c, r)
+        C = X - (_curvature_radius(terrain, lat) + h0)[..., None] * up
+
+        def d(cc: np.ndarray, rr: np.ndarray) -> np.ndarray:
+            v = terrain.to_world(cc, rr, h0) - C
+            return v / np.einsum("...i,...i->...", v, up)[..., None]
+
+        base = d(c, r)
+    else:
+        C = np.zeros_like(X)
+
+        def d(cc: np.ndarray, rr: np.ndarray) -> np.ndarray:
+            return terrain.to_world(cc, rr, h0)
+
+        base = X
+    dc = (d(c + st, r) - d(c - st, r)) / (2 * st)
+    dr = (d(c, r + st) - d(c, r - st)) / (2 * st)
+    M = np.stack([dc, dr, base - dc * c[..., None] - dr * r[..., None]], axis=-1)
+    return PostLines(terrain.world == "body", c, r, M, a, up, C)
 
 
 def plane_map(lines: PostLines, h: np.ndarray, n: np.ndarray) -> np.ndarray:
     """``G`` (B, 4, 3) with ``[X; 1] ~ G [c; r; 1]``: grid pixels to the points of the plane
     through ``a + h b`` with normal ``n`` (B, 3, any length). Linear in n, affine in h.
 
-    Central: ``G = [(n.x') M; n^T M]`` (= P L S of eqs. 15-16 times n.x').
-    Parallel: ``G = [(n.u) M + u ((n.x') e3^T - n^T M); (n.u) e3^T]``.
+    Central: ``G = [n.(x' - C) M + C n^T M; n^T M]`` (on a sphere C = 0 and this is P L S of
+    eqs. 15-16 times n.x'). Parallel: ``G = [(n.u) M + u ((n.x') e3^T - n^T M); (n.u) e3^T]``.
     """
     n = np.asarray(n, dtype=np.float64)
-    k = np.einsum("...i,...i->...", n, lines.point(h))
     nM = np.einsum("...i,...ij->...j", n, lines.M)
     G = np.zeros(n.shape[:-1] + (4, 3))
     if lines.central:
-        G[..., :3, :] = k[..., None, None] * lines.M
+        k = np.einsum("...i,...i->...", n, lines.point(h) - lines.centre)
+        G[..., :3, :] = k[..., None, None] * lines.M + lines.centre[..., :, None] * nM[..., None, :]
         G[..., 3, :] = nM
         return G
+    k = np.einsum("...i,...i->...", n, lines.point(h))
     u = lines.b
     nu = np.einsum("...i,...i->...", n, u)
     row = -nM
@@ -182,29 +219,6 @@ def plane_map(lines: PostLines, h: np.ndarray, n: np.ndarray) -> np.ndarray:
     G[..., :3, :] = nu[..., None, None] * lines.M + u[..., :, None] * row[..., None, :]
     G[..., 3, 2] = nu
     return G
-
-
-def exact_plane_point(
-    terrain: Terrain, lines: PostLines, h: np.ndarray, n: np.ndarray, c: np.ndarray, r: np.ndarray
-) -> np.ndarray:
-    """Reference for tests and plots, without linearisation: where the exact height line of
-    grid pixel ``(c, r)`` meets the plane (``lines`` name only the post), (..., 3) metres.
-    ``h`` and ``n`` broadcast against ``c`` and ``r``."""
-    x0 = lines.point(h)
-    n = np.asarray(n, dtype=np.float64)
-    if lines.central:
-        lon, lat = terrain.pixel_to_lonlat(c, r)
-        e = unit_vector(lon, lat)
-        return (np.sum(n * x0, -1) / np.sum(n * e, -1))[..., None] * e
-    # parallel lines through X(z, h0) along the local height direction at z
-    h0 = np.einsum("...i,...i->...", x0 - lines.a, lines.b) / np.einsum(
-        "...i,...i->...", lines.b, lines.b
-    )
-    base = terrain.to_world(c, r, h0)
-    up = terrain.to_world(c, r, h0 + 0.5) - terrain.to_world(c, r, h0 - 0.5)
-    up /= np.linalg.norm(up, axis=-1, keepdims=True)
-    t = np.sum(n * (x0 - base), -1) / np.sum(n * up, -1)
-    return base + t[..., None] * up
 
 
 def tangent_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
