@@ -224,14 +224,16 @@ def test_objective_gradient_matches_finite_differences() -> None:
     H, dH = model.homographies(theta, 0)
     ev = evaluate(stack.levels[0], H, W, offsets, g, dH)
     grad = 2 * ev.JTr
-    for p, d in enumerate((2.0, 0.01, 0.01)):
+    for p, d in enumerate((1.0, 0.003, 0.003)):
         tp, tm = theta.copy(), theta.copy()
         tp[:, p] += d
         tm[:, p] -= d
         fp = evaluate(stack.levels[0], model.homographies(tp, 0, False)[0], W, offsets, g).cost
         fm = evaluate(stack.levels[0], model.homographies(tm, 0, False)[0], W, offsets, g).cost
         fd = (fp - fm) / (2 * d)
-        np.testing.assert_allclose(grad[:, p], fd, rtol=0.06, atol=0.01 * np.abs(fd).max())
+        np.testing.assert_allclose(
+            grad[:, p], fd, err_msg=f"parameter {p}", rtol=0.1, atol=0.01 * np.abs(fd).max()
+        )
     # J^T J is positive definite and matches the curvature of f along h
     assert np.all(np.linalg.eigvalsh(ev.JTJ) > 0)
 
