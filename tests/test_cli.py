@@ -14,7 +14,7 @@ from affine import Affine
 
 from orthomvp.cli import main
 
-COMMANDS = ("demo", "synth", "mesh", "visibility", "ortho", "mosaic", "eps-study", "bench")
+COMMANDS = ("demo", "synth", "mesh", "visibility", "ortho", "mosaic", "fit", "eps-study", "bench")
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -130,12 +130,15 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
         "20000",
         "--ortho-size",
         "80",
+        "--mvp-size",
+        "40",
         "--json",
         str(tmp_path / "b.json"),
     )
     assert proc.returncode == 0, proc.stderr
     assert "embree" in proc.stdout and "open3d" in proc.stdout and "ratio" in proc.stdout
     assert "occlusion-aware orthophoto" in proc.stdout
+    assert "MVP fit" in proc.stdout
     assert (tmp_path / "b.json").is_file()
 
 

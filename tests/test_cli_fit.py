@@ -1,0 +1,72 @@
+"""``orthomvp fit`` end to end: outputs on the DEM grid, one-line errors, nothing half-written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from orthomvp.terrain import Terrain
+from tests.test_cli import assert_one_line_error, run
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("fit") / "hills"
+    proc = run("-q", "synth", "hills", str(out), "--size", "48", "--supersample", "2")
+    assert proc.returncode == 0, proc.stderr
+    dem = Terrain.read(out / "dem.tif")
+    dem.write(out / "start.tif", dem.values + 15.0)
+    return out
+
+
+def pairs(scene: Path) -> list[str]:
+    return [
+        str(scene / f"{v}.{ext}")
+        for v in ("fore2", "fore1", "aft1", "aft2")
+        for ext in ("tif", "tsai")
+    ]
+
+
+def test_fit_writes_every_output(scene: Path, tmp_path: Path) -> None:
+    outs = {k: tmp_path / f"{k}.tif" for k in ("fit", "n", "c", "v", "u")}
+    proc = run(
+        "-q", "fit", str(scene / "start.tif"), *pairs(scene), "-o", str(outs["fit"]),
+        "--normals", str(outs["n"]), "--cost", str(outs["c"]), "--views", str(outs["v"]),
+        "--uncertainty", str(outs["u"]),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "posts fitted" in proc.stdout
+    truth = Terrain.read(scene / "dem.tif").values
+    with rasterio.open(outs["fit"]) as src:
+        fitted = src.read(1)
+        assert src.transform == rasterio.open(scene / "dem.tif").transform
+    ok = np.isfinite(fitted)
+    assert ok.mean() > 0.4
+    err = (fitted - truth)[ok]  # the start was 15 m high everywhere
+    assert np.median(np.abs(err)) < 5.0 and np.sqrt(np.mean(err**2)) < 10.0
+    with rasterio.open(outs["n"]) as src:
+        assert src.count == 3 and src.descriptions[2] == "tilt_deg"
+        assert np.nanmax(src.read(3)) < 45
+    with rasterio.open(outs["v"]) as src:
+        views = src.read(1)
+        assert set(np.unique(views[ok])) <= {2, 3, 4} and (views[~ok] == 0).all()
+    with rasterio.open(outs["u"]) as src:
+        assert src.count == 2 and np.nanmedian(src.read(1)) > 0
+    with rasterio.open(outs["c"]) as src:
+        assert np.nanmax(src.read(1)) < 3.0  # eq. 20 with 4 views lies in [0, 6]
+
+
+def test_fit_errors_are_one_line_and_leave_nothing(scene: Path, tmp_path: Path) -> None:
+    out = tmp_path / "fit.tif"
+    p = pairs(scene)
+    assert_one_line_error(run("fit", str(scene / "start.tif"), *p[:3], "-o", str(out)), "pairs")
+    assert_one_line_error(run("fit", str(scene / "start.tif"), *p[:2], "-o", str(out)), "2")
+    missing = [*p[:-1], str(tmp_path / "nope.tsai")]
+    assert_one_line_error(run("fit", str(scene / "start.tif"), *missing, "-o", str(out)), "nope")
+    assert_one_line_error(
+        run("fit", str(scene / "start.tif"), *p, "-o", str(out), "--hwin", "0"), "hwin"
+    )
+    assert list(tmp_path.iterdir()) == []
