@@ -200,7 +200,7 @@ def _levenberg_marquardt(
     evaluation (with normal equations) at it, and a converged flag (B,)."""
     B = len(theta)
     H, dH = model.homographies(theta, level)
-    ev = stack.evaluate(level, H, W, offsets, g, dH)
+    ev = stack.evaluate(level, H, W, offsets, g, dH, extras=False)
     lam = np.full(B, 1e-3)
     converged = np.zeros(B, bool)
     active = np.isfinite(ev.cost)
@@ -228,13 +228,13 @@ def _levenberg_marquardt(
         )
         sub = model.take(idx)
         Ht, dHt = sub.homographies(trial, level)
-        evt = stack.evaluate(level, Ht, W[idx], offsets, g, dHt)
+        evt = stack.evaluate(level, Ht, W[idx], offsets, g, dHt, extras=False)
         before = ev.cost[idx]
         better = evt.cost <= before * (1 + 1e-7)
         stalled = predicted <= PREDICTED_TOL * np.maximum(before, 1e-3)
         acc = idx[better]
         theta[acc] = trial[better]
-        for name in ("cost", "used", "JTJ", "JTr", "JgJ", "loo"):
+        for name in ("cost", "used", "JTJ", "JTr"):
             getattr(ev, name)[acc] = getattr(evt, name)[better]
         lam[acc] *= 0.3
         lam[idx[~better]] *= 5.0

@@ -100,13 +100,14 @@ class ViewStack:
         offsets: np.ndarray,
         g: np.ndarray,
         dH: np.ndarray | None = None,
+        extras: bool = True,
         keep_patches: bool = False,
     ) -> Evaluation:
         """:func:`evaluate` on the images of ``level``, counting the bilinear samples taken
         (positions times channels) in ``samples``."""
         with self._lock:
             self.samples += H.shape[0] * H.shape[1] * len(g) * (1 if dH is None else 3)
-        return evaluate(self.levels[level], H, W, offsets, g, dH, keep_patches)
+        return evaluate(self.levels[level], H, W, offsets, g, dH, extras, keep_patches)
 
     @classmethod
     def build(
@@ -185,6 +186,7 @@ def evaluate(
     offsets: np.ndarray,
     g: np.ndarray,
     dH: np.ndarray | None = None,
+    extras: bool = True,
     keep_patches: bool = False,
 ) -> Evaluation:
     """The objective (eq. 20) at B planes seen through K views.
@@ -192,6 +194,7 @@ def evaluate(
     ``H`` (B, K, 3, 3): homographies from patch offsets to image pixels (any scale, w > 0);
     ``W`` (B, K) bool: views allowed to take part; ``dH`` (B, K, P, 3, 3): derivatives of H
     with respect to P plane parameters, on the same scale as H, to get the normal equations.
+    ``extras``: also ``loo`` and (with ``dH``) ``JgJ``, which the iterations do not need.
     """
     jac = dH is not None
     smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1)
@@ -211,11 +214,8 @@ def evaluate(
     cost = ((R * R) @ g).sum(axis=1)
     cost = np.where(n >= 2, cost, np.inf)
     out = Evaluation(cost.astype(np.float64), used)
-    # leave-one-out albedo correlation of each view
-    Aloo = (nn[:, None, None] * A[:, None, :] - Ik) / np.maximum(nn - 1.0, 1.0)[:, None, None]
-    num = (Ik * Aloo) @ g
-    den = np.sqrt(np.maximum((Aloo * Aloo) @ g, 1e-30))
-    out.loo = np.where(used & (n[:, None] >= 2), num / den, np.nan)
+    if extras:  # leave-one-out albedo correlation of each view
+        out.loo = _leave_one_out(Ik, A, used, n, nn, g)
     if keep_patches:
         out.patches, out.albedo = Ik, A
     if not jac:
@@ -245,12 +245,24 @@ def evaluate(
         np.sum(dIg @ np.swapaxes(dI, -1, -2), axis=1) - nf * ((dA * g) @ np.swapaxes(dA, -1, -2))
     ).astype(np.float64)
     out.JTr = -np.sum(dI @ (R * g)[..., None], axis=1)[..., 0].astype(np.float64)
+    if not extras:
+        return out
     g2 = g * g
     out.JgJ = (
         np.sum((dIg * g) @ np.swapaxes(dI, -1, -2), axis=1)
         - nf * ((dA * g2) @ np.swapaxes(dA, -1, -2))
     ).astype(np.float64)
     return out
+
+
+def _leave_one_out(
+    Ik: np.ndarray, A: np.ndarray, used: np.ndarray, n: np.ndarray, nn: np.ndarray, g: np.ndarray
+) -> np.ndarray:
+    """(B, K) weighted correlation of each used patch with the mean of the other used ones."""
+    Aloo = (nn[:, None, None] * A[:, None, :] - Ik) / np.maximum(nn - 1.0, 1.0)[:, None, None]
+    num = (Ik * Aloo) @ g
+    den = np.sqrt(np.maximum((Aloo * Aloo) @ g, 1e-30))
+    return np.where(used & (n[:, None] >= 2), num / den, np.nan)
 
 
 def _homogeneous(offsets: np.ndarray) -> np.ndarray:
