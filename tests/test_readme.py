@@ -30,6 +30,6 @@ def test_readme_python_example(tmp_path: Path) -> None:
     # back towards the truth from 20 m off (accuracy is tested in tests/test_mvp_fit.py)
     rows, cols = np.mgrid[0:48, 0:48]
     outside = fit.resolved & (np.hypot(rows - 23.5, cols - 23.5) > 24)
-    assert outside.sum() > 100
+    assert outside.sum() > 50
     assert np.median(np.abs(fit.heights - dem.values)[outside]) < 15.0
     assert (tmp_path / "crater.ply").is_file()
