@@ -84,7 +84,8 @@ class Visibility:
         return {name: int((self.codes == k).sum()) for k, name in CODE_NAMES.items()}
 
 
-def _tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
+def grid_tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
+    """(row slice, column slice) of square tiles of ``tile`` posts covering a grid."""
     rows, cols = shape
     return [
         (slice(r, min(r + tile, rows)), slice(c, min(c + tile, cols)))
@@ -183,7 +184,7 @@ def compute_visibility(
         gsd[rs, cs] = np.where(inside & facing, t_gsd, np.nan)
         eps_out[rs, cs] = np.where(cast, t_eps, np.nan)
 
-    tiles = _tiles(terrain.shape, TILE)
+    tiles = grid_tiles(terrain.shape, TILE)
     bar = tqdm(total=len(tiles), desc="visibility", unit="tile", disable=not progress or None)
     with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
         for _ in pool.map(work, tiles):

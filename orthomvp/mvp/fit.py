@@ -27,18 +27,21 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from tqdm import tqdm
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.deconvolve import deconvolve
 from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
 from orthomvp.mvp.plane import PostLines, angles_from_normal, plane_map, post_lines, tangent_basis
+from orthomvp.ortho import check_image
+from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import VISIBLE
+from orthomvp.visibility import VISIBLE, compute_visibility, grid_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
 PREDICTED_TOL = 1e-4  # converged when a step would lower f by less than this fraction
@@ -212,13 +215,9 @@ def _levenberg_marquardt(
             break
         JTJ, JTr = ev.JTJ[idx], ev.JTr[idx]
         diag = np.einsum("bii->bi", JTJ)
-        A = JTJ + (lam[idx, None] * diag + 1e-12 * diag.max(axis=1, keepdims=True))[
-            ..., None
-        ] * np.eye(3)
-        try:
-            delta = -np.linalg.solve(A, JTr[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            delta = -np.linalg.lstsq(A[0], JTr[0], rcond=None)[0][None]  # pragma: no cover
+        floor = np.maximum(1e-12 * diag.max(axis=1, keepdims=True), 1e-30)
+        A = JTJ + (lam[idx, None] * diag + floor)[..., None] * np.eye(3)
+        delta = -np.linalg.solve(A, JTr[..., None])[..., 0]
         big = np.maximum(np.abs(delta[:, 0]) / max_dh, np.abs(delta[:, 1:]).max(axis=1) / 0.2)
         delta /= np.maximum(big, 1.0)[:, None]
         trial = theta[idx] + delta
@@ -271,7 +270,7 @@ def _fit_batch(
                 continue
             sel = np.nonzero(ok)[0] if level else np.arange(len(index))
             part = sub.take(sel)
-            th, ev, conv = _levenberg_marquardt(
+            th, _, conv = _levenberg_marquardt(
                 part,
                 stack,
                 level,
@@ -328,15 +327,6 @@ def _summarise(
     }
 
 
-def _tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
-    rows, cols = shape
-    return [
-        (slice(r, min(r + tile, rows)), slice(c, min(c + tile, cols)))
-        for r in range(0, rows, tile)
-        for c in range(0, cols, tile)
-    ]
-
-
 def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
     """At most ``wanted`` levels, and none whose images would be under 16 pixels across."""
     smallest = min(min(img.shape[-2:]) for img in images)
@@ -359,11 +349,6 @@ def fit_dem(
     ``visible`` (K, rows, cols) bool overrides the visibility test (codes == 1 of
     :func:`orthomvp.visibility.compute_visibility` with ``eps``, on this DEM's mesh).
     """
-    from orthomvp.mesh import terrain_mesh
-    from orthomvp.ortho import check_image
-    from orthomvp.raycast import RayCaster
-    from orthomvp.visibility import compute_visibility
-
     opts = options or FitOptions()
     if len(images) != len(cameras) or len(images) < 2:
         raise InputError(f"the fit needs at least 2 images with cameras, got {len(images)}")
@@ -382,9 +367,7 @@ def fit_dem(
     if visible.shape != (len(cams), *terrain.shape):
         raise InputError(f"visibility masks must be (K, rows, cols), got {visible.shape}")
     stack = ViewStack.build(bands, cams, pyramid_levels(bands, opts.levels))
-    if stack.levels and len(stack.levels) < opts.levels:
-        from dataclasses import replace
-
+    if len(stack.levels) < opts.levels:
         opts = replace(opts, levels=len(stack.levels))
     normals = terrain.normals()
     ok_post = terrain.valid & np.isfinite(normals).all(axis=-1)
@@ -422,7 +405,7 @@ def fit_dem(
         out.sigma_h[rr, cc] = res["sigma_h"]
         out.view_mask[:, rr, cc] = res["view_mask"].T
 
-    tiles = _tiles(terrain.shape, TILE)
+    tiles = grid_tiles(terrain.shape, TILE)
     bar = tqdm(total=len(tiles), desc="fit", unit="tile", disable=not progress or None)
     with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
         for _ in pool.map(work, tiles):
