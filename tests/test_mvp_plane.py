@@ -11,7 +11,7 @@ from scipy.ndimage import gaussian_filter
 from orthomvp.camera import PinholeCamera
 from orthomvp.mvp.deconvolve import deconvolve, window_plane
 from orthomvp.mvp.fit import PlaneModel
-from orthomvp.mvp.patches import ViewStack, evaluate, gaussian_window
+from orthomvp.mvp.patches import ViewStack, gaussian_window
 from orthomvp.mvp.plane import (
     L_matrix,
     angles_from_normal,
@@ -201,7 +201,7 @@ def test_normalised_patches_and_eq20_identity() -> None:
     theta = np.column_stack([h + 10.0, np.zeros(3), np.zeros(3)])
     H, _ = model.homographies(theta, 0, False)
     W = np.ones((3, 4), bool)
-    ev = evaluate(stack.levels[0], H, W, offsets, g, keep_patches=True)
+    ev = stack.evaluate(0, H, W, offsets, g, keep_patches=True)
     I = ev.patches.astype(np.float64)  # noqa: E741
     gg = g.astype(np.float64)
     np.testing.assert_allclose(I @ gg, 0.0, atol=1e-5)
@@ -222,14 +222,14 @@ def test_objective_gradient_matches_finite_differences() -> None:
     theta = np.column_stack([h + 12.0, np.full(3, 0.03), np.full(3, -0.02)])
     W = np.ones((3, 4), bool)
     H, dH = model.homographies(theta, 0)
-    ev = evaluate(stack.levels[0], H, W, offsets, g, dH)
+    ev = stack.evaluate(0, H, W, offsets, g, dH)
     grad = 2 * ev.JTr
     for p, d in enumerate((1.0, 0.003, 0.003)):
         tp, tm = theta.copy(), theta.copy()
         tp[:, p] += d
         tm[:, p] -= d
-        fp = evaluate(stack.levels[0], model.homographies(tp, 0, False)[0], W, offsets, g).cost
-        fm = evaluate(stack.levels[0], model.homographies(tm, 0, False)[0], W, offsets, g).cost
+        fp = stack.evaluate(0, model.homographies(tp, 0, False)[0], W, offsets, g).cost
+        fm = stack.evaluate(0, model.homographies(tm, 0, False)[0], W, offsets, g).cost
         fd = (fp - fm) / (2 * d)
         np.testing.assert_allclose(
             grad[:, p], fd, err_msg=f"parameter {p}", rtol=0.1, atol=0.01 * np.abs(fd).max()

@@ -82,13 +82,15 @@ class ViewStack:
     ``levels[L][k]``: view k at pyramid level L (image reduced 2**L times by ``cv2.pyrDown``) as
     a (rows, cols, 3) float32 array of value and its c and r gradients per pixel. ``F`` (K, 3, 4)
     projection matrices (eq. 9) of the undistorted level-0 images; level L pixel = level-0 pixel
-    / 2**L. ``sizes[L][k]`` = (cols, rows).
+    / 2**L. ``sizes[L][k]`` = (cols, rows). ``flat[L]`` (K,): the patch standard deviation
+    below which a view's patch is taken as flat (MIN_STD times the image's own), computed once.
+    ``samples`` counts the bilinear samples taken.
     """
 
     levels: list[list[np.ndarray]]
     F: np.ndarray
     sizes: list[list[tuple[int, int]]]
-    cameras: list[PinholeCamera]
+    flat: list[np.ndarray]
     samples: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -107,7 +109,9 @@ class ViewStack:
         (positions times channels) in ``samples``."""
         with self._lock:
             self.samples += H.shape[0] * H.shape[1] * len(g) * (1 if dH is None else 3)
-        return evaluate(self.levels[level], H, W, offsets, g, dH, extras, keep_patches)
+        return evaluate(
+            self.levels[level], self.flat[level], H, W, offsets, g, dH, extras, keep_patches
+        )
 
     @classmethod
     def build(
@@ -117,7 +121,7 @@ class ViewStack:
         cameras; ``n_levels`` pyramid levels."""
         levels: list[list[np.ndarray]] = [[] for _ in range(n_levels)]
         sizes: list[list[tuple[int, int]]] = [[] for _ in range(n_levels)]
-        Fs, cams = [], []
+        Fs = []
         for image, camera in zip(images, cameras, strict=True):
             img = np.asarray(image, dtype=np.float32)
             finite = np.isfinite(img)
@@ -126,14 +130,17 @@ class ViewStack:
             img = np.where(finite, img, np.float32(img[finite].mean()))
             img, camera = undistorted_image(img, camera)
             Fs.append(camera.F)
-            cams.append(camera)
             for level in range(n_levels):
                 if level:
                     img = cv2.pyrDown(img)
                 gc, gr = image_gradients(img)
                 levels[level].append(np.ascontiguousarray(np.stack([img, gc, gr], axis=-1)))
                 sizes[level].append((img.shape[1], img.shape[0]))
-        return cls(levels, np.stack(Fs), sizes, cams)
+        flat = [
+            np.array([MIN_STD * max(float(np.std(img[..., 0])), 1e-30) for img in lv], np.float32)
+            for lv in levels
+        ]
+        return cls(levels, np.stack(Fs), sizes, flat)
 
 
 @dataclass
@@ -181,6 +188,7 @@ def sample_patches(
 
 def evaluate(
     images: list[np.ndarray],
+    flat: np.ndarray,
     H: np.ndarray,
     W: np.ndarray,
     offsets: np.ndarray,
@@ -191,6 +199,7 @@ def evaluate(
 ) -> Evaluation:
     """The objective (eq. 20) at B planes seen through K views.
 
+    ``flat`` (K,): patch standard deviations at or below which a view's patch carries nothing;
     ``H`` (B, K, 3, 3): homographies from patch offsets to image pixels (any scale, w > 0);
     ``W`` (B, K) bool: views allowed to take part; ``dH`` (B, K, P, 3, 3): derivatives of H
     with respect to P plane parameters, on the same scale as H, to get the normal equations.
@@ -202,8 +211,7 @@ def evaluate(
     m = It @ g
     c = It - m[..., None]
     sd = np.sqrt(np.maximum((c * c) @ g, 0.0))
-    scale = np.array([np.std(img[..., 0]) for img in images], np.float32)
-    used = W & (sd > MIN_STD * np.maximum(scale, 1e-30))
+    used = W & (sd > flat)
     usedf = used.astype(np.float32)
     n = usedf.sum(axis=1)
     Ik = c / np.where(used, sd, 1.0)[..., None]
