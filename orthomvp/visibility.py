@@ -18,6 +18,7 @@ angle: a fixed angle is stricter towards the poles and ignores the resolution. S
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -92,6 +93,24 @@ def grid_tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
         for r in range(0, rows, tile)
         for c in range(0, cols, tile)
     ]
+
+
+def run_tiles(
+    work: Callable[[tuple[slice, slice]], None],
+    shape: tuple[int, int],
+    tile: int,
+    desc: str,
+    progress: bool = False,
+    threads: int | None = None,
+) -> None:
+    """Call ``work`` on every tile of a grid of ``shape`` in a thread pool (numpy, OpenCV and
+    Embree release the GIL), with a progress bar over tiles when asked."""
+    tiles = grid_tiles(shape, tile)
+    bar = tqdm(total=len(tiles), desc=desc, unit="tile", disable=not progress or None)
+    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
+        for _ in pool.map(work, tiles):
+            bar.update()
+    bar.close()
 
 
 def _tile_normals(terrain: Terrain, rs: slice, cs: slice) -> tuple[np.ndarray, np.ndarray]:
@@ -184,12 +203,7 @@ def compute_visibility(
         gsd[rs, cs] = np.where(inside & facing, t_gsd, np.nan)
         eps_out[rs, cs] = np.where(cast, t_eps, np.nan)
 
-    tiles = grid_tiles(terrain.shape, TILE)
-    bar = tqdm(total=len(tiles), desc="visibility", unit="tile", disable=not progress or None)
-    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
-        for _ in pool.map(work, tiles):
-            bar.update()
-    bar.close()
+    run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
     if not (codes != NODATA).any():
         raise GeometryError(_no_overlap_reason(terrain, camera))
     if not np.isin(codes, (VISIBLE, OCCLUDED)).any():

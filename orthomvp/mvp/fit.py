@@ -25,12 +25,9 @@ squares fit, s^2 (J^T G J)^-1 (J^T G^2 J) (J^T G J)^-1, whose (h, h) element is 
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
-from tqdm import tqdm
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import GeometryError, InputError
@@ -41,7 +38,7 @@ from orthomvp.mvp.plane import PostLines, angles_from_normal, plane_map, post_li
 from orthomvp.ortho import check_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import VISIBLE, compute_visibility, grid_tiles
+from orthomvp.visibility import VISIBLE, compute_visibility, run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
 PREDICTED_TOL = 1e-4  # converged when a step would lower f by less than this fraction
@@ -111,22 +108,33 @@ class FitResult:
         return np.degrees(angles_from_normal(self.normals)[1])
 
 
+@dataclass
 class PlaneModel:
-    """The homographies of a batch of posts and their parameter derivatives."""
+    """The homographies of a batch of posts and their parameter derivatives: height lines,
+    starting normals ``n0`` (B, 3) with tangents ``t1``, ``t2`` (from ``n0`` unless given),
+    projection matrices ``F`` (K, 3, 4) and the post spacing in metres."""
 
-    def __init__(self, lines: PostLines, n0: np.ndarray, F: np.ndarray, spacing: float) -> None:
-        self.lines = lines
-        self.n0 = n0
-        self.t1, self.t2 = tangent_basis(n0)
-        self.F = F
-        self.spacing = spacing
+    lines: PostLines
+    n0: np.ndarray
+    F: np.ndarray
+    spacing: float
+    t1: np.ndarray | None = None
+    t2: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.t1 is None or self.t2 is None:
+            self.t1, self.t2 = tangent_basis(self.n0)
 
     def take(self, index: np.ndarray) -> PlaneModel:
-        sub = PlaneModel.__new__(PlaneModel)
-        sub.lines = self.lines.take(index)
-        sub.n0, sub.t1, sub.t2 = self.n0[index], self.t1[index], self.t2[index]
-        sub.F, sub.spacing = self.F, self.spacing
-        return sub
+        """The model of a subset of the posts."""
+        return PlaneModel(
+            self.lines.take(index),
+            self.n0[index],
+            self.F,
+            self.spacing,
+            self.t1[index],
+            self.t2[index],
+        )
 
     def normal(self, theta: np.ndarray) -> np.ndarray:
         n = self.n0 + theta[:, 1:2] * self.t1 + theta[:, 2:3] * self.t2
@@ -405,12 +413,7 @@ def fit_dem(
         out.sigma_h[rr, cc] = res["sigma_h"]
         out.view_mask[:, rr, cc] = res["view_mask"].T
 
-    tiles = grid_tiles(terrain.shape, TILE)
-    bar = tqdm(total=len(tiles), desc="fit", unit="tile", disable=not progress or None)
-    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
-        for _ in pool.map(work, tiles):
-            bar.update()
-    bar.close()
+    run_tiles(work, terrain.shape, TILE, "fit", progress, threads)
     out.samples = stack.samples
     out.heights = deconvolve(out.plane_heights, opts.hwin, opts.window_sigma, opts.deconvolve)
     if not out.resolved.any():
