@@ -214,6 +214,27 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dem_options(p)
 
     p = sub.add_parser(
+        "explore",
+        help="explore the MVP objective at one DEM post (interactive or scripted)",
+        description="The objective explorer, successor of mvpgui: an mvp> prompt with "
+        "commands to plot the MVP objective against height (rplot) and orientation (llplot), "
+        "list the views, show the patches, run and trace the optimiser, and sweep the window "
+        "size; 'help' lists them. -c and --script run the same commands without a prompt "
+        "and stop with exit status 2 at the first bad one.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("pairs", type=Path, nargs="+", metavar="IMAGE CAMERA")
+    p.add_argument(
+        "-c", "--commands", metavar="CMDS", help="commands to run, separated by ';' or newlines"
+    )
+    p.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE")
+    p.add_argument(
+        "--levels", type=int, default=3, help="coarse-to-fine pyramid levels for fit (3)"
+    )
+    _add_eps_option(p)
+    _add_dem_options(p)
+
+    p = sub.add_parser(
         "fit",
         help="refine the DEM with the multi-view plane fitter (MVP)",
         description="Fit a plane (height, normal) at every DEM post to the images in which "
@@ -482,6 +503,49 @@ def _cmd_fit(args: argparse.Namespace) -> None:
     )
 
 
+def _cmd_explore(args: argparse.Namespace) -> None:
+    from orthomvp.errors import InputError
+    from orthomvp.explore import Explorer, ExplorerShell, run_commands, split_commands
+
+    if len(args.pairs) % 2:
+        raise InputError("explore needs IMAGE CAMERA pairs: got an odd number of files")
+    if args.commands is not None and args.script is not None:
+        raise InputError("give -c or --script, not both")
+    if args.levels < 1:
+        raise InputError("--levels must be >= 1")
+    script = None
+    if args.script is not None:
+        script = split_commands(args.script.read_text())
+    elif args.commands is not None:
+        script = split_commands(args.commands)
+    elif not sys.stdin.isatty():
+        script = split_commands(sys.stdin.read())
+    if not args.quiet:
+        print("Loading images...", end=" ", flush=True)
+    terrain = _read_terrain(args)
+    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    explorer = Explorer(
+        terrain,
+        [v[0] for v in views],
+        [v[1] for v in views],
+        [Path(a).name for a in args.pairs[::2]],
+        eps=args.eps,
+        levels=args.levels,
+    )
+    shell = ExplorerShell(explorer)
+    if not args.quiet:
+        rows, cols = terrain.shape
+        print(
+            f"Done! {len(views)} views, DEM {cols} x {rows} posts of "
+            f"{explorer.spacing:.1f} m; type help for the commands."
+        )
+        shell.do_poi("")
+    if script is None:
+        shell.cmdloop()
+    else:
+        run_commands(shell, script)
+
+
 def _cmd_eps_study(args: argparse.Namespace) -> None:
     from orthomvp.epsstudy import DEFAULT_EPS_VALUES, eps_study, plot, write_csv
 
@@ -512,6 +576,7 @@ COMMANDS = {
     "ortho": _cmd_ortho,
     "mosaic": _cmd_mosaic,
     "fit": _cmd_fit,
+    "explore": _cmd_explore,
     "eps-study": _cmd_eps_study,
     "bench": _cmd_bench,
     "demo": _cmd_demo,

@@ -197,6 +197,20 @@ class PlaneModel:
         return ok.all(axis=-1)
 
 
+@dataclass
+class Iterate:
+    """One Levenberg-Marquardt iteration of a batch: pyramid ``level``, the batch rows
+    ``index`` still iterating, the ``trial`` parameters (n, 3) tried and their ``cost``,
+    whether each was ``accepted``, and the damping ``lam`` used."""
+
+    level: int
+    index: np.ndarray
+    trial: np.ndarray
+    cost: np.ndarray
+    accepted: np.ndarray
+    lam: np.ndarray
+
+
 def _levenberg_marquardt(
     model: PlaneModel,
     stack: ViewStack,
@@ -206,9 +220,11 @@ def _levenberg_marquardt(
     offsets: np.ndarray,
     g: np.ndarray,
     opts: FitOptions,
+    trace: list[Iterate] | None = None,
 ) -> tuple[np.ndarray, Evaluation, np.ndarray]:
     """Minimise f per post from ``theta`` (B, 3) with view mask ``W``. Returns theta, the
-    evaluation (with normal equations) at it, and a converged flag (B,)."""
+    evaluation (with normal equations) at it, and a converged flag (B,). ``trace`` collects
+    every iteration (accepted or not)."""
     B = len(theta)
     H, dH = model.homographies(theta, level)
     ev = stack.evaluate(level, H, W, offsets, g, dH, extras=False)
@@ -243,6 +259,8 @@ def _levenberg_marquardt(
         theta[acc] = trial[better]
         for name in ("cost", "used", "JTJ", "JTr"):
             getattr(ev, name)[acc] = getattr(evt, name)[better]
+        if trace is not None:
+            trace.append(Iterate(level, idx, trial, evt.cost, better, lam[idx].copy()))
         lam[acc] *= 0.3
         lam[idx[~better]] *= 5.0
         small = (np.abs(delta[:, 0]) < step_h) & (np.abs(delta[:, 1:]).max(axis=1) < opts.ntol)
@@ -251,6 +269,42 @@ def _levenberg_marquardt(
         active[idx[done]] = False
         active[idx[lam[idx] > 1e7]] = False
     return theta, ev, converged
+
+
+def fit_planes(
+    model: PlaneModel,
+    stack: ViewStack,
+    theta: np.ndarray,
+    W: np.ndarray,
+    offsets: np.ndarray,
+    g: np.ndarray,
+    opts: FitOptions,
+    trace: list[Iterate] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Coarse to fine from ``theta`` (B, 3) over ``opts.levels`` pyramid levels with view mask
+    ``W`` (B, K); at coarse levels only posts whose patch stays inside 2 or more views take
+    part. Returns theta and the converged flag of the finest level; ``trace`` collects every
+    iteration."""
+    conv = np.zeros(len(theta), bool)
+    for level in range(opts.levels - 1, -1, -1):
+        Wl = W & model.inside(theta, level, opts.hwin, stack.sizes[level], opts.margin)
+        ok = Wl.sum(axis=1) >= 2
+        if level and not ok.any():
+            continue
+        sel = np.nonzero(ok)[0] if level else np.arange(len(theta))
+        th, _, conv = _levenberg_marquardt(
+            model.take(sel),
+            stack,
+            level,
+            theta[sel].copy(),
+            Wl[sel] if level else W[sel],
+            offsets,
+            g,
+            opts,
+            trace,
+        )
+        theta[sel] = th
+    return theta, conv
 
 
 def _fit_batch(
@@ -269,27 +323,7 @@ def _fit_batch(
     W0 = visible & model.inside(start, 0, opts.hwin, stack.sizes[0], opts.margin)
 
     def run(index: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        sub = model.take(index)
-        theta = start[index].copy()
-        for level in range(opts.levels - 1, -1, -1):
-            Wl = W & sub.inside(theta, level, opts.hwin, stack.sizes[level], opts.margin)
-            ok = Wl.sum(axis=1) >= 2
-            if level and not ok.any():
-                continue
-            sel = np.nonzero(ok)[0] if level else np.arange(len(index))
-            part = sub.take(sel)
-            th, _, conv = _levenberg_marquardt(
-                part,
-                stack,
-                level,
-                theta[sel].copy(),
-                Wl[sel] if level else W[sel],
-                offsets,
-                g,
-                opts,
-            )
-            theta[sel] = th
-        return theta, conv
+        return fit_planes(model.take(index), stack, start[index].copy(), W, offsets, g, opts)
 
     W = W0.copy()
     theta, conv = run(np.arange(B), W)
