@@ -1,41 +1,90 @@
 """Regenerate every picture used in the README into viz/.
 
-Run from the repository root: ``python viz/gallery.py``. Pictures from the real data in
-``../shared/data`` are made when it is present.
+Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``, ``eps``
+and ``explore`` (default: all). Pictures from the real data in ``../shared/data`` are made when
+it is present.
 """
 
 from __future__ import annotations
 
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
+from orthomvp.camera import read_camera
 from orthomvp.demo import run_demo
 from orthomvp.epsstudy import eps_study, plot, write_csv
+from orthomvp.explore import Explorer, ExplorerShell, run_commands
+from orthomvp.raster import read_image
 from orthomvp.synth import make_scene
+from orthomvp.terrain import Terrain
 
 HERE = Path(__file__).resolve().parent
+DATA = HERE.parents[1] / "shared" / "data"
 
 
-def main() -> None:
+def demo_pictures(tmp: Path) -> None:
+    """The crater scene overview and the naive / occlusion-aware / mosaic orthophotos."""
+    demo = tmp / "demo"
+    run_demo(demo, quiet=True)
+    for name in ("overview.png", "orthophotos.png"):
+        shutil.copy(demo / name, HERE / name)
+
+
+def eps_pictures(tmp: Path) -> None:
+    """The epsilon study behind the default rule: the default crater scene (40 m posts, image
+    GSD 0.8 posts) and DEMs with 0, 5 and 10 m of noise."""
+    scene = tmp / "crater"
+    make_scene("crater").write(scene)
+    rows = eps_study(scene, noise=(0.0, 5.0, 10.0))
+    write_csv(rows, HERE / "eps-study.csv")
+    plot(
+        rows,
+        HERE / "eps-study.png",
+        "crater scene, oblique view: visibility test vs marched truth (dotted: default)",
+    )
+
+
+def explore_pictures(tmp: Path) -> None:
+    """rplot, llplot and a window sweep at the centre post of the real Apollo 15 tile, with a
+    Gaussian window of sigma 8 posts as in the mvpgui paper's figures 10 and 11; the fit runs
+    from the ground DEM's tangent plane and its path is drawn."""
+    data = DATA / "apollo15-mvp"
+    if not data.exists():
+        print(f"skipping the explorer pictures: {data} is absent")
+        return
+    explorer = Explorer(
+        Terrain.read(data / "ground-dem.tif"),
+        [read_image(data / f"image{k}.tif") for k in range(4)],
+        [read_camera(data / f"camera{k}.pinhole") for k in range(4)],
+        [f"image{k}" for k in range(4)],
+    )
+    commands = [
+        "hwin 16",
+        "fit",
+        "rplot 400",
+        f"save {HERE / 'apollo-rplot.png'}",
+        "llplot 15",
+        f"save {HERE / 'apollo-llplot.png'}",
+        "sweep hwin 2 16 2",
+        f"save {HERE / 'apollo-sweep.png'}",
+    ]
+    run_commands(ExplorerShell(explorer), commands)
+
+
+PARTS = {"demo": demo_pictures, "eps": eps_pictures, "explore": explore_pictures}
+
+
+def main(parts: list[str]) -> None:
+    unknown = set(parts) - set(PARTS)
+    if unknown:
+        sys.exit(f"gallery: unknown part(s) {sorted(unknown)}; choose from {sorted(PARTS)}")
     with tempfile.TemporaryDirectory() as tmp:
-        demo = Path(tmp) / "demo"
-        run_demo(demo, quiet=True)
-        for name in ("overview.png", "orthophotos.png"):
-            shutil.copy(demo / name, HERE / name)
-        # the epsilon study behind the default rule: the default crater scene (40 m posts,
-        # image GSD 0.8 posts) and DEMs with 0, 5 and 10 m of noise
-        scene = Path(tmp) / "crater"
-        make_scene("crater").write(scene)
-        rows = eps_study(scene, noise=(0.0, 5.0, 10.0))
-        write_csv(rows, HERE / "eps-study.csv")
-        plot(
-            rows,
-            HERE / "eps-study.png",
-            "crater scene, oblique view: visibility test vs marched truth (dotted: default)",
-        )
+        for name in parts or PARTS:
+            PARTS[name](Path(tmp))
     print(f"wrote the README pictures into {HERE}")
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])
