@@ -12,14 +12,23 @@ Conventions, those of VW and the Ames Stereo Pipeline (ASP):
   distorted position, which divided by ``pitch`` is the pixel.
 - Pixels are (u, v) = (column, row); integer values are pixel centres, as in VW.
 
-File formats: ASP/VW ``.tsai`` text (VERSION_4, VERSION_3 and the older unversioned form), VW's
-binary ``.pinhole`` protobuf (``TsaiFile``, decoded here without a protobuf library) and a plain
-JSON form of our own. Writers replace the destination atomically.
+Lens distortion models: ASP's NULL, TSAI, BrownConrady, Photometrix, FISHEYE and FOV, as VW's
+LensDistortion.cc computes them, and OpenCV's full model (ours; for Orthority's ``opencv``).
+ASP's AdjustableTSAI and RPC models are recognised and refused by name.
+
+File formats: ASP/VW ``.tsai`` text (VERSION_1 to VERSION_4 and the unversioned form), VW's
+binary ``.pinhole`` protobuf (``TsaiFile``, decoded here without a protobuf library), a plain
+JSON form of our own, and Orthority's interior (YAML) and exterior (CSV, GeoJSON) parameter
+files (:func:`read_orthority_cameras`; :func:`read_camera` picks one image's camera from them).
+Writers replace the destination atomically.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import json
+import math
 import os
 import re
 import secrets
@@ -243,20 +252,256 @@ class BrownConradyDistortion(Distortion):
         return np.stack([fx, fy], axis=-1) + offset
 
 
+@dataclass(frozen=True)
+class PhotometrixDistortion(Distortion):
+    """VW ``PhotometrixLensDistortion`` (``Photometrix``, Australis conventions), in pitch units.
+
+    Like Brown-Conrady, the explicit formula goes from distorted to undistorted positions: with
+    (x, y) = (X - cu - xp, Y - cv - yp), r2 = x^2 + y^2 and d = k1 r2 + k2 r2^2 + k3 r2^3, the
+    undistorted position is ``(X + x d + p1 (r2 + 2 x^2) + 2 p2 x y,
+    Y + y d + p2 (r2 + 2 y^2) + 2 p1 x y)``. Distortion solves this by Newton's method. ``b1``,
+    ``b2`` are carried but unused, as in VW. ``xp``, ``yp`` in pitch units, ``k1`` 1/unit^2,
+    ``k2`` 1/unit^4, ``k3`` 1/unit^6, ``p1``, ``p2`` 1/unit.
+    """
+
+    name: ClassVar[str] = "Photometrix"
+    xp: float
+    yp: float
+    k1: float
+    k2: float
+    k3: float
+    p1: float
+    p2: float
+    b1: float
+    b2: float
+
+    def _relative(self, ax: np.ndarray, ay: np.ndarray) -> _Arrays:
+        """Undistorted position, relative to (cu, cv), of the distorted one (ax, ay) relative to
+        (cu, cv), and the Jacobian, as for :func:`_newton`."""
+        x, y = ax - self.xp, ay - self.yp
+        r2 = x * x + y * y
+        d = r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dd = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)  # d d / d r2
+        p1, p2 = self.p1, self.p2
+        return (
+            ax + x * d + p1 * (r2 + 2.0 * x * x) + 2.0 * p2 * x * y,
+            ay + y * d + p2 * (r2 + 2.0 * y * y) + 2.0 * p1 * x * y,
+            1.0 + d + 2.0 * x * x * dd + 6.0 * p1 * x + 2.0 * p2 * y,
+            2.0 * x * y * dd + 2.0 * p1 * y + 2.0 * p2 * x,
+            2.0 * x * y * dd + 2.0 * p2 * x + 2.0 * p1 * y,
+            1.0 + d + 2.0 * y * y * dd + 6.0 * p2 * y + 2.0 * p1 * x,
+        )
+
+    def distort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Newton's method on the undistortion formula, from the undistorted position."""
+        return _newton(self._relative, xy - offset) + offset
+
+    def undistort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Explicit formula (see the class docstring)."""
+        a = xy - offset
+        fx, fy = self._relative(a[..., 0], a[..., 1])[:2]
+        return np.stack([fx, fy], axis=-1) + offset
+
+
+_SMALL_RADIUS = 1e-8  # normalised radius below which the radial models are the identity, as VW
+
+
+@dataclass(frozen=True)
+class FisheyeDistortion(Distortion):
+    """VW ``FisheyeLensDistortion`` (``FISHEYE``), OpenCV's fisheye model (and Orthority's).
+
+    With (x, y) the undistorted position normalised by the focal length, r = |(x, y)|,
+    theta = atan(r) and theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8),
+    the distorted normalised position is (x, y) theta_d / r ((x, y) itself where r <= 1e-8).
+    Undistortion solves this by Newton's method. The parameters are dimensionless.
+    """
+
+    name: ClassVar[str] = "FISHEYE"
+    k1: float
+    k2: float
+    k3: float
+    k4: float
+
+    def _normalised(self, x: np.ndarray, y: np.ndarray) -> _Arrays:
+        """Distorted normalised position of (x, y) and the Jacobian, as for :func:`_newton`."""
+        r2 = x * x + y * y
+        r = np.sqrt(r2)
+        small = r <= _SMALL_RADIUS
+        rs = np.where(small, 1.0, r)
+        t = np.arctan(rs)
+        t2 = t * t
+        poly = 1.0 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4)))
+        dpoly = 1.0 + t2 * (
+            3 * self.k1 + t2 * (5 * self.k2 + t2 * (7 * self.k3 + 9 * self.k4 * t2))
+        )
+        scale = np.where(small, 1.0, t * poly / rs)
+        # d scale / d r, divided by r: the Jacobian is scale I + (scale' / r) (x, y) (x, y)^T
+        q = np.where(small, 0.0, (dpoly / (1.0 + rs * rs) - scale) / (rs * rs))
+        return x * scale, y * scale, scale + q * x * x, q * x * y, q * x * y, scale + q * y * y
+
+    def distort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Explicit formula (see the class docstring)."""
+        n = (xy - offset) / focal
+        fx, fy = self._normalised(n[..., 0], n[..., 1])[:2]
+        return np.stack([fx, fy], axis=-1) * focal + offset
+
+    def undistort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Newton's method, starting from the distorted position."""
+        return _newton(self._normalised, (xy - offset) / focal) * focal + offset
+
+
+@dataclass(frozen=True)
+class FovDistortion(Distortion):
+    """VW ``FovLensDistortion`` (``FOV``): the one-parameter field-of-view model, k1 > 0.
+
+    With r_u the radius of the undistorted position normalised by the focal length, the distorted
+    radius is r_d = atan(2 r_u tan(k1 / 2)) / k1, and the inverse r_u = tan(r_d k1) / (2 tan(k1 /
+    2)); positions scale by r_d / r_u (unchanged where the radius is <= 1e-8). Both directions are
+    explicit. ``k1`` is dimensionless (radians).
+    """
+
+    name: ClassVar[str] = "FOV"
+    k1: float
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.k1 <= 0:
+            raise InputError(f"FOV distortion: k1 = {self.k1!r} must be positive")
+
+    def _scaled(
+        self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray, forward: bool
+    ) -> np.ndarray:
+        n = (xy - offset) / focal
+        r = np.hypot(n[..., 0], n[..., 1])
+        small = r <= _SMALL_RADIUS
+        rs = np.where(small, 1.0, r)
+        two_tan = 2.0 * np.tan(self.k1 / 2.0)
+        with np.errstate(invalid="ignore"):
+            other = np.arctan(rs * two_tan) / self.k1 if forward else np.tan(rs * self.k1) / two_tan
+            if not forward:  # beyond r_d = pi / (2 k1) no undistorted position exists
+                other = np.where(rs * self.k1 < np.pi / 2, other, np.nan)
+        scale = np.where(small, 1.0, other / rs)
+        return n * scale[..., None] * focal + offset
+
+    def distort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Explicit formula (see the class docstring)."""
+        return self._scaled(xy, focal, offset, forward=True)
+
+    def undistort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Explicit formula (see the class docstring); NaN where r_d k1 >= pi / 2."""
+        return self._scaled(xy, focal, offset, forward=False)
+
+
+@dataclass(frozen=True)
+class OpenCVDistortion(Distortion):
+    """OpenCV's full camera model (``OpenCV``: an orthomvp name, ASP does not read it).
+
+    Used for Orthority's ``opencv`` cameras when they need more than TSAI. With (x, y) the
+    undistorted position normalised by the focal length and r2 = x^2 + y^2, first
+    ``x'' = x g + 2 p1 x y + p2 (r2 + 2 x^2) + s1 r2 + s2 r2^2`` and
+    ``y'' = y g + p1 (r2 + 2 y^2) + 2 p2 x y + s3 r2 + s4 r2^2``, where
+    g = (1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5 r2^2 + k6 r2^3); then the tilted-sensor
+    homography of angles (tx, ty), radians: with T = Ry(ty) Rx(tx) (OpenCV's rotations,
+    Rx(a) = [[1, 0, 0], [0, cos a, sin a], [0, -sin a, cos a]],
+    Ry(a) = [[cos a, 0, -sin a], [0, 1, 0], [sin a, 0, cos a]]), H = [[T33, 0, -T13],
+    [0, T33, -T23], [0, 0, 1]] T maps (x'', y'', 1) to the distorted normalised position
+    (homogeneous). Undistortion inverts H exactly and the rest by Newton's method. Every
+    parameter defaults to 0 (OpenCV's k1..k6, p1, p2, s1..s4, tau_x, tau_y).
+    """
+
+    name: ClassVar[str] = "OpenCV"
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+    k4: float = 0.0
+    k5: float = 0.0
+    k6: float = 0.0
+    s1: float = 0.0
+    s2: float = 0.0
+    s3: float = 0.0
+    s4: float = 0.0
+    tx: float = 0.0
+    ty: float = 0.0
+
+    @property
+    def tilt(self) -> np.ndarray:
+        """The (3, 3) tilted-sensor homography H (the identity when tx = ty = 0)."""
+        cx, sx, cy, sy = np.cos(self.tx), np.sin(self.tx), np.cos(self.ty), np.sin(self.ty)
+        rot_x = np.array([[1.0, 0.0, 0.0], [0.0, cx, sx], [0.0, -sx, cx]])
+        rot_y = np.array([[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]])
+        t = rot_y @ rot_x
+        proj = np.array([[t[2, 2], 0.0, -t[0, 2]], [0.0, t[2, 2], -t[1, 2]], [0.0, 0.0, 1.0]])
+        return proj @ t
+
+    def _untilted(self, x: np.ndarray, y: np.ndarray) -> _Arrays:
+        """(x'', y'') of the normalised position (x, y) and the Jacobian, as for :func:`_newton`."""
+        r2 = x * x + y * y
+        num = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        den = 1.0 + r2 * (self.k4 + r2 * (self.k5 + r2 * self.k6))
+        dnum = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)
+        dden = self.k4 + r2 * (2.0 * self.k5 + 3.0 * self.k6 * r2)
+        g = num / den
+        dg = (dnum * den - num * dden) / (den * den)  # d g / d r2
+        px = self.s1 + 2.0 * self.s2 * r2  # d prism_x / d r2
+        py = self.s3 + 2.0 * self.s4 * r2
+        p1, p2 = self.p1, self.p2
+        fx = x * g + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + r2 * (self.s1 + self.s2 * r2)
+        fy = y * g + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y + r2 * (self.s3 + self.s4 * r2)
+        dxx = g + 2.0 * x * x * dg + 2.0 * p1 * y + 6.0 * p2 * x + 2.0 * x * px
+        dxy = 2.0 * x * y * dg + 2.0 * p1 * x + 2.0 * p2 * y + 2.0 * y * px
+        dyx = 2.0 * x * y * dg + 2.0 * p1 * x + 2.0 * p2 * y + 2.0 * x * py
+        dyy = g + 2.0 * y * y * dg + 6.0 * p1 * y + 2.0 * p2 * x + 2.0 * y * py
+        return fx, fy, dxx, dxy, dyx, dyy
+
+    def distort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Explicit formula (see the class docstring)."""
+        n = (xy - offset) / focal
+        fx, fy = self._untilted(n[..., 0], n[..., 1])[:2]
+        h = np.stack([fx, fy, np.ones_like(fx)], axis=-1) @ self.tilt.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return h[..., :2] / h[..., 2:] * focal + offset
+
+    def undistort(self, xy: np.ndarray, focal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """The inverse homography, then Newton's method from its result."""
+        n = (xy - offset) / focal
+        h = np.concatenate([n, np.ones_like(n[..., :1])], axis=-1) @ np.linalg.inv(self.tilt).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            untilted = h[..., :2] / h[..., 2:]
+        return _newton(self._untilted, untilted) * focal + offset
+
+
 _DISTORTIONS: dict[str, type[Distortion]] = {
-    cls.name.lower(): cls for cls in (NullDistortion, TsaiDistortion, BrownConradyDistortion)
+    cls.name.lower(): cls
+    for cls in (
+        NullDistortion,
+        TsaiDistortion,
+        BrownConradyDistortion,
+        PhotometrixDistortion,
+        FisheyeDistortion,
+        FovDistortion,
+        OpenCVDistortion,
+    )
+}
+_UNSUPPORTED_DISTORTIONS = {
+    "adjustabletsai": "AdjustableTSAI",
+    "rpc": "RPC",
 }
 
 
 def distortion_class(name: str) -> type[Distortion]:
     """The distortion model called ``name`` (case-insensitive); InputError if unsupported."""
-    try:
-        return _DISTORTIONS[name.strip().lower()]
-    except KeyError:
-        known = ", ".join(cls.name for cls in _DISTORTIONS.values())
+    key = name.strip().lower()
+    if key in _DISTORTIONS:
+        return _DISTORTIONS[key]
+    known = ", ".join(cls.name for cls in _DISTORTIONS.values())
+    if key in _UNSUPPORTED_DISTORTIONS:
         raise InputError(
-            f"unsupported lens distortion model {name!r} (supported: {known})"
-        ) from None
+            f"ASP's {_UNSUPPORTED_DISTORTIONS[key]} lens distortion is not supported (supported: "
+            f"{known}); ASP's convert_pinhole_model can convert it to TSAI"
+        )
+    raise InputError(f"unsupported lens distortion model {name!r} (supported: {known})")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,23 +695,37 @@ class PinholeCamera:
 # Reading
 
 
-def read_camera(path: str | Path) -> PinholeCamera:
-    """Read a camera from ``.tsai`` text, binary ``.pinhole`` or our ``.json``.
+def read_camera(
+    path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
+) -> PinholeCamera:
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, or Orthority files.
 
-    Other extensions are recognised by their content. A missing or unreadable file raises
-    InputError; a file that breaks its format raises FormatError naming it (and the line, for
-    text formats).
+    Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
+    their content) ignore ``image`` and ``interior``.
+
+    Orthority's exterior parameter files (``.csv``, ``.geojson``, or a ``.json`` holding a
+    GeoJSON FeatureCollection) hold many images: ``image`` (a path or a name) picks the row
+    whose ``filename`` has the same stem (file name without directory and extension); without
+    ``image`` the file must hold one camera. The interior parameters come from ``interior``, or
+    else from the one ``.yaml``/``.yml`` file in the exterior file's directory. CSV angles are
+    in degrees (see :func:`read_orthority_cameras`). An interior ``.yaml`` alone holds no
+    camera pose and raises InputError.
+
+    A missing or unreadable file raises InputError; a file that breaks its format raises
+    FormatError naming it (and the line, for text formats).
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: camera file not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, not a camera file") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read camera file ({exc.strerror})") from exc
     suffix = path.suffix.lower()
+    if suffix in _INTERIOR_SUFFIXES:
+        raise InputError(
+            f"{path}: Orthority interior parameters hold no camera position; give the exterior "
+            "parameter file (.csv or .geojson) as the camera, with this file beside it"
+        )
+    data = _read_bytes(path, "camera file")
+    if suffix in _EXTERIOR_SUFFIXES or (
+        suffix == ".json" and _FEATURE_COLLECTION.search(_text(path, data))
+    ):
+        return _orthority_camera(path, image, interior)
     if suffix == ".tsai":
         return _parse_tsai(path, _text(path, data))
     if suffix == ".pinhole":
@@ -474,6 +733,18 @@ def read_camera(path: str | Path) -> PinholeCamera:
     if suffix == ".json":
         return _parse_json(path, _text(path, data))
     return _sniff(path, data)
+
+
+def _read_bytes(path: Path, what: str) -> bytes:
+    """The contents of ``path``; InputError naming ``what`` if it cannot be read."""
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, not a {what}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc.strerror})") from exc
 
 
 def _text(path: Path, data: bytes) -> str:
@@ -625,7 +896,7 @@ def _parse_tsai(path: Path, text: str) -> PinholeCamera:
     if version <= 2 and nxt is not None and _KEY_VALUES.fullmatch(nxt[1]):
         model, name_line = "TSAI", nxt[0]  # old files: TSAI parameters without a name line
     else:
-        name_line, model = lines.take("the lens distortion name (NULL, TSAI, BrownConrady)")
+        name_line, model = lines.take("the lens distortion name (NULL, TSAI, ...)")
     try:
         names = distortion_class(model).param_names()
     except InputError as exc:
@@ -658,7 +929,6 @@ _PB_DOUBLES = {
     10: ("distortion_vector", None),
     11: ("pixel_pitch", 1),
 }
-_PB_DISTORTION_COUNTS = {"null": (0,), "tsai": (4, 5), "brownconrady": (8,)}
 
 
 def _varint(data: bytes, pos: int) -> tuple[int, int]:
@@ -750,17 +1020,19 @@ def _camera_from_protobuf(path: Path, decoded: dict[int, list[tuple[int, bytes]]
     except (ValueError, UnicodeDecodeError) as exc:
         raise FormatError(path, f"bad .pinhole camera: {exc}") from exc
     dist_values = got["distortion_vector"]
-    counts = _PB_DISTORTION_COUNTS.get(distortion_name.lower())
-    if counts is not None and len(dist_values) not in counts:
+    try:
+        cls = distortion_class(distortion_name)
+    except InputError as exc:
+        raise FormatError(path, str(exc)) from None
+    counts = range(len(cls.required_params()), len(cls.param_names()) + 1)
+    if len(dist_values) not in counts:
         raise FormatError(
             path,
             f"{distortion_name} distortion needs {' or '.join(map(str, counts))} values, "
             f"got {len(dist_values)}",
         )
-    cls = _DISTORTIONS.get(distortion_name.lower())
-    names = cls.param_names() if cls is not None else ()
     distortion = _distortion(
-        path, distortion_name, dict(zip(names, dist_values, strict=False)), None
+        path, cls.name, dict(zip(cls.param_names(), dist_values, strict=False)), None
     )
     return _build(
         path,
@@ -839,6 +1111,518 @@ def _parse_json(path: Path, text: str) -> PinholeCamera:
     params = {k: _json_numbers(path, text, k, v, ()) for k, v in spec.items() if k != "model"}
     values["distortion"] = _distortion(path, spec["model"], params, line)
     return _build(path, lambda name: _json_line(text, name), **values)
+
+
+# Orthority parameter files: interior (.yaml), exterior (.csv, .geojson)
+
+_ORTHORITY_MODELS: dict[str, tuple[str, ...]] = {
+    "pinhole": (),
+    "brown": ("k1", "k2", "p1", "p2", "k3"),
+    "fisheye": FisheyeDistortion.param_names(),
+    "opencv": OpenCVDistortion.param_names(),
+}
+_ORTHORITY_COMMON = ("type", "im_size", "focal_len", "sensor_size", "cx", "cy")
+_CSV_LEGACY_FIELDS = ("filename", "x", "y", "z", "omega", "phi", "kappa")
+_FEATURE_COLLECTION = re.compile(r'"type"\s*:\s*"FeatureCollection"')
+_EXTERIOR_SUFFIXES = (".csv", ".geojson")
+_INTERIOR_SUFFIXES = (".yaml", ".yml")
+
+
+def orthority_rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
+    """Camera-to-world R (3, 3) of Orthority/PATB angles (radians), for VW's camera axes.
+
+    R = Rx(omega) Ry(phi) Rz(kappa) diag(1, -1, -1), with the right-handed rotations
+    Rx(a) = [[1, 0, 0], [0, cos a, -sin a], [0, sin a, cos a]] (Ry, Rz alike): the angles rotate
+    PATB camera axes (x right, y up, z backward) to the world; diag(1, -1, -1) turns them into
+    the OpenCV/VW axes used here (x right, y down, z forward, u = x, v = y, w = z).
+    """
+    co, so, cp, sp, ck, sk = (f(a) for a in (omega, phi, kappa) for f in (np.cos, np.sin))
+    rot_x = np.array([[1.0, 0.0, 0.0], [0.0, co, -so], [0.0, so, co]])
+    rot_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rot_z = np.array([[ck, -sk, 0.0], [sk, ck, 0.0], [0.0, 0.0, 1.0]])
+    return rot_x @ rot_y @ rot_z @ np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass(frozen=True)
+class _Interior:
+    """One camera of an interior parameter file, in pixels."""
+
+    fu: float
+    fv: float
+    cu: float
+    cv: float
+    width: int
+    height: int
+    distortion: Distortion
+
+
+@dataclass(frozen=True)
+class _Exterior:
+    """One image of an exterior parameter file: position (world units), angles in radians."""
+
+    filename: str
+    camera: str | None
+    xyz: tuple[float, float, float]
+    opk: tuple[float, float, float]
+    line: int | None
+
+
+def read_orthority_cameras(
+    interior: str | Path, exterior: str | Path, *, radians: bool = False
+) -> dict[str, PinholeCamera]:
+    """The cameras of Orthority interior and exterior parameter files, by image file stem.
+
+    ``interior``: Orthority's YAML interior parameters, a mapping of camera id to ``type``
+    (``pinhole``, ``brown``, ``opencv`` or ``fisheye``), ``im_size`` [width, height] pixels,
+    ``focal_len`` (a number or [fx, fy]) in the units of the optional ``sensor_size``
+    [width, height] (absent: ``focal_len`` is normalised by the image width, as Orthority does),
+    ``cx``, ``cy`` (principal point offsets in OpenSfM normalised image coordinates: the
+    principal point is ((w - 1) / 2 + cx max(w, h), (h - 1) / 2 + cy max(w, h)) pixels) and the
+    model's distortion coefficients (default 0): ``brown`` k1 k2 p1 p2 k3 and ``opencv`` k1..k6
+    p1 p2 s1..s4 tx ty, both OpenCV's model (TSAI here, or :class:`OpenCVDistortion` when a
+    coefficient beyond TSAI's is set); ``fisheye`` k1..k4 (FISHEYE). Without any coefficient the
+    camera has no distortion.
+
+    ``exterior``: Orthority's CSV (header naming ``filename``, ``x``, ``y``, ``z``, ``omega``,
+    ``phi``, ``kappa`` and optionally ``camera``, or no header and those seven in that order;
+    angles in degrees unless ``radians``) or GeoJSON (a FeatureCollection whose features have
+    ``filename``, ``camera``, ``xyz`` and ``opk`` in radians). Positions are world coordinates
+    as given (a projected CRS taken as Cartesian); the angles give R by
+    :func:`orthority_rotation`. A row's ``camera`` names its interior camera; without it, the
+    interior file must hold one camera.
+
+    Returns the cameras (pitch 1, intrinsics in pixels, image size set), keyed by the stem of
+    each ``filename`` (the name without directory and extension). FormatError for bad files.
+    """
+    interior, exterior = Path(interior), Path(exterior)
+    cameras = _read_interior(interior)
+    out: dict[str, PinholeCamera] = {}
+    for ext in _read_exterior(exterior, radians):
+        key = Path(ext.filename).stem
+        if key in out:
+            raise FormatError(exterior, f"image {key!r} appears twice", ext.line)
+        if ext.camera is not None:
+            if ext.camera not in cameras:
+                raise FormatError(
+                    exterior,
+                    f"camera {ext.camera!r} of image {key!r} is not in {interior} "
+                    f"(it has {', '.join(map(repr, cameras))})",
+                    ext.line,
+                )
+            intr = cameras[ext.camera]
+        elif len(cameras) == 1:
+            intr = next(iter(cameras.values()))
+        else:
+            raise FormatError(
+                exterior,
+                f"image {key!r} names no camera, and {interior} holds {len(cameras)}",
+                ext.line,
+            )
+        out[key] = _build(
+            exterior,
+            lambda _, line=ext.line: line,
+            fu=intr.fu,
+            fv=intr.fv,
+            cu=intr.cu,
+            cv=intr.cv,
+            center=ext.xyz,
+            rotation=orthority_rotation(*ext.opk),
+            distortion=intr.distortion,
+            width=intr.width,
+            height=intr.height,
+        )
+    return out
+
+
+def _orthority_camera(
+    path: Path, image: str | Path | None, interior: str | Path | None
+) -> PinholeCamera:
+    """The camera of ``image`` in the Orthority exterior file ``path`` (see :func:`read_camera`)."""
+    if interior is None:
+        found = sorted(p for p in path.parent.iterdir() if p.suffix.lower() in _INTERIOR_SUFFIXES)
+        if len(found) != 1:
+            what = "no" if not found else f"{len(found)} ({', '.join(p.name for p in found)})"
+            raise InputError(
+                f"{path}: Orthority exterior parameters need the interior parameter file: "
+                f"{what} .yaml files beside it; give it explicitly"
+            )
+        interior = found[0]
+    cameras = read_orthority_cameras(interior, path)
+    if image is None:
+        if len(cameras) != 1:
+            raise InputError(
+                f"{path}: holds {len(cameras)} cameras; name the image to pick one by its stem"
+            )
+        return next(iter(cameras.values()))
+    stem = Path(image).stem
+    if stem not in cameras:
+        raise InputError(
+            f"{path}: no camera for image {stem!r} (it has {', '.join(map(repr, cameras))})"
+        )
+    return cameras[stem]
+
+
+def _read_interior(path: Path) -> dict[str, _Interior]:
+    """The cameras of an Orthority interior parameter (YAML) file, by camera id."""
+    data, where = _yaml_load(path, _text(path, _read_bytes(path, "interior parameter file")))
+    if not isinstance(data, dict) or not data:
+        raise FormatError(path, "expected a mapping of camera ids to their parameters", 1)
+    out: dict[str, _Interior] = {}
+    for cam_id, params in data.items():
+        line = where[(cam_id,)]
+        if not isinstance(params, dict):
+            raise FormatError(path, f"camera {cam_id!r}: expected a mapping of parameters", line)
+        lines = {key: where.get((cam_id, key), line) for key in params}
+        out[cam_id] = _interior(path, cam_id, params, line, lines)
+    return out
+
+
+def _interior(
+    path: Path, cam_id: str, params: dict[str, object], line: int, lines: dict[str, int]
+) -> _Interior:
+    """One camera of an interior parameter file (see :func:`read_orthority_cameras`);
+    ``line`` is the camera id's line, ``lines`` each parameter's."""
+
+    def fail(key: str, message: str) -> FormatError:
+        return FormatError(path, f"camera {cam_id!r}: {message}", lines.get(key, line))
+
+    def numbers(key: str, sizes: tuple[int, ...], positive: bool = False) -> list[float]:
+        value = params[key]
+        items = value if isinstance(value, list) else [value]
+        if len(items) not in sizes or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in items
+        ):
+            count = " or ".join(map(str, sizes))
+            raise fail(key, f"{key} must be {count} finite number(s), got {value!r}")
+        if positive and min(items) <= 0:
+            raise fail(key, f"{key} must be positive, got {value!r}")
+        return [float(v) for v in items]
+
+    kind = params.get("type")
+    if kind not in _ORTHORITY_MODELS:
+        known = ", ".join(_ORTHORITY_MODELS)
+        raise fail("type", f"camera type {kind!r} is not supported (supported: {known})")
+    coefficients = _ORTHORITY_MODELS[str(kind)]
+    for key in params:
+        if key not in _ORTHORITY_COMMON + coefficients:
+            raise fail(key, f"{kind} cameras have no parameter {key!r}")
+    for key in ("im_size", "focal_len"):
+        if key not in params:
+            raise fail(key, f"missing {key}")
+    size = numbers("im_size", (2,), positive=True)
+    if not all(v == int(v) for v in size):
+        raise fail("im_size", f"im_size must be whole pixels, got {params['im_size']!r}")
+    width, height = int(size[0]), int(size[1])
+    focal = numbers("focal_len", (1, 2), positive=True)  # [f] or [fx, fy]
+    if "sensor_size" in params:
+        sensor = numbers("sensor_size", (2,), positive=True)
+        fu, fv = focal[0] * width / sensor[0], focal[-1] * height / sensor[1]
+    else:
+        fu, fv = focal[0] * width, focal[-1] * width
+    cx, cy = (numbers(key, (1,))[0] if key in params else 0.0 for key in ("cx", "cy"))
+    coeffs = {key: numbers(key, (1,))[0] for key in coefficients if key in params}
+    tsai = TsaiDistortion.param_names()
+    distortion: Distortion
+    if kind == "fisheye":
+        distortion = FisheyeDistortion(**{key: coeffs.get(key, 0.0) for key in coefficients})
+    elif not any(coeffs.values()):
+        distortion = NullDistortion()
+    elif not any(value for key, value in coeffs.items() if key not in tsai):
+        distortion = TsaiDistortion(**{key: coeffs.get(key, 0.0) for key in tsai})
+    else:
+        distortion = OpenCVDistortion(**coeffs)
+    big = max(width, height)
+    return _Interior(
+        fu=fu,
+        fv=fv,
+        cu=(width - 1) / 2 + big * cx,
+        cv=(height - 1) / 2 + big * cy,
+        width=width,
+        height=height,
+        distortion=distortion,
+    )
+
+
+def _read_exterior(path: Path, radians: bool) -> list[_Exterior]:
+    """The images of an Orthority exterior parameter file (CSV, or GeoJSON)."""
+    text = _text(path, _read_bytes(path, "exterior parameter file"))
+    if path.suffix.lower() == ".csv":
+        return _csv_exterior(path, text, radians)
+    return _geojson_exterior(path, text)
+
+
+def _csv_exterior(path: Path, text: str, radians: bool) -> list[_Exterior]:
+    """Orthority CSV exterior parameters (see :func:`read_orthority_cameras`)."""
+    try:
+        dialect: type[csv.Dialect] | csv.Dialect = csv.Sniffer().sniff(
+            text[:4096], delimiters=",;: \t"
+        )
+    except csv.Error:
+        dialect = csv.excel
+    reader = csv.reader(io.StringIO(text), dialect)
+    rows: list[tuple[int, list[str]]] = []
+    try:
+        for row in reader:
+            if any(cell.strip() for cell in row):
+                rows.append((reader.line_num, [cell.strip() for cell in row]))
+    except csv.Error as exc:
+        raise FormatError(path, f"bad CSV: {exc}", reader.line_num) from None
+    if not rows:
+        raise FormatError(path, "no images in the file", 1)
+    if "filename" in rows[0][1]:
+        fields, rows = rows[0][1], rows[1:]
+    else:
+        fields = list(_CSV_LEGACY_FIELDS)
+    missing = [f for f in _CSV_LEGACY_FIELDS if f not in fields]
+    if missing:
+        other = [
+            f for f in ("latitude", "longitude", "altitude", "roll", "pitch", "yaw") if f in fields
+        ]
+        hint = (
+            f"; {', '.join(other)} would need Orthority's CRS conversions, not supported"
+            if other
+            else ""
+        )
+        raise FormatError(path, f"missing field(s) {', '.join(missing)}{hint}", 1)
+    out = []
+    for line, row in rows:
+        if len(row) != len(fields):
+            raise FormatError(path, f"expected {len(fields)} fields, found {len(row)}", line)
+        values = dict(zip(fields, row, strict=True))
+        numbers = [_number(path, values[key], key, line) for key in _CSV_LEGACY_FIELDS[1:]]
+        angles = numbers[3:] if radians else [math.radians(a) for a in numbers[3:]]
+        out.append(
+            _Exterior(
+                filename=values["filename"],
+                camera=values.get("camera") or None,
+                xyz=(numbers[0], numbers[1], numbers[2]),
+                opk=(angles[0], angles[1], angles[2]),
+                line=line,
+            )
+        )
+    return out
+
+
+def _geojson_exterior(path: Path, text: str) -> list[_Exterior]:
+    """Orthority GeoJSON exterior parameters (see :func:`read_orthority_cameras`)."""
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(path, f"invalid JSON: {exc.msg}", exc.lineno) from None
+    if not isinstance(obj, dict) or obj.get("type") != "FeatureCollection":
+        raise FormatError(path, "expected a GeoJSON FeatureCollection", 1)
+    features = obj.get("features")
+    if not isinstance(features, list) or not features:
+        raise FormatError(path, "the FeatureCollection has no features")
+    out = []
+    for i, feature in enumerate(features):
+        props = feature.get("properties") if isinstance(feature, dict) else None
+        if not isinstance(props, dict):
+            raise FormatError(path, f"feature {i} has no properties")
+        name = props.get("filename")
+        camera = props.get("camera")
+        if not isinstance(name, str) or not (camera is None or isinstance(camera, str)):
+            raise FormatError(path, f"feature {i}: filename (and camera) must be strings")
+        vectors = []
+        for key in ("xyz", "opk"):
+            value = props.get(key)
+            if not (
+                isinstance(value, list)
+                and len(value) == 3
+                and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+            ):
+                raise FormatError(path, f"feature {i} ({name}): {key} must be 3 numbers")
+            vectors.append((float(value[0]), float(value[1]), float(value[2])))
+        out.append(_Exterior(name, camera, vectors[0], vectors[1], None))
+    return out
+
+
+# The YAML subset of interior parameter files: block mappings and sequences, flow lists and
+# mappings, plain and quoted scalars, comments. Anchors, tags, multi-line scalars and
+# multi-document streams raise FormatError.
+
+_YAML_INT = re.compile(r"[-+]?\d+")
+_YAML_NULL = ("", "~", "null", "Null", "NULL")
+_YAML_BOOL = {
+    word: word.lower() == "true" for word in ("true", "True", "TRUE", "false", "False", "FALSE")
+}
+_YamlPath = tuple[str, ...]
+
+
+def _yaml_load(path: Path, text: str) -> tuple[object, dict[_YamlPath, int]]:
+    """Parse ``text``; returns the value and the line of every mapping key, by key path."""
+    lines: list[tuple[int, int, str]] = []  # (line number, indent, content)
+    for number, raw in enumerate(text.splitlines(), start=1):
+        content = _yaml_uncomment(path, raw, number).rstrip()
+        stripped = content.lstrip(" ")
+        if not stripped or (stripped == "---" and not lines):
+            continue
+        if stripped == "...":
+            break
+        if stripped[0] == "\t" or stripped == "---":
+            raise FormatError(path, "tabs and multi-document YAML are not supported", number)
+        lines.append((number, len(content) - len(stripped), stripped))
+    if not lines:
+        raise FormatError(path, "empty YAML file", 1)
+    where: dict[_YamlPath, int] = {}
+    value, pos = _yaml_block(path, lines, 0, (), where)
+    if pos < len(lines):
+        raise FormatError(path, "unexpected indentation", lines[pos][0])
+    return value, where
+
+
+def _yaml_uncomment(path: Path, raw: str, number: int) -> str:
+    """``raw`` without its comment (a ``#`` at the start or after a space, outside quotes;
+    a quote opens a quoted string only where a token starts)."""
+    quote = ""
+    for i, char in enumerate(raw):
+        if quote:
+            if char == quote:
+                quote = ""
+        elif char in "'\"" and (i == 0 or raw[i - 1] in " \t[{,:"):
+            quote = char
+        elif char == "#" and (i == 0 or raw[i - 1] in " \t"):
+            return raw[:i]
+    if quote:
+        raise FormatError(
+            path, "unterminated quoted string (multi-line strings unsupported)", number
+        )
+    return raw
+
+
+def _yaml_block(
+    path: Path,
+    lines: list[tuple[int, int, str]],
+    pos: int,
+    key_path: _YamlPath,
+    where: dict[_YamlPath, int],
+) -> tuple[object, int]:
+    """The block mapping or sequence starting at ``lines[pos]``; returns it and the next pos."""
+    indent = lines[pos][1]
+    if lines[pos][2] == "-" or lines[pos][2].startswith("- "):
+        items = []
+        while pos < len(lines) and lines[pos][1] == indent and lines[pos][2].startswith("-"):
+            number, _, content = lines[pos]
+            if content != "-" and not content.startswith("- "):
+                break
+            if not content[1:].strip():
+                raise FormatError(path, "nested block sequences are not supported", number)
+            items.append(_yaml_flow(path, content[1:].strip(), number))
+            pos += 1
+        return items, pos
+    mapping: dict[str, object] = {}
+    while pos < len(lines) and lines[pos][1] == indent:
+        number, _, content = lines[pos]
+        key, rest = _yaml_key(path, content, number)
+        if key in mapping:
+            raise FormatError(path, f"key {key!r} given twice", number)
+        where[(*key_path, key)] = number
+        pos += 1
+        nested = pos < len(lines) and (
+            lines[pos][1] > indent or (lines[pos][1] == indent and lines[pos][2][:2] in ("-", "- "))
+        )
+        if rest:
+            mapping[key] = _yaml_flow(path, rest, number)
+            if pos < len(lines) and lines[pos][1] > indent:
+                raise FormatError(path, "unexpected indentation", lines[pos][0])
+        elif nested:
+            mapping[key], pos = _yaml_block(path, lines, pos, (*key_path, key), where)
+        else:
+            mapping[key] = None
+    return mapping, pos
+
+
+def _yaml_key(path: Path, content: str, number: int) -> tuple[str, str]:
+    """Split a ``key: value`` line; the key may be quoted."""
+    if content[0] in "'\"":
+        key, end = _yaml_quoted(path, content, 0, number)
+        if not content[end:].lstrip().startswith(":"):
+            raise FormatError(path, f"expected ':' after the key {key!r}", number)
+        return key, content[end:].lstrip()[1:].strip()
+    match = re.search(r":(\s|$)", content)
+    if match is None or content[0] in "?[{&*!|>%@`":
+        raise FormatError(path, f"expected 'key: value', found {content!r}", number)
+    return content[: match.start()].strip(), content[match.end() :].strip()
+
+
+def _yaml_quoted(path: Path, text: str, start: int, number: int) -> tuple[str, int]:
+    """The quoted string starting at ``text[start]``, and the index after it."""
+    quote = text[start]
+    end = text.find(quote, start + 1)
+    while quote == "'" and end + 1 < len(text) and end >= 0 and text[end + 1] == "'":
+        end = text.find(quote, end + 2)  # '' is an escaped quote
+    if end < 0:
+        raise FormatError(path, "unterminated quoted string", number)
+    body = text[start + 1 : end]
+    if quote == "'":
+        return body.replace("''", "'"), end + 1
+    if "\\" in body:
+        raise FormatError(path, "escapes in double-quoted strings are not supported", number)
+    return body, end + 1
+
+
+def _yaml_flow(path: Path, text: str, number: int) -> object:
+    """A scalar or flow collection filling all of ``text``."""
+    value, end = _yaml_flow_value(path, text, 0, number, top=True)
+    if text[end:].strip():
+        raise FormatError(path, f"unexpected {text[end:].strip()!r}", number)
+    return value
+
+
+def _yaml_flow_value(path: Path, text: str, i: int, number: int, top: bool) -> tuple[object, int]:
+    """The value starting at ``text[i]`` (after spaces); returns it and the index after it."""
+    while i < len(text) and text[i] == " ":
+        i += 1
+    if i < len(text) and text[i] in "[{":
+        closing = "]" if text[i] == "[" else "}"
+        items: list[object] = []
+        mapping: dict[str, object] = {}
+        i += 1
+        while True:
+            while i < len(text) and text[i] == " ":
+                i += 1
+            if i < len(text) and text[i] == closing:
+                return (items if closing == "]" else mapping), i + 1
+            value, i = _yaml_flow_value(path, text, i, number, top=False)
+            if closing == "}":
+                if i >= len(text) or text[i] != ":":
+                    raise FormatError(path, "expected 'key: value' in a flow mapping", number)
+                mapping[str(value)], i = _yaml_flow_value(path, text, i + 1, number, top=False)
+            else:
+                items.append(value)
+            while i < len(text) and text[i] == " ":
+                i += 1
+            if i < len(text) and text[i] == ",":
+                i += 1
+            elif i >= len(text) or text[i] != closing:
+                raise FormatError(path, f"unterminated flow collection in {text!r}", number)
+    if i < len(text) and text[i] in "'\"":
+        return _yaml_quoted(path, text, i, number)
+    if i < len(text) and text[i] in "&*!|>%@`":
+        raise FormatError(path, f"unsupported YAML syntax {text[i:]!r}", number)
+    end = (
+        len(text)
+        if top
+        else next(
+            (j for j in range(i, len(text)) if text[j] in ",]}" or text[j : j + 2] in (": ", ":")),
+            len(text),
+        )
+    )
+    return _yaml_scalar(text[i:end].strip()), end
+
+
+def _yaml_scalar(token: str) -> object:
+    """A plain scalar: null, boolean, integer, float (with or without a dot) or string."""
+    if token in _YAML_NULL:
+        return None
+    if token in _YAML_BOOL:
+        return _YAML_BOOL[token]
+    if _YAML_INT.fullmatch(token):
+        return int(token)
+    if _NUMBER.fullmatch(token):
+        return float(token)
+    return token
 
 
 # ---------------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from affine import Affine
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from orthomvp.errors import InputError
+from orthomvp.isis import read_cube
 
 
 def _umask() -> int:
@@ -87,7 +88,13 @@ def open_raster(path: str | Path) -> rasterio.DatasetReader:
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image (TIFF, PNG, JPEG, ...) as float32 ``(bands, rows, cols)``; nodata -> NaN."""
+    """Read an image as float32 ``(bands, rows, cols)``; nodata -> NaN.
+
+    ISIS3 cubes (``.cub``) are read by :func:`orthomvp.isis.read_cube` (special pixels -> NaN);
+    everything else (GeoTIFF/TIFF of any dtype and band count, PNG, JPEG, ...) by rasterio.
+    """
+    if Path(path).suffix.lower() == ".cub":
+        return read_cube(path)
     with open_raster(path) as src:
         try:
             data = src.read(masked=True)

@@ -609,7 +609,8 @@ BAD_TSAI = {
     "overflow": (edit(5, "cu = 1e999"), 5, "finite"),
     "not pinhole": (edit(2, "OPTICAL_BAR"), 2, "'OPTICAL_BAR' is not supported"),
     "bad version": (edit(1, "VERSION_9"), 1, "unsupported version"),
-    "unknown distortion": (edit(13, "FISHEYE"), 13, "unsupported lens distortion model"),
+    "unknown distortion": (edit(13, "WOBBLY"), 13, "unsupported lens distortion model"),
+    "rpc distortion": (edit(13, "RPC"), 13, "ASP's RPC lens distortion is not supported"),
     "missing parameter": (edit(17, None), 13, "TSAI distortion is missing p2"),
     "bad parameter": (edit(15, "k2 = 1,5"), 15, "'1,5' after 'k2 =' is not a number"),
     "unknown parameter": ([*GOOD_TSAI, "k9 = 1"], 18, "no parameter 'k9'"),
@@ -669,7 +670,7 @@ BAD_JSON = {
             ' "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],\n "distortion": {"model": "RPC"}}'
         ),
         3,
-        "unsupported lens distortion model 'RPC'",
+        "ASP's RPC lens distortion is not supported",
     ),
 }
 
@@ -707,7 +708,8 @@ def corrupt_pinholes() -> dict[str, tuple[bytes, str]]:
         "doubles as string": (good + pb_string(7, "abc"), "3 bytes of packed doubles"),
         "float for double": (good + pb_key(11, 5) + b"\0\0\x80\x3f", "wire type 5"),
         "bad rotation": (tsaifile(make_camera("null"), rotation=2 * np.eye(3)), "not a rotation"),
-        "unknown distortion": (tsaifile(make_camera("null"), name="FOV"), "'FOV'"),
+        "unknown distortion": (tsaifile(make_camera("null"), name="WOBBLY"), "'WOBBLY'"),
+        "fov needs 1": (tsaifile(make_camera("null"), name="FOV"), "FOV distortion needs 1"),
         "tsai needs 4": (good.replace(b"NULL", b"TSAI"), "TSAI distortion needs 4 or 5 values"),
     }
 
