@@ -1,0 +1,229 @@
+"""Offscreen snapshots (orthomvp.render) and the ``orthomvp render`` command, without a display."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from orthomvp.cli import main
+from orthomvp.errors import InputError
+from orthomvp.raster import write_geotiff
+from orthomvp.render import snapshot
+from orthomvp.synth import Scene, make_scene
+from orthomvp.visibility import OCCLUDED
+
+SIZE = (320, 240)
+
+
+@pytest.fixture(autouse=True)
+def no_display(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test renders with no display at all."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+
+
+@pytest.fixture(scope="module")
+def crater() -> Scene:
+    return make_scene("crater", size=64, spacing=80.0)
+
+
+def render(terrain, **kwargs) -> np.ndarray:  # noqa: ANN001
+    """The image of a snapshot, its plotter closed."""
+    snap = snapshot(terrain, size=kwargs.pop("size", SIZE), **kwargs)
+    snap.close()
+    return snap.image
+
+
+def green(image: np.ndarray) -> np.ndarray:
+    """Pixels of the occlusion green (shaded), a mask."""
+    r, g, b = (image[..., k].astype(int) for k in range(3))
+    return (g >= 60) & (g > 2 * r + 20) & (g > 2 * b + 20)
+
+
+def red(image: np.ndarray) -> np.ndarray:
+    r, g, b = (image[..., k].astype(int) for k in range(3))
+    return (r > b + 60) & (r > g + 40)
+
+
+def blue(image: np.ndarray) -> np.ndarray:
+    r, g, b = (image[..., k].astype(int) for k in range(3))
+    return (b > r + 60) & (b > g + 20)
+
+
+def test_relief_snapshot_is_not_blank(crater: Scene, tmp_path: Path) -> None:
+    snap = snapshot(crater.terrain, size=SIZE)
+    try:
+        image = snap.image
+        assert image.shape == (240, 320, 3) and image.dtype == np.uint8
+        assert image.std() > 20
+        assert len(np.unique(image.reshape(-1, 3), axis=0)) > 500
+        snap.save(tmp_path / "relief.png")
+        assert np.array_equal(np.asarray(Image.open(tmp_path / "relief.png")), image)
+        # the plotter stays usable: add to the scene (local frame) and render again
+        snap.plotter.add_points(np.zeros((1, 3)), color="red", point_size=30)
+        again = snap.plotter.screenshot(return_img=True)
+        assert red(again).sum() > red(image).sum()
+    finally:
+        snap.close()
+
+
+@pytest.mark.parametrize("view", ["oblique", "top"])
+def test_visibility_snapshot_shows_occluded_posts_green(crater: Scene, view: str) -> None:
+    camera = crater.cameras["oblique"]
+    vis = crater.visibility_truth(camera)
+    assert (vis == OCCLUDED).mean() > 0.03
+    image = render(crater.terrain, visibility=vis, cameras=[camera], view=view, legend=False)
+    assert green(image).mean() > 0.005
+    # the same scene with every post visible has no green at all
+    everywhere = np.ones_like(vis)
+    image = render(crater.terrain, visibility=everywhere, cameras=[camera], view=view, legend=False)
+    assert not green(image).any()
+
+
+def test_no_green_where_the_scene_has_no_occlusion(crater: Scene) -> None:
+    camera = crater.cameras["nadir"]
+    vis = crater.visibility_truth(camera)
+    assert not (vis == OCCLUDED).any()
+    snap = snapshot(crater.terrain, visibility=vis, cameras=[camera], rays=8, size=SIZE)
+    try:
+        assert snap.plotter.legend is not None
+        snap.plotter.remove_legend()  # the legend has a green swatch
+        image = snap.plotter.screenshot(return_img=True)
+        assert not green(image).any()
+        assert image.std() > 20
+    finally:
+        snap.close()
+
+
+def test_height_error_uses_both_ends_of_a_symmetric_colour_map(crater: Scene) -> None:
+    x, y = crater.post_local()
+    truth = crater.terrain.values
+    wave = 20 * np.sin(x / 600) * np.cos(y / 500)
+    image = render(crater.terrain, heights=truth + wave, truth=truth, legend=False)
+    assert red(image).mean() > 0.02 and blue(image).mean() > 0.02
+    # positive errors only: red, and no blue, since the limits stay symmetric about 0
+    image = render(crater.terrain, heights=truth + np.abs(wave), truth=truth, legend=False)
+    assert red(image).mean() > 0.02 and not blue(image).any()
+    snap = snapshot(crater.terrain, heights=truth + wave, truth=truth, size=SIZE)
+    try:
+        assert list(snap.plotter.scalar_bars.keys()) == ["height error (m)"]
+    finally:
+        snap.close()
+
+
+def test_draped_orthophoto(crater: Scene) -> None:
+    x, y = crater.post_local()
+    ortho = crater.radiance(x, y).astype(np.float32)
+    ortho[:, :20] = np.nan
+    image = render(crater.terrain, ortho=np.stack([ortho, ortho * 0.5, ortho * 0.8]))
+    assert image.std() > 20 and len(np.unique(image.reshape(-1, 3), axis=0)) > 1000
+
+
+def test_from_camera_view_matches_the_camera(crater: Scene) -> None:
+    camera = crater.cameras["oblique"]
+    width, height = 3 * camera.width, 3 * camera.height
+    snap = snapshot(
+        crater.terrain, cameras=[camera], view="from-camera", size=(width, height), rays=4
+    )
+    try:
+        assert snap.image.shape == (height, width, 3) and snap.image.std() > 20
+        pts = crater.terrain.world_points().reshape(-1, 3)[::37]
+        uv, _ = camera.project(pts)
+        renderer = snap.plotter.renderer
+        display = []
+        for p in pts - snap.origin:
+            renderer.SetWorldPoint(*p, 1.0)
+            renderer.WorldToDisplay()
+            display.append(renderer.GetDisplayPoint()[:2])
+        # display x from the left, y from the bottom; pixel edges at -0.5
+        expected = np.column_stack([3 * (uv[:, 0] + 0.5), height - 3 * (uv[:, 1] + 0.5)])
+        np.testing.assert_allclose(display, expected, atol=0.01)
+    finally:
+        snap.close()
+
+
+def test_vertical_exaggeration_scales_relief(crater: Scene) -> None:
+    up = crater.terrain.up_vectors(crater.terrain.world_points()[32, 32])
+    ranges = []
+    for k in (1.0, 3.0):
+        snap = snapshot(crater.terrain, exaggerate=k, size=SIZE)
+        heights = np.asarray(snap.plotter.meshes[0].points) @ up
+        ranges.append(np.ptp(heights))
+        snap.close()
+    assert ranges[1] / ranges[0] == pytest.approx(3.0, rel=0.01)
+
+
+def test_bad_inputs_raise_input_errors(crater: Scene) -> None:
+    t = crater.terrain
+    vis = np.ones(t.shape, np.uint8)
+    cases = [
+        ({"visibility": vis[:-1]}, "DEM grid"),
+        ({"ortho": np.ones((2, *t.shape))}, "2"),
+        ({"visibility": vis * 7}, "codes"),
+        ({"visibility": vis, "ortho": vis}, "not several"),
+        ({"heights": t.values}, "truth"),
+        ({"view": "sideways"}, "unknown view"),
+        ({"view": "from-camera"}, "camera"),
+        (
+            {"view": "from-camera", "cameras": [crater.cameras["nadir"]], "view_camera": 1},
+            "0-based",
+        ),
+        ({"exaggerate": 0.0}, "exaggeration"),
+        ({"size": (4, 4)}, "size"),
+    ]
+    for kwargs, words in cases:
+        with pytest.raises(InputError, match=words):
+            snapshot(t, **kwargs)
+
+
+def test_cli_renders_end_to_end(crater_dir: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    d = crater_dir
+    out = tmp_path / "vis.png"
+    argv = ["render", str(d / "dem.tif"), "--visibility", str(d / "oblique.visibility.tif")]
+    argv += ["--camera", str(d / "oblique.tsai"), str(d / "nadir.tsai"), "--rays", "5"]
+    argv += ["-o", str(out), "--size", "320", "240", "--exaggerate", "2"]
+    assert main(argv) == 0
+    image = np.asarray(Image.open(out))
+    assert image.shape == (240, 320, 3) and green(image).any()
+    assert "wrote" in capsys.readouterr().out
+    out = tmp_path / "cam.png"
+    argv = ["render", str(d / "dem.tif"), "--ortho", str(d / "truth_radiance.tif")]
+    argv += ["--camera", str(d / "oblique.tsai"), "--camera", str(d / "nadir.tsai")]
+    argv += ["--view", "from-camera", "--camera-index", "2", "-o", str(out)]
+    assert main([*argv, "--size", "200", "200"]) == 0
+    assert np.asarray(Image.open(out)).shape == (200, 200, 3)
+
+
+def test_cli_bad_inputs_exit_2_without_output(
+    crater_dir: Path,
+    tmp_path: Path,
+    capsys,  # noqa: ANN001
+) -> None:
+    d = crater_dir
+    dem, out = str(d / "dem.tif"), tmp_path / "snap.png"
+    small = tmp_path / "small.tif"
+    write_geotiff(small, np.ones((10, 12), np.float32), *_grid(d))
+    cases = [
+        ["--visibility", str(small)],  # a raster off the DEM grid
+        ["--ortho", str(tmp_path / "missing.tif")],
+        ["--heights", dem],  # no --truth
+        ["--camera", str(d / "nadir.tsai"), "--view", "from-camera", "--camera-index", "2"],
+        ["--exaggerate", "-1"],
+    ]
+    for extra in cases:
+        assert main(["render", dem, "-o", str(out), "--size", "64", "48", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith("orthomvp: error:") and err.count("\n") == 1, err
+        assert not out.exists()
+    assert not list(tmp_path.glob(".snap.png*"))  # no temporary file left behind
+
+
+def _grid(d: Path) -> tuple:
+    """Transform and CRS of the scene's DEM."""
+    from orthomvp.terrain import Terrain
+
+    t = Terrain.read(d / "dem.tif")
+    return t.transform, t.crs
