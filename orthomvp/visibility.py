@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.camera import PinholeCamera
+from orthomvp.distortion import NullDistortion
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster

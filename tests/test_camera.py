@@ -17,17 +17,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from orthomvp.camera import (
-    BrownConradyDistortion,
-    NullDistortion,
-    PinholeCamera,
-    TsaiDistortion,
-    read_camera,
-    tsai_text,
-    write_json,
-    write_tsai,
-)
+from orthomvp.camera import PinholeCamera, read_camera, write_json
+from orthomvp.distortion import BrownConradyDistortion, NullDistortion, TsaiDistortion
 from orthomvp.errors import FormatError, InputError
+from orthomvp.tsai import tsai_text, write_tsai
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 APOLLO = DATA / "apollo15-mvp"

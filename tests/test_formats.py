@@ -19,7 +19,8 @@ import pytest
 from conftest import shared
 from scipy.spatial.transform import Rotation
 
-from orthomvp.camera import (
+from orthomvp.camera import PinholeCamera, read_camera, write_json
+from orthomvp.distortion import (
     BrownConradyDistortion,
     Distortion,
     FisheyeDistortion,
@@ -27,17 +28,11 @@ from orthomvp.camera import (
     NullDistortion,
     OpenCVDistortion,
     PhotometrixDistortion,
-    PinholeCamera,
     TsaiDistortion,
-    _yaml_load,
-    orthority_rotation,
-    read_camera,
-    read_orthority_cameras,
-    tsai_text,
-    write_json,
-    write_tsai,
 )
 from orthomvp.errors import FormatError, InputError
+from orthomvp.orthority import orthority_rotation, read_orthority_cameras
+from orthomvp.tsai import tsai_text, write_tsai
 
 WIDTH, HEIGHT = 1000, 800
 FOCAL = np.array([1200.0, 1150.0])
@@ -517,12 +512,17 @@ BAD_INTERIOR = {
     "text focal": ("c:\n  type: pinhole\n  im_size: [4, 3]\n  focal_len: long\n", 4,
                    "focal_len must be 1 or 2 finite number(s)"),
     "not a mapping": ("- a\n- b\n", 1, "expected a mapping of camera ids"),
-    "tab": ("c:\n\ttype: pinhole\n", 2, "tabs"),
-    "unterminated": ("c:\n  type: 'pinhole\n", 2, "unterminated quoted string"),
-    "anchor": ("c: &x\n  type: pinhole\n", 1, "unsupported YAML syntax"),
+    "tab": ("c:\n\ttype: pinhole\n", 2, "found character '\\t' that cannot start any token"),
+    "unterminated": ("c:\n  type: 'pinhole\n", 3,
+                     "invalid YAML: while scanning a quoted scalar, found unexpected end"),
     "duplicate": ("c:\n  type: pinhole\n  type: brown\n", 3, "key 'type' given twice"),
-    "indentation": ("c:\n  type: pinhole\n      focal_len: 1\n", 3, "unexpected indentation"),
-    "no colon": ("c:\n  type pinhole\n", 2, "expected 'key: value'"),
+    "indentation": ("c:\n  type: pinhole\n      focal_len: 1\n", 3,
+                    "mapping values are not allowed here"),
+    "no colon": ("c:\n  type pinhole\n", 1, "camera 'c': expected a mapping of parameters"),
+    "two documents": ("a:\n  type: pinhole\n---\nb:\n  type: pinhole\n", 3,
+                      "expected a single document in the stream, but found another document"),
+    "python tag": ("c:\n  type: !!python/object/apply:os.getcwd []\n", 2,
+                   "could not determine a constructor"),  # the safe loader runs no code
 }  # fmt: skip
 
 
@@ -624,34 +624,41 @@ def test_hadley_converted_tsai_reads() -> None:
     np.testing.assert_allclose(uv, [1763.0, 863.0], atol=1e-6)
 
 
-def test_yaml_subset() -> None:
-    text = """\
+def test_interior_yaml_features(tmp_path: Path) -> None:
+    """Interior files are YAML as PyYAML reads it: directives, document markers, comments,
+    quoting, block sequences, anchors and aliases; camera ids are the keys as written."""
+    (tmp_path / "int.yaml").write_text(
+        """\
+%YAML 1.1
 ---
-# a comment with a quote: it's fine
-cam 1:   # trailing comment
-  name: Bob's "camera"
-  'quoted: key': "a # not a comment"
-  empty:
-  flags: [true, False, ~, null]
-  numbers: {a: 1, b: -2.5e-3, c: 1e3, d: .5, e: +7}
-  nested:
-    deeper: [[1, 2], [3]]
-  sequence:
-  - x
-  - 2
+# the opencv camera of INTERIOR_BLOCK, written differently
+'opencv cam':  # a quoted id
+  type: "opencv"
+  im_size:
+  - 600
+  - 400
+  focal_len: &focal [8.1, 7.9]
+  sensor_size: [6, 4]
+  k1: -0.2
+  k4: 5.0e-2
+  s1: 1.0e-3
+  tx: 0.01
+1:
+  type: pinhole
+  im_size: [600, 400]
+  focal_len: *focal
+  sensor_size: [6, 4]
 ...
-ignored: after the end marker
 """
-    value, lines = _yaml_load(Path("t.yaml"), text)
-    assert value == {
-        "cam 1": {
-            "name": 'Bob\'s "camera"',
-            "quoted: key": "a # not a comment",
-            "empty": None,
-            "flags": [True, False, None, None],
-            "numbers": {"a": 1, "b": -2.5e-3, "c": 1000.0, "d": 0.5, "e": 7},
-            "nested": {"deeper": [[1, 2], [3]]},
-            "sequence": ["x", 2],
-        }
-    }
-    assert lines[("cam 1",)] == 3 and lines[("cam 1", "nested", "deeper")] == 10
+    )
+    (tmp_path / "ext.csv").write_text(
+        "filename,x,y,z,omega,phi,kappa,camera\n"
+        "img_c.jpg,900.0,1950.0,1600.0,3.0,1.0,95.0,opencv cam\n"
+        "img_d,900.0,1950.0,1600.0,3.0,1.0,95.0,1\n"
+    )
+    cams = read_orthority_cameras(tmp_path / "int.yaml", tmp_path / "ext.csv")
+    (tmp_path / "plain").mkdir()
+    plain = read_orthority_cameras(*write_orthority(tmp_path / "plain", INTERIOR_BLOCK))
+    assert tsai_text(cams["img_c"]) == tsai_text(plain["img_c"])
+    assert (cams["img_d"].fu, cams["img_d"].fv) == (8.1 * 600 / 6, 7.9 * 400 / 4)
+    assert isinstance(cams["img_d"].distortion, NullDistortion)
