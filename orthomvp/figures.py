@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from orthomvp.palette import VIS_LABELS, VIS_RGB
 from orthomvp.raster import atomic_path
 
-VIS_COLOURS = ["#404040", "#d9d9d9", "#2ca02c", "#1f3b73"]
-VIS_LABELS = ["outside / no data", "visible", "occluded", "facing away"]
+VIS_COLOURS = [tuple(v / 255 for v in VIS_RGB[k]) for k in range(4)]  # matplotlib RGB
 
 
 def _pyplot():  # noqa: ANN202
@@ -83,4 +83,25 @@ def ortho_comparison(
         ax.set_xticks([])
         ax.set_yticks([])
     fig.text(0.5, 0.01, "red: nodata", ha="center", fontsize=9, color="#c0392b")
+    _save(fig, path)
+
+
+def height_error_maps(
+    before: np.ndarray, after: np.ndarray, spacing: float, path: str | Path
+) -> None:
+    """Height error maps (metres, DEM minus truth) before and after fitting, on one diverging
+    colour scale symmetric about 0; NaN (unresolved) posts black."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10.5, 4.6), constrained_layout=True)
+    finite = np.concatenate([a[np.isfinite(a)] for a in (before, after)])
+    lim = float(np.percentile(np.abs(finite), 99)) or 1.0
+    for ax, err, name in zip(axes, (before, after), ("start DEM", "fitted DEM"), strict=True):
+        ok = np.isfinite(err)
+        rmse = float(np.sqrt(np.mean(err[ok] ** 2)))
+        ax.set_facecolor("black")
+        im = ax.imshow(np.ma.masked_invalid(err), cmap="RdBu_r", vmin=-lim, vmax=lim)
+        ax.set_title(f"{name}: error against truth, RMSE {rmse:.1f} m", fontsize=10)
+        ax.set_xlabel(f"columns ({spacing:g} m posts)")
+        ax.set_ylabel("rows")
+    fig.colorbar(im, ax=list(axes), shrink=0.85, label="height error (m): red too high")
     _save(fig, path)

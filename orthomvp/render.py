@@ -25,6 +25,7 @@ import pyvista as pv
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh, terrain_mesh
+from orthomvp.palette import VIS_RGB
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
@@ -32,12 +33,7 @@ from orthomvp.visibility import CODE_NAMES, FACING_AWAY, NODATA, OCCLUDED, VISIB
 
 VIEWS = ("oblique", "top", "from-camera")
 DEFAULT_SIZE = (1024, 768)
-VIS_COLOURS = {
-    VISIBLE: (215, 215, 210),
-    OCCLUDED: (20, 200, 40),
-    FACING_AWAY: (235, 115, 30),
-    NODATA: (90, 115, 190),
-}
+VIS_COLOURS = VIS_RGB
 """RGB colour of each visibility code."""
 NAN_COLOUR = (48, 48, 54)
 """RGB colour of posts without a value (an empty orthophoto post, an unknown height error)."""
@@ -95,6 +91,7 @@ def snapshot(
     size: tuple[int, int] | None = None,
     legend: bool = True,
     title: str | None = None,
+    error_limit: float | None = None,
 ) -> Snapshot:
     """Render the DEM ``terrain`` offscreen, coloured by at most one raster on its grid.
 
@@ -105,7 +102,8 @@ def snapshot(
     - ``visibility``: codes 0 outside / no data, 1 visible, 2 occluded, 3 facing away
       (colours :data:`VIS_COLOURS`: occluded green), with a legend.
     - ``heights`` and ``truth`` (both, metres): the error ``heights - truth`` on a diverging
-      colour map symmetric about 0 (blue below, red above), with a colour bar in metres.
+      colour map symmetric about 0 (blue below, red above), saturating at +-``error_limit``
+      metres (default: the 99th percentile of |error|), with a colour bar in metres.
     - none: shaded relief.
 
     ``cameras`` are drawn as frusta (image rectangle at a depth of a quarter of the DEM's
@@ -129,6 +127,8 @@ def snapshot(
     colour bar; ``title`` a caption. Raises InputError for rasters off the DEM grid, an unknown
     view or a camera index out of range.
     """
+    if error_limit is not None and not error_limit > 0:
+        raise InputError(f"the error limit must be a positive number of metres, got {error_limit}")
     shape = terrain.shape
     colouring = _colouring(shape, ortho, visibility, heights, truth)
     cameras = list(cameras)
@@ -157,7 +157,7 @@ def snapshot(
 
     plotter = _plotter(width, height)
     try:
-        _add_terrain(plotter, shown, colouring, legend)
+        _add_terrain(plotter, shown, colouring, legend, error_limit)
         if title:
             plotter.add_text(title, position="upper_left", font_size=max(8, height // 60))
 
@@ -338,6 +338,7 @@ def _add_terrain(
     shown: TerrainMesh,
     colouring: tuple[str, np.ndarray | None],
     legend: bool,
+    error_limit: float | None = None,
 ) -> None:
     """Add the DEM surface, coloured as :func:`_colouring` says, with its legend or colour bar."""
     poly = pv.PolyData.from_regular_faces(
@@ -376,7 +377,7 @@ def _add_terrain(
             poly,
             scalars=data.ravel()[post],
             cmap="RdBu_r",
-            clim=_symmetric_limit(data),
+            clim=(-error_limit, error_limit) if error_limit else _symmetric_limit(data),
             nan_color=np.array(NAN_COLOUR) / 255,
             show_scalar_bar=legend,
             scalar_bar_args={

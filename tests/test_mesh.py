@@ -9,11 +9,17 @@ import open3d as o3d
 import pytest
 import trimesh
 from affine import Affine
+from matplotlib import colormaps
 from pyproj import CRS
+from scipy.ndimage import maximum_filter, minimum_filter
 from scipy.spatial import cKDTree
 
+from orthomvp.cli import main
 from orthomvp.errors import InputError
-from orthomvp.mesh import export_mesh, terrain_mesh
+from orthomvp.mesh import error_colour_limit, export_mesh, terrain_mesh
+from orthomvp.palette import VIS_RGB
+from orthomvp.raster import write_geotiff
+from orthomvp.synth import make_scene
 from orthomvp.terrain import Terrain
 
 R = 1737400.0
@@ -345,10 +351,228 @@ def test_decimation_stays_on_the_surface(tmp_path: Path) -> None:
         assert cKDTree(world).query(corners)[0].max() < 1.0
         if ext == "ply":
             assert len(o3d.io.read_triangle_mesh(str(path)).triangles) == len(m.faces)
-            # colours carried through: the ramp (grey, along columns) at the nearest post;
-            # measured up to 7 grey levels off (the ramp climbs 4.2 levels per post)
+            # colours carried over: the ramp (grey, along columns) at the nearest post
             _, near = cKDTree(tm.world_vertices).query(world)
-            expected = ramp.ravel()[tm.vertex_post[near]].astype(int)
-            assert np.abs(m.visual.vertex_colors[:, 0].astype(int) - expected).max() <= 8
+            expected = ramp.ravel()[tm.vertex_post[near]]
+            np.testing.assert_array_equal(m.visual.vertex_colors[:, 0], expected)
     with pytest.raises(InputError):
         export_mesh(tm, tmp_path / "x.ply", target_triangles=3)
+
+
+# ------------------------------------------------------------------------------ colour kinds
+TABLE = np.array([VIS_RGB[k] for k in range(4)], np.uint8)
+"""The shared visibility colours (codes 0-3)."""
+HOLES_48 = (slice(20, 23), slice(30, 32))
+
+
+@pytest.fixture(scope="module")
+def crater48() -> tuple[Terrain, np.ndarray, np.ndarray]:
+    """The crater scene on 48 x 48 posts as a fitted DEM would be: the truth with a block of
+    unresolved posts (NaN); its truth heights; and visibility codes of the oblique view with
+    every code present (four columns set to 0, as if outside the image)."""
+    scene = make_scene("crater", size=48)
+    truth = scene.terrain.values
+    fitted = truth.copy()
+    fitted[HOLES_48] = np.nan
+    codes = scene.visibility_truth(scene.cameras["oblique"])
+    codes[:, :4] = 0
+    return scene.terrain.with_values(fitted), truth, codes
+
+
+def expected_counts(valid: np.ndarray) -> tuple[int, int]:
+    """(vertices, triangles) of a grid mesh: each cell's two triangles whose corners are valid;
+    every valid post here lies in some triangle."""
+    a, b, d, e = valid[:-1, :-1], valid[:-1, 1:], valid[1:, :-1], valid[1:, 1:]
+    return int(valid.sum()), int((a & d & b).sum() + (b & d & e).sum())
+
+
+def o3d_texture_colours(o3: o3d.geometry.TriangleMesh) -> np.ndarray:
+    """RGB of an Open3D mesh's texture at each triangle corner's UV (nearest texel); Open3D
+    keeps v pointing down the image rows."""
+    ids = np.asarray(o3.triangle_material_ids)
+    assert len(set(ids.tolist())) == 1
+    img = np.asarray(o3.textures[ids[0]])
+    h, w = img.shape[:2]
+    uv = np.asarray(o3.triangle_uvs)
+    return img[np.rint(uv[:, 1] * h - 0.5).astype(int), np.rint(uv[:, 0] * w - 0.5).astype(int)]
+
+
+@pytest.mark.parametrize("local", [False, True], ids=["body", "local"])
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb"])
+def test_visibility_colours_in_every_format(
+    tmp_path: Path, crater48: tuple, fmt: str, local: bool
+) -> None:
+    t, _, codes = crater48
+    tm = terrain_mesh(t)
+    n_vert, n_tri = expected_counts(t.valid)
+    # 48 x 48 posts less the 3 x 2 hole; 2 x 47 x 47 triangles less the 22 that touch the hole
+    # (the 12 cells around it, but one triangle of the two cells on the cut's corners)
+    assert (len(tm.mesh.vertices), len(tm.mesh.faces)) == (n_vert, n_tri) == (2298, 4396)
+    assert set(codes[t.valid].tolist()) == {0, 1, 2, 3}
+    offset = np.zeros(3) if local else tm.origin
+    # expected positions from the DEM itself, in the frame written
+    r, c = np.divmod(tm.vertex_post, 48)
+    expected = t.to_world(c, r, t.values[r, c]) - tm.origin + offset
+    want = TABLE[codes[r, c]]
+    path = tmp_path / f"m.{fmt}"
+    export_mesh(tm, path, codes, local=local, colour_kind="visibility")
+    m = trimesh.load(path, force="mesh", process=False)
+    o3 = o3d.io.read_triangle_mesh(str(path))
+    assert len(m.faces) == len(np.asarray(o3.triangles)) == n_tri
+    if fmt == "ply":
+        # vertex order kept; float64 body-fixed coordinates
+        assert len(m.vertices) == len(np.asarray(o3.vertices)) == n_vert
+        np.testing.assert_allclose(m.vertices, expected, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(o3.vertices), expected, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(m.faces, tm.mesh.faces)
+        np.testing.assert_array_equal(np.asarray(o3.triangles), tm.mesh.faces)
+        np.testing.assert_array_equal(m.visual.vertex_colors[:, :3], want)
+        o3_rgb = np.rint(np.asarray(o3.vertex_colors) * 255).astype(np.uint8)
+        np.testing.assert_array_equal(o3_rgb, want)
+        return
+    # OBJ and GLB: an image texture. trimesh reads OBJ in float64 and applies the GLB node
+    # transform in float64 to float32 local vertices; Open3D reads both in float32 (spacing
+    # 0.125 m at 1.6e6 m; GLB rounds twice, local then world: measured 0.126 m off in 3-D).
+    if fmt == "obj":
+        mtl = (tmp_path / "m.mtl").read_text()
+        assert "map_Kd m.png" in mtl and "Kd 1.0" in mtl
+        assert (tmp_path / "m.png").is_file()
+    check_shape(m.vertices, m.faces, tm, offset, tol=1e-6 if fmt == "obj" else 1e-4)
+    idx = match_vertices(m.vertices, expected, 1e-6 if fmt == "obj" else 1e-4)
+    np.testing.assert_array_equal(sample_texture(m), want[idx])
+    o3_v = np.asarray(o3.vertices)
+    tol = 1e-4 if local else 0.25
+    check_shape(o3_v, np.asarray(o3.triangles), tm, offset, tol=tol)
+    corners = match_vertices(o3_v[np.asarray(o3.triangles).ravel()], expected, tol)
+    np.testing.assert_array_equal(o3d_texture_colours(o3), want[corners])
+
+
+def test_error_colours(tmp_path: Path, crater48: tuple) -> None:
+    t, truth, _ = crater48
+    tm = terrain_mesh(t)
+    c, _ = t.grid()
+    error = (c - 23.0) * 0.5  # metres: -11.5 (west, blue) .. +12 (east, red), 0 at column 23
+    error[0, 40:], error[1, 40:] = 100.0, -100.0  # 16 outliers (0.7%), clipped
+    error[10, 10] = np.nan  # a valid post without an error: grey
+    lim = error_colour_limit(error)
+    assert lim == np.percentile(np.abs(error[np.isfinite(error)]), 99) == 12.0
+    cmap = colormaps["RdBu_r"]
+    e = error.ravel()[tm.vertex_post]
+    for limit, path in ((None, tmp_path / "e.ply"), (4.0, tmp_path / "e4.ply")):
+        export_mesh(tm, path, error, colour_kind="error", error_limit=limit)
+        rgb = trimesh.load(path, process=False).visual.vertex_colors[:, :3].astype(int)
+        o3_rgb = np.rint(np.asarray(o3d.io.read_triangle_mesh(str(path)).vertex_colors) * 255)
+        np.testing.assert_array_equal(o3_rgb, rgb)
+        a = limit or lim
+        pos, neg, nan = e > 0, e < 0, np.isnan(e)
+        assert np.all(rgb[pos, 0] > rgb[pos, 2]) and np.all(rgb[neg, 2] > rgb[neg, 0])
+        assert np.all(rgb[e == 0] > 240)  # white at zero
+        np.testing.assert_array_equal(rgb[nan], [[128, 128, 128]])
+        # saturated at +-limit, and the colour map in between (uint8 rounding aside)
+        red, blue = cmap(1.0, bytes=True)[:3], cmap(0.0, bytes=True)[:3]
+        assert np.all(rgb[e >= a] == red) and np.all(rgb[e <= -a] == blue)
+        assert (e >= a).sum() >= 8 and (e <= -a).sum() >= 8
+        ok = ~nan
+        mapped = cmap(np.clip((e[ok] / a + 1) / 2, 0, 1), bytes=True)[:, :3].astype(int)
+        assert np.abs(rgb[ok] - mapped).max() <= 1
+    with pytest.raises(InputError):
+        export_mesh(tm, tmp_path / "x.ply", error, colour_kind="error", error_limit=0.0)
+    with pytest.raises(InputError):
+        export_mesh(tm, tmp_path / "x.ply", np.full(t.shape, np.nan), colour_kind="error")
+    with pytest.raises(InputError):
+        export_mesh(tm, tmp_path / "x.ply", np.stack([error] * 3), colour_kind="error")
+    with pytest.raises(InputError):
+        export_mesh(tm, tmp_path / "x.ply", truth, colour_kind="visibility")  # not codes
+    with pytest.raises(InputError):
+        export_mesh(tm, tmp_path / "x.ply", error, colour_kind="slope")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.ply", "e4.ply"]
+
+
+def test_decimation_keeps_visibility_colours(tmp_path: Path, crater48: tuple) -> None:
+    t, _, codes = crater48
+    tm = terrain_mesh(t)
+    target = 1000
+    # posts whose 5 x 5 neighbourhood holds one code: a vertex moved by the decimation (or by
+    # Open3D's float32) stays among posts of that code
+    same = maximum_filter(codes, 5, mode="nearest") == minimum_filter(codes, 5, mode="nearest")
+    for fmt in ("ply", "obj", "glb"):
+        path = tmp_path / f"d.{fmt}"
+        export_mesh(tm, path, codes, target_triangles=target, colour_kind="visibility")
+        m = trimesh.load(path, force="mesh", process=False)
+        assert 0.8 * target <= len(m.faces) <= 1.02 * target
+        _, near = cKDTree(tm.world_vertices).query(m.vertices)
+        post = tm.vertex_post[near]
+        want = TABLE[codes.ravel()[post]]
+        rgb = m.visual.vertex_colors[:, :3]
+        # every colour is the table colour of its nearest post: no blends of two codes
+        exact = (rgb == want).all(axis=1)
+        assert exact[same.ravel()[post]].all() and exact.mean() > 0.99, exact.mean()
+        if fmt == "ply":
+            o3 = o3d.io.read_triangle_mesh(str(path))
+            assert len(o3.triangles) == len(m.faces)
+            np.testing.assert_array_equal(np.rint(np.asarray(o3.vertex_colors) * 255), rgb)
+
+
+# ------------------------------------------------------------------------------ the command
+def test_cli_mesh_colour_options(
+    tmp_path: Path, crater48: tuple, capsys: pytest.CaptureFixture
+) -> None:
+    t, truth, codes = crater48
+    # a fitted DEM: 3 m high in the east half, 3 m low in the west, NaN where unresolved
+    c, _ = t.grid()
+    fitted = t.values + np.where(c >= 24, 3.0, -3.0)
+    t.write(tmp_path / "fitted.tif", fitted)
+    t.write(tmp_path / "truth.tif", truth)
+    # as `orthomvp visibility` writes it: uint8, nodata 0 (read back as NaN)
+    write_geotiff(tmp_path / "vis.tif", codes, t.transform, t.crs, nodata=0)
+    inputs = ["fitted.tif", "truth.tif", "vis.tif"]
+    fit, tru, vis = (str(tmp_path / n) for n in inputs)
+    n_vert, n_tri = expected_counts(np.isfinite(fitted))
+
+    out = str(tmp_path / "err.ply")
+    assert main(["mesh", fit, "-o", out, "--error-against", tru]) == 0
+    assert "error colours: blue -3 m, white 0, red +3 m" in capsys.readouterr().out
+    m = trimesh.load(out, process=False)
+    assert (len(m.vertices), len(m.faces)) == (n_vert, n_tri)
+    # the posts in row-major order, with the heights as written (float32)
+    world = Terrain.read(fit).world_points()[np.isfinite(fitted)]
+    np.testing.assert_allclose(m.vertices, world, rtol=0, atol=1e-6)
+    east = (c >= 24)[np.isfinite(fitted)]
+    rgb = m.visual.vertex_colors[:, :3]
+    # every error is +-3 m, the limit: saturated red (DEM above the truth) and blue (below)
+    red, blue = (colormaps["RdBu_r"](x, bytes=True)[:3] for x in (1.0, 0.0))
+    assert np.all(rgb[east] == red) and np.all(rgb[~east] == blue)
+
+    out = str(tmp_path / "vis.glb")
+    assert main(["mesh", fit, "-o", out, "--texture", vis, "--colour-by", "visibility"]) == 0
+    m = trimesh.load(out, force="mesh", process=False)
+    tm = terrain_mesh(t.with_values(fitted))
+    idx = match_vertices(m.vertices, tm.world_vertices, 1e-4)
+    np.testing.assert_array_equal(sample_texture(m), TABLE[codes.ravel()[tm.vertex_post[idx]]])
+
+    out = str(tmp_path / "lim.obj")
+    args = ["mesh", fit, "-o", out, "--error-against", tru, "--error-limit", "6", "--local-origin"]
+    assert main(args) == 0
+    assert "blue -6 m" in capsys.readouterr().out
+    assert {"lim.obj", "lim.mtl", "lim.png"} <= {p.name for p in tmp_path.iterdir()}
+
+    capsys.readouterr()
+    bad = str(tmp_path / "bad.ply")
+    other = tmp_path / "other.tif"
+    t.with_values(truth[:-1]).write(other)  # one row short: another grid
+    for args, words in (
+        (["--error-against", str(other)], "not on the grid"),
+        (["--texture", vis, "--colour-by", "error", "--error-limit", "-1"], "positive"),
+        (["--texture", fit, "--colour-by", "visibility"], "codes"),
+        (["--colour-by", "error"], "needs a raster"),
+        (["--texture", vis, "--colour-by", "visibility", "--error-limit", "2"], "error colours"),
+        (["--error-against", tru, "--colour-by", "image"], "height error"),
+    ):
+        assert main(["mesh", fit, "-o", bad, *args]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("orthomvp: error:") and words in err[0], err
+    with pytest.raises(SystemExit) as exc:
+        main(["mesh", fit, "-o", bad, "--texture", vis, "--error-against", tru])
+    assert exc.value.code == 2 and "not allowed with" in capsys.readouterr().err
+    made = {"err.ply", "vis.glb", "lim.obj", "lim.mtl", "lim.png", "other.tif", *inputs}
+    assert {p.name for p in tmp_path.iterdir()} == made
