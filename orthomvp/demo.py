@@ -1,28 +1,46 @@
-"""``orthomvp demo``: the pipeline end to end on the built-in synthetic crater scene."""
+"""``orthomvp demo``: the pipeline end to end on the built-in synthetic crater scene.
+
+Visibility, naive and occlusion-aware orthophotos and a mosaic of the oblique and near-nadir
+views; a refined DEM from a perturbed start (MVP fit, all four views); objective plots at one
+post (the explorer); offscreen 3D snapshots; exported meshes; every figure scored against the
+scene's analytic truth, and an ``index.html`` that shows them all.
+"""
 
 from __future__ import annotations
 
+import io
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
-from orthomvp.figures import ortho_comparison, scene_overview
+from orthomvp.explore import Explorer, ExplorerShell, run_commands
+from orthomvp.figures import height_error_maps, ortho_comparison, scene_overview
 from orthomvp.mesh import export_mesh, terrain_mesh
+from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.ortho import mosaic, orthorectify
 from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
 from orthomvp.raycast import RayCaster
-from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
+from orthomvp.render import snapshot
+from orthomvp.scenes import SceneData, away_from_boundaries, classification_scores, load_scene
 from orthomvp.synth import make_scene
+from orthomvp.webpage import write_index
 
 DEMO_SIZE = 120
 DEMO_SPACING = 50.0
+START_OFFSET = 30.0  # metres added to the smoothed truth to make the fit's start DEM
+START_NOISE = 15.0  # RMS metres of smooth random error added as well
+FIT = FitOptions(hwin=5, levels=1)  # small windows resolve the crater walls best here
+EXPLORE_POST = (24, 30)  # (c, r) outside the crater, for the objective plots
+RIM_RADIUS_POSTS = 45  # posts within this distance of the centre count as "in the crater"
+SNAP_SIZE = (900, 640)
 
 
 def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
-    """Synthesise the crater scene, orthorectify and mosaic it, score everything against the
-    truth, export meshes and figures, and print a summary. Returns the measured figures."""
+    """Run everything into ``outdir`` (written atomically) and print a summary. Returns the
+    measured figures."""
     outdir = Path(outdir)
     t0 = time.perf_counter()
     with atomic_dir(outdir) as tmp:
@@ -30,78 +48,213 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
             tmp / "scene", progress=not quiet
         )
         scene = load_scene(tmp / "scene")
-        terrain = scene.terrain
-        tmesh = terrain_mesh(terrain)
-        caster = RayCaster(tmesh)
-        oblique, nadir = scene.views["oblique"], scene.views["nadir"]
-        aware = orthorectify(terrain, oblique.image, oblique.camera, caster=caster)
-        naive = orthorectify(terrain, oblique.image, oblique.camera, occlusion=False, caster=caster)
-        mos = mosaic(
-            terrain,
-            [(oblique.image, oblique.camera), (nadir.image, nadir.camera)],
-            caster=caster,
-        )
-        for name, data in (
-            ("oblique-ortho.tif", aware.data),
-            ("oblique-naive.tif", naive.data),
-            ("mosaic.tif", mos.data),
-        ):
-            write_geotiff(tmp / name, data, terrain.transform, terrain.crs, nodata=np.nan)
-        write_geotiff(
-            tmp / "oblique-visibility.tif",
-            aware.visibility.codes,
-            terrain.transform,
-            terrain.crs,
-            nodata=0,
-        )
-        write_geotiff(
-            tmp / "mosaic-source.tif", mos.source, terrain.transform, terrain.crs, nodata=0
-        )
-        radiance = scene.radiance[None]
-        export_mesh(tmesh, tmp / "crater.ply", radiance)
-        export_mesh(tmesh, tmp / "crater.glb", aware.data)
-        # score against the truth, away from class boundaries
-        keep = away_from_boundaries(oblique.truth)
-        hidden = np.isin(oblique.truth, (2, 3)) & keep
-        visible = (oblique.truth == 1) & keep & np.isfinite(aware.data[0])
-        figures = {
-            **classification_scores(aware.visibility.codes, oblique.truth, keep),
-            "hidden_posts": int(hidden.sum()),
-            "ghosts_naive": int(np.isfinite(naive.data[0])[hidden].sum()),
-            "ghosts_orthomvp": int(np.isfinite(aware.data[0])[hidden].sum()),
-            "radiance_correlation": float(
-                np.corrcoef(aware.data[0][visible], scene.radiance[visible])[0, 1]
-            ),
-            "mosaic_fills_hidden": float(np.isfinite(mos.data[0])[hidden].mean()),
-        }
-        scene_overview(
-            terrain.values, DEMO_SPACING, oblique.image[0], oblique.truth, tmp / "overview.png"
-        )
-        ortho_comparison(naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png")
+        figures, arrays = _orthophotos(tmp, scene)
+        figures.update(_refine(tmp, scene, arrays))
+        _objective(tmp, scene, arrays["start"])
+        _snapshots(tmp, scene, arrays)
+        _meshes(tmp, scene, arrays)
+        figures["seconds"] = time.perf_counter() - t0
+        lines = _summary(figures, outdir)
         with atomic_path(tmp / "summary.json") as f:
             f.write_text(json.dumps(figures, indent=2))
-    figures["seconds"] = time.perf_counter() - t0
-    f = figures
-    print(
-        f"orthomvp demo: crater scene, {DEMO_SIZE} x {DEMO_SIZE} posts of {DEMO_SPACING:g} m, "
-        f"4 views ({f['seconds']:.1f} s), outputs in {outdir}/"
-    )
-    print(
-        f"  visibility of the 55-degree oblique view vs marched truth: F1 visible "
-        f"{f['f1_visible']:.4f}, hidden {f['f1_hidden']:.4f}"
-    )
-    print(
-        f"  ghosts among {f['hidden_posts']:,} hidden posts: naive orthophoto "
-        f"{f['ghosts_naive']:,}, orthomvp {f['ghosts_orthomvp']:,}"
-    )
-    print(f"  orthophoto vs true radiance at visible posts: r = {f['radiance_correlation']:.4f}")
-    print(
-        f"  mosaic (oblique + nadir) fills {100 * f['mosaic_fills_hidden']:.1f}% of the "
-        "hidden posts"
-    )
-    print(
-        "  files: scene/ (DEM, images, cameras, truth), oblique-ortho.tif, oblique-naive.tif, "
-        "oblique-visibility.tif, mosaic.tif, mosaic-source.tif, crater.ply, crater.glb, "
-        "overview.png, orthophotos.png, summary.json"
-    )
+        write_index(tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES)
+    for line in lines:
+        print(line)
     return figures
+
+
+def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
+    """Visibility, orthophotos and the mosaic of the oblique and nadir views, scored."""
+    terrain = scene.terrain
+    caster = RayCaster(terrain_mesh(terrain))
+    oblique, nadir = scene.views["oblique"], scene.views["nadir"]
+    aware = orthorectify(terrain, oblique.image, oblique.camera, caster=caster)
+    naive = orthorectify(terrain, oblique.image, oblique.camera, occlusion=False, caster=caster)
+    mos = mosaic(
+        terrain, [(oblique.image, oblique.camera), (nadir.image, nadir.camera)], caster=caster
+    )
+    t, crs = terrain.transform, terrain.crs
+    for name, data in (
+        ("oblique-ortho.tif", aware.data),
+        ("oblique-naive.tif", naive.data),
+        ("mosaic.tif", mos.data),
+    ):
+        write_geotiff(tmp / name, data, t, crs, nodata=np.nan)
+    write_geotiff(tmp / "oblique-visibility.tif", aware.visibility.codes, t, crs, nodata=0)
+    write_geotiff(tmp / "mosaic-source.tif", mos.source, t, crs, nodata=0)
+    keep = away_from_boundaries(oblique.truth)
+    hidden = np.isin(oblique.truth, (2, 3)) & keep
+    visible = (oblique.truth == 1) & keep & np.isfinite(aware.data[0])
+    figures = {
+        **classification_scores(aware.visibility.codes, oblique.truth, keep),
+        "hidden_posts": int(hidden.sum()),
+        "ghosts_naive": int(np.isfinite(naive.data[0])[hidden].sum()),
+        "ghosts_orthomvp": int(np.isfinite(aware.data[0])[hidden].sum()),
+        "radiance_correlation": float(
+            np.corrcoef(aware.data[0][visible], scene.radiance[visible])[0, 1]
+        ),
+        "mosaic_fills_hidden": float(np.isfinite(mos.data[0])[hidden].mean()),
+    }
+    scene_overview(
+        terrain.values, DEMO_SPACING, oblique.image[0], oblique.truth, tmp / "overview.png"
+    )
+    ortho_comparison(naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png")
+    arrays = {"visibility": aware.visibility.codes, "mosaic": mos.data}
+    return figures, arrays
+
+
+def start_dem(truth: np.ndarray, seed: int = 1) -> np.ndarray:
+    """The fit's start: the truth smoothed over 2 posts, raised START_OFFSET metres, plus
+    smooth random error of START_NOISE metres RMS (correlation length about 6 posts)."""
+    noise = ndimage.gaussian_filter(np.random.default_rng(seed).normal(size=truth.shape), 6)
+    return ndimage.gaussian_filter(truth, 2) + START_OFFSET + noise * (START_NOISE / noise.std())
+
+
+def _refine(tmp: Path, scene: SceneData, arrays: dict) -> dict:
+    """Fit the DEM from the perturbed start with all four views; score against the truth."""
+    terrain, truth = scene.terrain, scene.terrain.values
+    start = terrain.with_values(start_dem(truth))
+    views = list(scene.views.values())
+    res = fit_dem(start, [v.image for v in views], [v.camera for v in views], FIT)
+    start.write(tmp / "start-dem.tif")
+    write_geotiff(
+        tmp / "fitted-dem.tif", res.heights.astype(np.float32), terrain.transform, terrain.crs,
+        nodata=np.nan,
+    )  # fmt: skip
+    arrays.update(start=start, fitted=res.heights)
+    ok = res.resolved
+    rows, cols = truth.shape
+    r, c = np.mgrid[:rows, :cols]
+    outside = np.hypot(c - (cols - 1) / 2, r - (rows - 1) / 2) > RIM_RADIUS_POSTS
+
+    def rmse(err: np.ndarray, mask: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(err[mask & ok] ** 2)))
+
+    before, after = start.values - truth, res.heights - truth
+    height_error_maps(np.where(ok, before, np.nan), after, DEMO_SPACING, tmp / "height-error.png")
+    return {
+        "fit_resolved": float(ok.mean()),
+        "fit_rmse_start": rmse(before, True),
+        "fit_rmse": rmse(after, True),
+        "fit_rmse_start_outside_crater": rmse(before, outside),
+        "fit_rmse_outside_crater": rmse(after, outside),
+        "fit_rmse_start_crater": rmse(before, ~outside),
+        "fit_rmse_crater": rmse(after, ~outside),
+        "fit_median_abs_error": float(np.median(np.abs(after[ok]))),
+        "gsd_m": float(scene.summary["views"]["nadir"]["gsd_m"]),
+    }
+
+
+def _objective(tmp: Path, scene: SceneData, start) -> None:  # noqa: ANN001
+    """rplot and llplot at one post of the start DEM, after a traced fit from there."""
+    views = list(scene.views.values())
+    explorer = Explorer(
+        start, [v.image for v in views], [v.camera for v in views], list(scene.views)
+    )
+    commands = [
+        f"poi {EXPLORE_POST[0]} {EXPLORE_POST[1]}",
+        f"hwin {FIT.hwin}",
+        "fit",
+        "rplot 150",
+        f"save {tmp / 'objective-rplot.png'}",
+        "llplot 20",
+        f"save {tmp / 'objective-llplot.png'}",
+    ]
+    run_commands(ExplorerShell(explorer, stdout=io.StringIO()), commands)
+
+
+def _snapshots(tmp: Path, scene: SceneData, arrays: dict) -> None:
+    """3D snapshots: visibility of the oblique view with the cameras and rays, the mosaic
+    draped, and the height error before and after the fit."""
+    terrain = scene.terrain
+    oblique, nadir = scene.views["oblique"].camera, scene.views["nadir"].camera
+    truth = terrain.values
+    limit = float(np.nanpercentile(np.abs(arrays["start"].values - truth), 99))
+    shots = {
+        "snap-visibility.png": dict(
+            visibility=arrays["visibility"], cameras=[oblique, nadir], rays=6, exaggerate=1.5
+        ),
+        "snap-mosaic.png": dict(ortho=arrays["mosaic"], exaggerate=1.5),
+        "snap-error-start.png": dict(
+            heights=arrays["start"].values, truth=truth, error_limit=limit
+        ),
+        "snap-error-fitted.png": dict(heights=arrays["fitted"], truth=truth, error_limit=limit),
+    }
+    for name, kwargs in shots.items():
+        snap = snapshot(terrain, size=SNAP_SIZE, **kwargs)
+        try:
+            snap.save(tmp / name)
+        finally:
+            snap.close()
+
+
+def _meshes(tmp: Path, scene: SceneData, arrays: dict) -> None:
+    """The true surface coloured by radiance (PLY), the DEM draped with the mosaic (GLB) and
+    the fitted DEM coloured by its error (PLY)."""
+    terrain = scene.terrain
+    tmesh = terrain_mesh(terrain)
+    export_mesh(tmesh, tmp / "crater.ply", scene.radiance[None])
+    export_mesh(tmesh, tmp / "crater.glb", arrays["mosaic"])
+    fitted = terrain.with_values(arrays["fitted"])
+    error = arrays["fitted"] - terrain.values
+    export_mesh(terrain_mesh(fitted), tmp / "fitted.ply", error, colour_kind="error")
+
+
+PAGE = [
+    ("overview.png", "The crater scene: shaded DEM, the rendered 55-degree oblique image and its "
+     "truth visibility (green: occluded)."),
+    ("orthophotos.png", "Naive orthophoto with ghosts, orthomvp's occlusion-aware orthophoto "
+     "(hidden posts empty) and the mosaic that fills them from the near-nadir view."),
+    ("snap-visibility.png", "3D: visibility of the oblique view (green occluded), its camera "
+     "and the near-nadir one with rays to their first hits."),
+    ("snap-mosaic.png", "3D: the mosaic draped on the DEM."),
+    ("height-error.png", "Height error against the truth, start DEM and fitted DEM."),
+    ("snap-error-start.png", "3D: height error of the start DEM."),
+    ("snap-error-fitted.png", "3D: height error of the fitted DEM."),
+    ("objective-rplot.png", "The objective against height at one post of the start DEM, with "
+     "the optimiser's path (orthomvp explore: rplot)."),
+    ("objective-llplot.png", "The objective over orientations at the fitted height, with the "
+     "path (llplot)."),
+]  # fmt: skip
+FILES = [
+    ("scene/", "the synthetic scene: DEM (the truth), images, .tsai cameras, truth rasters"),
+    ("oblique-visibility.tif", "visibility codes of the oblique view (1 visible, 2 occluded, "
+     "3 facing away, 0 outside)"),
+    ("oblique-ortho.tif", "occlusion-aware orthophoto of the oblique view"),
+    ("oblique-naive.tif", "naive orthophoto of the oblique view (with ghosts)"),
+    ("mosaic.tif", "mosaic of the oblique and nadir views"),
+    ("mosaic-source.tif", "which view each mosaic post came from (1 oblique, 2 nadir)"),
+    ("start-dem.tif", "the perturbed start DEM of the fit"),
+    ("fitted-dem.tif", "the refined DEM (NaN where fewer than 2 views see a post)"),
+    ("crater.ply", "mesh of the true surface with radiance colours (body-fixed metres)"),
+    ("crater.glb", "mesh draped with the mosaic (glTF)"),
+    ("fitted.ply", "mesh of the fitted DEM coloured by its height error"),
+    ("objective-rplot.csv", "data of the rplot"),
+    ("objective-llplot.csv", "data of the llplot"),
+    ("summary.json", "every figure in the summary"),
+]  # fmt: skip
+
+
+def _summary(f: dict, outdir: Path) -> list[str]:
+    """The printed summary, also shown on the index page."""
+    return [
+        f"orthomvp demo: crater scene, {DEMO_SIZE} x {DEMO_SIZE} posts of {DEMO_SPACING:g} m, "
+        f"4 views ({f['seconds']:.1f} s), outputs in {outdir}/",
+        f"  visibility of the 55-degree oblique view vs marched truth: F1 visible "
+        f"{f['f1_visible']:.4f}, hidden {f['f1_hidden']:.4f}",
+        f"  ghosts among {f['hidden_posts']:,} hidden posts: naive orthophoto "
+        f"{f['ghosts_naive']:,}, orthomvp {f['ghosts_orthomvp']:,}",
+        f"  orthophoto vs true radiance at visible posts: r = {f['radiance_correlation']:.4f}",
+        f"  mosaic (oblique + nadir) fills {100 * f['mosaic_fills_hidden']:.1f}% of the hidden "
+        "posts",
+        f"  MVP fit from a start {f['fit_rmse_start']:.1f} m RMS off (hwin {FIT.hwin}, 4 views, "
+        f"{100 * f['fit_resolved']:.1f}% of posts resolved): RMSE {f['fit_rmse']:.1f} m, median "
+        f"|error| {f['fit_median_abs_error']:.1f} m",
+        f"    outside the crater {f['fit_rmse_start_outside_crater']:.1f} -> "
+        f"{f['fit_rmse_outside_crater']:.1f} m ({f['fit_rmse_outside_crater'] / f['gsd_m']:.2f} "
+        f"image GSD); inside {f['fit_rmse_start_crater']:.1f} -> {f['fit_rmse_crater']:.1f} m "
+        "(planes cannot follow the rim crest and the central peak)",
+        "  open index.html for every picture; files: scene/, oblique-*.tif, mosaic*.tif, "
+        "start-dem.tif, fitted-dem.tif, crater.ply, crater.glb, fitted.ply, objective-*.png, "
+        "snap-*.png, summary.json",
+    ]

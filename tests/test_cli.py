@@ -14,7 +14,10 @@ from affine import Affine
 
 from orthomvp.cli import main
 
-COMMANDS = ("demo", "synth", "mesh", "visibility", "ortho", "mosaic", "fit", "eps-study", "bench")
+COMMANDS = (
+    "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "fit", "explore",
+    "eps-study", "bench",
+)  # fmt: skip
 
 
 def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -140,11 +143,3 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
     assert "occlusion-aware orthophoto" in proc.stdout
     assert "MVP fit" in proc.stdout
     assert (tmp_path / "b.json").is_file()
-
-
-def test_demo(tmp_path: Path) -> None:
-    proc = run("demo", str(tmp_path / "demo"))
-    assert proc.returncode == 0, proc.stderr
-    for name in ("overview.png", "orthophotos.png", "crater.ply", "crater.glb", "mosaic.tif"):
-        assert (tmp_path / "demo" / name).is_file(), name
-    assert "ghosts among" in proc.stdout and "orthomvp 0" in proc.stdout

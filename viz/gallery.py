@@ -12,6 +12,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+from PIL import Image
+
 from orthomvp.camera import read_camera
 from orthomvp.demo import run_demo
 from orthomvp.epsstudy import eps_study, plot, write_csv
@@ -25,11 +28,21 @@ DATA = HERE.parents[1] / "shared" / "data"
 
 
 def demo_pictures(tmp: Path) -> None:
-    """The crater scene overview and the naive / occlusion-aware / mosaic orthophotos."""
+    """From the demo: the crater scene overview, the naive / occlusion-aware / mosaic
+    orthophotos, the visibility and mosaic snapshots, and the height error before and after
+    the fit (maps, and the two snapshots side by side)."""
     demo = tmp / "demo"
     run_demo(demo, quiet=True)
-    for name in ("overview.png", "orthophotos.png"):
+    for name in (
+        "overview.png",
+        "orthophotos.png",
+        "snap-visibility.png",
+        "snap-mosaic.png",
+        "height-error.png",
+    ):
         shutil.copy(demo / name, HERE / name)
+    pair = [np.asarray(Image.open(demo / f"snap-error-{k}.png")) for k in ("start", "fitted")]
+    Image.fromarray(np.hstack(pair)).save(HERE / "snap-error.png")
 
 
 def eps_pictures(tmp: Path) -> None:

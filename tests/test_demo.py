@@ -1,0 +1,124 @@
+"""``orthomvp demo`` end to end, as a user runs it: outputs, measured figures, meshes, and the
+index page loaded in a real headless browser."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+from PIL import Image
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str, float]:
+    out = tmp_path_factory.mktemp("demo") / "out"
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "orthomvp", "demo", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return out, proc.stdout, time.perf_counter() - t0
+
+
+def test_demo_outputs_and_figures(demo: tuple[Path, str, float]) -> None:
+    out, stdout, seconds = demo
+    assert seconds < 120, f"the demo took {seconds:.0f} s (goal: under two minutes)"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["f1_visible"] > 0.99 and summary["f1_hidden"] > 0.99
+    assert summary["ghosts_orthomvp"] == 0 and summary["ghosts_naive"] == summary["hidden_posts"]
+    assert summary["mosaic_fills_hidden"] == 1.0
+    # the fit from the perturbed start: away from the crater, under 0.15 of the start's error
+    assert summary["fit_rmse_outside_crater"] < 0.15 * summary["fit_rmse_start_outside_crater"]
+    assert summary["fit_rmse"] < 0.6 * summary["fit_rmse_start"]
+    assert summary["fit_resolved"] > 0.95
+    assert "ghosts among" in stdout and "orthomvp 0" in stdout and "MVP fit" in stdout
+    for name in ("objective-rplot.csv", "objective-llplot.csv"):
+        assert len((out / name).read_text().splitlines()) > 50
+    for name in ("snap-visibility.png", "snap-mosaic.png", "snap-error-fitted.png"):
+        img = np.asarray(Image.open(out / name).convert("RGB"))
+        assert img.std() > 15 and len(np.unique(img.reshape(-1, 3), axis=0)) > 500, name
+    vis = np.asarray(Image.open(out / "snap-visibility.png").convert("RGB")).astype(int)
+    green = (vis[..., 1] > 150) & (vis[..., 0] < 90) & (vis[..., 2] < 90)
+    assert green.mean() > 0.002  # the occluded posts of the oblique view
+
+
+def test_demo_meshes_open_in_trimesh_and_open3d(demo: tuple[Path, str, float]) -> None:
+    out, _, _ = demo
+    posts = 120 * 120
+    for name in ("crater.ply", "fitted.ply"):
+        tm = trimesh.load(out / name, process=False)
+        o3 = o3d.io.read_triangle_mesh(str(out / name))
+        assert len(tm.vertices) == len(o3.vertices) <= posts
+        assert len(tm.faces) == len(o3.triangles) > 0.9 * 2 * 119 * 119
+        assert o3.has_vertex_colors() and np.asarray(o3.vertex_colors).std() > 0.05
+    scene = trimesh.load(out / "crater.glb")
+    (geom,) = scene.geometry.values()
+    assert len(geom.vertices) == posts and geom.visual.material is not None
+
+
+def image_report(page: Path) -> list[tuple[str, bool]]:
+    """Load ``page`` in headless Chromium and return every <img> with whether it loaded."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--allow-file-access-from-files",
+    ):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
+    try:
+        driver.set_page_load_timeout(60)
+        driver.get(page.resolve().as_uri())
+        return [
+            (src, bool(ok))
+            for src, ok in driver.execute_script(
+                "return Array.from(document.images).map("
+                "i => [i.getAttribute('src'), i.complete && i.naturalWidth > 0]);"
+            )
+        ]
+    finally:
+        driver.quit()
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="needs Debian's chromium and chromium-driver (.ci/run installs them)",
+)
+def test_index_page_loads_every_picture_in_a_browser(
+    demo: tuple[Path, str, float], tmp_path: Path
+) -> None:
+    out, _, _ = demo
+    pngs = sorted(p.name for p in out.glob("*.png"))
+    report = image_report(out / "index.html")
+    assert sorted(src for src, _ in report) == pngs  # every picture is on the page
+    assert all(ok for _, ok in report), [src for src, ok in report if not ok]
+    # the check can fail: a copy of the page with one picture missing is caught
+    broken = tmp_path / "broken"
+    shutil.copytree(out, broken, ignore=shutil.ignore_patterns("scene", "*.tif", "*.ply"))
+    (broken / "snap-mosaic.png").unlink()
+    bad = [src for src, ok in image_report(broken / "index.html") if not ok]
+    assert bad == ["snap-mosaic.png"]
