@@ -41,10 +41,12 @@ def _add_dem_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--world",
-        choices=("body", "map"),
-        default="body",
-        help="world frame of the cameras: body-fixed Cartesian metres (default) or the DEM's "
-        "projected CRS taken as Cartesian (easting, northing, height)",
+        choices=("auto", "body", "map"),
+        default="auto",
+        help="world frame of the cameras: body-fixed Cartesian metres, or the DEM's projected "
+        "CRS taken as Cartesian (easting, northing, height); auto (default) picks it from the "
+        "camera centres and the DEM (body for geographic CRSs and when no camera is given) "
+        "and asks for body or map when that is ambiguous",
     )
 
 
@@ -63,7 +65,7 @@ def _load_view(image_path: Path, camera_path: Path):  # noqa: ANN202
     from orthomvp.raster import read_image
 
     image = read_image(image_path)
-    return image, check_image(image, read_camera(camera_path), str(image_path))
+    return image, check_image(image, read_camera(camera_path, image_path), str(image_path))
 
 
 def _warn_partial(vis, terrain, what: str) -> None:  # noqa: ANN001
@@ -76,10 +78,20 @@ def _warn_partial(vis, terrain, what: str) -> None:  # noqa: ANN001
         )
 
 
-def _read_terrain(args: argparse.Namespace):  # noqa: ANN202
-    from orthomvp.terrain import Terrain
+def _read_terrain(args: argparse.Namespace, cameras: Sequence = ()):  # noqa: ANN202
+    """The DEM of ``args``; ``--world auto`` picks the frame from the ``cameras``' centres (see
+    :func:`orthomvp.world.detect_world`), body-fixed when there are none."""
+    from dataclasses import replace
 
-    return Terrain.read(args.dem, args.radius_values, args.world, args.dem_crs)
+    from orthomvp.terrain import Terrain
+    from orthomvp.world import detect_world
+
+    world = "body" if args.world == "auto" else args.world
+    terrain = Terrain.read(args.dem, args.radius_values, world, args.dem_crs)
+    if args.world == "auto" and cameras:
+        centres = np.array([camera.center for camera in cameras])
+        terrain = replace(terrain, world=detect_world(terrain, centres))
+    return terrain
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -128,12 +140,34 @@ def build_parser() -> argparse.ArgumentParser:
         "mesh",
         help="export the DEM as a Cartesian mesh (PLY, OBJ, GLB)",
         description="Triangulate the DEM in body-fixed Cartesian metres (two triangles per "
-        "grid cell, holes skipped) and export it. PLY gets vertex colours, OBJ and GLB an image "
-        "texture, from --texture.",
+        "grid cell, holes skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl "
+        "and OUT.png beside it) and GLB an image texture, from --texture or --error-against.",
     )
     p.add_argument("dem", type=Path)
     p.add_argument("-o", "--output", type=Path, required=True, help="OUT.ply, OUT.obj or OUT.glb")
-    p.add_argument("--texture", type=Path, help="a raster on the DEM grid to colour the mesh")
+    source = p.add_mutually_exclusive_group()
+    source.add_argument(
+        "--texture", type=Path, help="a raster on the DEM grid to colour the mesh (see --colour-by)"
+    )
+    source.add_argument(
+        "--error-against",
+        type=Path,
+        metavar="TRUTH.tif",
+        help="colour by the height error DEM - TRUTH in metres (TRUTH on the DEM grid)",
+    )
+    p.add_argument(
+        "--colour-by",
+        choices=("image", "visibility", "error"),
+        help="what --texture holds: image (grey or RGB, stretched; the default), visibility "
+        "(codes 0-3 of `orthomvp visibility`, in the figures' colours) or error (metres: blue "
+        "below zero, red above; the default with --error-against)",
+    )
+    p.add_argument(
+        "--error-limit",
+        type=float,
+        metavar="M",
+        help="error colours saturate at +-M metres (default: the 99th percentile of |error|)",
+    )
     p.add_argument(
         "--local-origin",
         action="store_true",
@@ -149,6 +183,67 @@ def build_parser() -> argparse.ArgumentParser:
     _add_dem_options(p)
 
     p = sub.add_parser(
+        "render",
+        help="offscreen 3D snapshot of the DEM, its cameras and a result on its grid",
+        description="Render the DEM mesh offscreen to an image: shaded relief, or draped with "
+        "an orthophoto, or coloured by visibility codes (occluded posts green) or by the height "
+        "error FITTED - TRUTH (metres); cameras drawn as numbered frusta, optionally with rays "
+        "to their first hits.",
+    )
+    p.add_argument("dem", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True, help="SNAP.png (or .jpg)")
+    colour = p.add_mutually_exclusive_group()
+    colour.add_argument("--ortho", type=Path, metavar="ORTHO.tif", help="drape an orthophoto")
+    colour.add_argument(
+        "--visibility", type=Path, metavar="VIS.tif", help="colour by visibility codes"
+    )
+    colour.add_argument(
+        "--heights", type=Path, metavar="FITTED.tif", help="colour by height error (with --truth)"
+    )
+    p.add_argument("--truth", type=Path, metavar="TRUTH.tif", help="the truth for --heights")
+    p.add_argument(
+        "--camera",
+        type=Path,
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="CAM",
+        help="cameras to draw (.tsai, .pinhole or .json), numbered from 1",
+    )
+    p.add_argument("--rays", type=int, default=0, metavar="N", help="rays drawn per camera (0)")
+    p.add_argument("--view", choices=("oblique", "top", "from-camera"), default="oblique")
+    p.add_argument(
+        "--camera-index",
+        type=int,
+        default=1,
+        metavar="N",
+        help="the camera that --view from-camera looks through (1-based, default 1)",
+    )
+    p.add_argument(
+        "--azimuth",
+        type=float,
+        metavar="DEG",
+        help="oblique view from this azimuth, degrees clockwise from grid north (default: "
+        "opposite the first camera, else 210)",
+    )
+    p.add_argument(
+        "--elevation", type=float, default=45.0, metavar="DEG", help="oblique view elevation (45)"
+    )
+    p.add_argument("--exaggerate", type=float, default=1.0, metavar="K", help="vertical (1)")
+    p.add_argument(
+        "--error-limit",
+        type=float,
+        metavar="M",
+        help="height error colours saturate at +-M metres (default: 99th percentile of |error|)",
+    )
+    p.add_argument(
+        "--size", type=int, nargs=2, metavar=("W", "H"), help="image size (default 1024 768)"
+    )
+    p.add_argument("--title", help="a caption in the upper left corner")
+    p.add_argument("--no-legend", action="store_true", help="no legend or colour bar")
+    _add_dem_options(p)
+
+    p = sub.add_parser(
         "visibility",
         help="per-post visibility of one image: the epsilon round-trip test",
         description="Classify every DEM post for one camera: 0 no data / outside the image, "
@@ -157,7 +252,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("dem", type=Path)
     p.add_argument("image", type=Path, help="the image (gives the image size)")
-    p.add_argument("camera", type=Path, help="camera model: .tsai, .pinhole or .json")
+    p.add_argument(
+        "camera",
+        type=Path,
+        help="camera model: .tsai, .pinhole, .json, or an Orthority exterior file (.csv, .geojson; "
+        "the row of IMAGE, the one .yaml beside it)",
+    )
     p.add_argument("-o", "--output", type=Path, required=True, help="VIS.tif")
     _add_eps_option(p)
     _add_dem_options(p)
@@ -171,7 +271,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("dem", type=Path)
     p.add_argument("image", type=Path)
-    p.add_argument("camera", type=Path, help="camera model: .tsai, .pinhole or .json")
+    p.add_argument(
+        "camera",
+        type=Path,
+        help="camera model: .tsai, .pinhole, .json, or an Orthority exterior file (.csv, .geojson; "
+        "the row of IMAGE, the one .yaml beside it)",
+    )
     p.add_argument("-o", "--output", type=Path, required=True, help="ORTHO.tif")
     p.add_argument("--visibility", type=Path, metavar="VIS.tif", help="also write visibility")
     p.add_argument("--interp", choices=("nearest", "bilinear", "cubic"), default="bilinear")
@@ -317,7 +422,10 @@ def build_parser() -> argparse.ArgumentParser:
         "occlusion-aware orthophoto of one image against the bare Embree cast of one ray per "
         "post, in the same run. MVP: the plane fit of a synthetic hills DEM from its 4 views "
         "against bare cv2.remap of as many bilinear samples from the same images, in the same "
-        "run.",
+        "run. --peer orthority runs instead the side-by-side comparison with Orthority (when "
+        "installed): one ngi-aerial frame (or, without the data, a synthetic aerial scene) onto "
+        "the same grid with both tools, end to end from files to GeoTIFF, best of --peer-repeat "
+        "alternating runs; ratio = orthomvp time / Orthority time.",
     )
     p.add_argument("--size", type=int, default=1000, help="ray-casting DEM posts per side")
     p.add_argument("--rays", type=int, default=1_000_000, help="number of rays (1,000,000)")
@@ -326,6 +434,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--mvp-size", type=int, default=96, help="MVP fit DEM posts per side (96; 0 skips)"
+    )
+    p.add_argument(
+        "--peer",
+        choices=("orthority",),
+        help="only compare orthomvp (occlusion on and off) with this tool on the same grid",
+    )
+    p.add_argument(
+        "--peer-data",
+        type=Path,
+        default=Path("../shared/data/ngi-aerial"),
+        metavar="DIR",
+        help="the ngi-aerial data for --peer (default ../shared/data/ngi-aerial; a synthetic "
+        "scene when absent)",
+    )
+    p.add_argument(
+        "--peer-res",
+        type=float,
+        metavar="M",
+        help="output post spacing for --peer in metres (default: the DEM's, 24 m for ngi-aerial)",
+    )
+    p.add_argument(
+        "--peer-repeat", type=int, default=3, metavar="N", help="--peer keeps the best of N (3)"
     )
     p.add_argument("--json", type=Path, help="also write the figures as JSON")
     return parser
@@ -342,18 +472,88 @@ def _cmd_synth(args: argparse.Namespace) -> None:
 
 
 def _cmd_mesh(args: argparse.Namespace) -> None:
-    from orthomvp.mesh import export_mesh, terrain_mesh
+    from orthomvp.errors import InputError
+    from orthomvp.mesh import error_colour_limit, export_mesh, height_error, terrain_mesh
     from orthomvp.raster import read_image
+    from orthomvp.terrain import Terrain
 
+    kind = args.colour_by or ("error" if args.error_against else "image")
+    if args.error_against and kind != "error":
+        raise InputError(f"--error-against colours by height error, not by {kind}")
+    if args.colour_by and not (args.texture or args.error_against):
+        raise InputError("--colour-by needs a raster: give --texture (or --error-against)")
+    if args.error_limit is not None and kind != "error":
+        raise InputError("--error-limit applies to error colours only (--colour-by error)")
     terrain = _read_terrain(args)
     tmesh = terrain_mesh(terrain)
-    texture = read_image(args.texture) if args.texture else None
-    export_mesh(tmesh, args.output, texture, args.local_origin, args.decimate)
+    if args.error_against:
+        truth = Terrain.read(args.error_against, args.radius_values, terrain.world, args.dem_crs)
+        texture = height_error(terrain, truth)
+    else:
+        texture = read_image(args.texture) if args.texture else None
+    export_mesh(
+        tmesh, args.output, texture, args.local_origin, args.decimate, kind, args.error_limit
+    )
     m = tmesh.mesh
     note = f", decimated to about {args.decimate:,} triangles" if args.decimate else ""
     print(f"wrote {args.output}: {len(m.vertices):,} vertices, {len(m.faces):,} triangles{note}")
+    if kind == "error":
+        limit = error_colour_limit(texture, args.error_limit)
+        print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
     if args.local_origin:
         print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*tmesh.origin))
+
+
+def _cmd_render(args: argparse.Namespace) -> None:
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import InputError
+    from orthomvp.raster import read_image
+    from orthomvp.render import snapshot
+
+    if (args.heights is None) != (args.truth is None):
+        raise InputError("--heights and --truth go together: the error is FITTED - TRUTH")
+    cameras = [read_camera(path) for path in args.camera]
+    if args.view == "from-camera" and not 1 <= args.camera_index <= len(cameras):
+        raise InputError(
+            f"--view from-camera needs --camera-index between 1 and the number of --camera "
+            f"files ({len(cameras)}), got {args.camera_index}"
+        )
+    terrain = _read_terrain(args, cameras)
+    rasters = {
+        key: read_image(path)
+        for key, path in (
+            ("ortho", args.ortho),
+            ("visibility", args.visibility),
+            ("heights", args.heights),
+            ("truth", args.truth),
+        )
+        if path is not None
+    }
+    snap = snapshot(
+        terrain,
+        **rasters,
+        cameras=cameras,
+        rays=args.rays,
+        view=args.view,
+        view_camera=args.camera_index - 1,
+        azimuth=args.azimuth,
+        elevation=args.elevation,
+        exaggerate=args.exaggerate,
+        size=tuple(args.size) if args.size else None,
+        legend=not args.no_legend,
+        title=args.title,
+        error_limit=args.error_limit,
+    )
+    try:
+        snap.save(args.output)
+    finally:
+        snap.close()
+    height, width = snap.image.shape[:2]
+    shown = next((k for k in ("ortho", "visibility", "heights") if k in rasters), "relief")
+    print(
+        f"wrote {args.output}: {width} x {height} {args.view} view, {shown}, "
+        f"{len(cameras)} camera(s)"
+    )
 
 
 def _cmd_bench(args: argparse.Namespace) -> None:
@@ -367,25 +567,57 @@ def _cmd_bench(args: argparse.Namespace) -> None:
     )
     from orthomvp.raster import atomic_path
 
-    results: dict = {"raycast": bench_raycast(args.size, args.rays)}
-    print(format_raycast(results["raycast"]))
-    if args.ortho_size:
-        results["ortho"] = bench_ortho(args.ortho_size)
-        print(format_ortho(results["ortho"]))
-    if args.mvp_size:
-        results["mvp"] = bench_mvp(args.mvp_size)
-        print(format_mvp(results["mvp"]))
+    if args.peer:
+        results = {"orthority": _bench_peer(args)}
+    else:
+        results = {"raycast": bench_raycast(args.size, args.rays)}
+        print(format_raycast(results["raycast"]))
+        if args.ortho_size:
+            results["ortho"] = bench_ortho(args.ortho_size)
+            print(format_ortho(results["ortho"]))
+        if args.mvp_size:
+            results["mvp"] = bench_mvp(args.mvp_size)
+            print(format_mvp(results["mvp"]))
     if args.json:
         with atomic_path(args.json) as tmp:
             tmp.write_text(json.dumps(results, indent=2))
+
+
+def _bench_peer(args: argparse.Namespace) -> dict:
+    """``bench --peer orthority``: the side-by-side run, printed; returns its figures."""
+    import tempfile
+
+    from orthomvp.bench import (
+        bench_orthority,
+        format_orthority,
+        import_orthority,
+        ngi_case,
+        synthetic_case,
+    )
+    from orthomvp.errors import InputError
+
+    import_orthority()
+    if args.peer_res is not None and not args.peer_res > 0:
+        raise InputError(f"--peer-res must be a positive number of metres, got {args.peer_res}")
+    if args.peer_repeat < 1:
+        raise InputError(f"--peer-repeat must be at least 1, got {args.peer_repeat}")
+    with tempfile.TemporaryDirectory(prefix="orthomvp-peer-") as tmp:
+        if (args.peer_data / "dem.tif").is_file():
+            case = ngi_case(args.peer_data, Path(tmp))
+        else:
+            print(f"no ngi-aerial data in {args.peer_data}: using a synthetic aerial scene")
+            case = synthetic_case(Path(tmp))
+        row = bench_orthority(case, args.peer_res, args.peer_repeat)
+    print(format_orthority(row))
+    return row
 
 
 def _cmd_visibility(args: argparse.Namespace) -> None:
     from orthomvp.raster import write_geotiff
     from orthomvp.visibility import compute_visibility
 
-    terrain = _read_terrain(args)
     _, camera = _load_view(args.image, args.camera)
+    terrain = _read_terrain(args, [camera])
     vis = compute_visibility(terrain, camera, args.eps, progress=not args.quiet)
     _warn_partial(vis, terrain, str(args.image))
     write_geotiff(args.output, vis.codes, terrain.transform, terrain.crs, nodata=0)
@@ -399,8 +631,8 @@ def _cmd_ortho(args: argparse.Namespace) -> None:
     from orthomvp.raster import write_geotiff
     from orthomvp.raycast import RayCaster
 
-    terrain = _read_terrain(args)
     image, camera = _load_view(args.image, args.camera)
+    terrain = _read_terrain(args, [camera])
     caster = RayCaster(terrain_mesh(terrain))
     grid = terrain.regrid(args.res, args.bounds) if args.res or args.bounds else terrain
     ortho = orthorectify(
@@ -434,8 +666,8 @@ def _cmd_mosaic(args: argparse.Namespace) -> None:
 
     if len(args.pairs) % 2:
         raise InputError("mosaic needs IMAGE CAMERA pairs: got an odd number of files")
-    terrain = _read_terrain(args)
     views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    terrain = _read_terrain(args, [v[1] for v in views])
     result = mosaic(terrain, views, args.eps, args.interp, progress=not args.quiet)
     write_geotiff(args.output, result.data, result.transform, result.crs, nodata=np.nan)
     if args.source:
@@ -458,8 +690,8 @@ def _cmd_fit(args: argparse.Namespace) -> None:
         raise InputError("fit needs at least 2 IMAGE CAMERA pairs")
     if args.hwin < 1 or (args.sigma is not None and not args.sigma > 0) or args.levels < 1:
         raise InputError("--hwin and --levels must be >= 1 and --sigma positive")
-    terrain = _read_terrain(args)
     views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    terrain = _read_terrain(args, [v[1] for v in views])
     opts = FitOptions(
         hwin=args.hwin,
         sigma=args.sigma,
@@ -522,8 +754,8 @@ def _cmd_explore(args: argparse.Namespace) -> None:
         script = split_commands(sys.stdin.read())
     if not args.quiet:
         print("Loading images...", end=" ", flush=True)
-    terrain = _read_terrain(args)
     views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    terrain = _read_terrain(args, [v[1] for v in views])
     explorer = Explorer(
         terrain,
         [v[0] for v in views],
@@ -572,6 +804,7 @@ def _cmd_demo(args: argparse.Namespace) -> None:
 COMMANDS = {
     "synth": _cmd_synth,
     "mesh": _cmd_mesh,
+    "render": _cmd_render,
     "visibility": _cmd_visibility,
     "ortho": _cmd_ortho,
     "mosaic": _cmd_mosaic,

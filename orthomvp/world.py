@@ -1,0 +1,109 @@
+"""Which world frame the cameras live in, judged from their centres and the DEM.
+
+Two frames are possible (see :mod:`orthomvp.terrain`): body-fixed Cartesian metres (``"body"``,
+planetary data, ASP's convention) and the DEM's projected CRS taken as Cartesian (easting,
+northing, height; ``"map"``, aerial data, Orthority's convention). A camera centre is
+
+- *body-plausible* when it lies above the tangent plane of at least one DEM post in body-fixed
+  coordinates (an orbiter, or an aircraft given in Earth-centred coordinates, is; map
+  coordinates, whose norm is far below the body radius, or that lie on the far side, are not);
+- *map-plausible* (projected CRSs only) when its (x, y) lie within :data:`MAP_EXTENTS` DEM
+  extents of the DEM's map extent and its z lies above the DEM height under it (the lowest DEM
+  height when outside) and at most :data:`MAP_ALTITUDE` metres above the highest.
+
+The frame is picked when every camera is plausible in exactly the same one frame; otherwise
+the choice is left to the user (``--world body|map``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from orthomvp.errors import InputError
+from orthomvp.terrain import Terrain
+
+MAP_EXTENTS = 3.0
+"""How far beyond the DEM's map extent a map-frame camera may lie, in DEM extents (per axis)."""
+
+MAP_ALTITUDE = 100_000.0
+"""Highest plausible map-frame camera above the DEM's highest post, in DEM height units (m)."""
+
+_SAMPLES = 64  # posts per side sampled for the body-frame test
+
+
+def body_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
+    """Boolean (n,): camera centres (n, 3) that lie above the tangent plane (outward normal =
+    local vertical) of at least one of up to 64 x 64 sampled DEM posts in body-fixed metres."""
+    body = terrain if terrain.world == "body" else replace(terrain, world="body")
+    rows, cols = body.shape
+    step_r, step_c = max(rows // _SAMPLES, 1), max(cols // _SAMPLES, 1)
+    c, r = body.grid()
+    c, r, v = c[::step_r, ::step_c], r[::step_r, ::step_c], body.values[::step_r, ::step_c]
+    ok = np.isfinite(v)
+    p = body.to_world(c[ok], r[ok], v[ok])
+    up = body.up_vectors(p)
+    above = np.einsum("ci,pi->cp", centres, up) - np.einsum("pi,pi->p", p, up) > 0
+    return above.any(axis=1)
+
+
+def map_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
+    """Boolean (n,): camera centres (n, 3) that fit the DEM's map frame (see the module
+    docstring); all False for geographic CRSs."""
+    if not terrain.crs.is_projected:
+        return np.zeros(len(centres), bool)
+    t = terrain.transform
+    rows, cols = terrain.shape
+    xs = sorted((t.c, t.c + cols * t.a))
+    ys = sorted((t.f, t.f + rows * t.e))
+    width, height = xs[1] - xs[0], ys[1] - ys[0]
+    x, y, z = centres.T
+    near = (
+        (x >= xs[0] - MAP_EXTENTS * width)
+        & (x <= xs[1] + MAP_EXTENTS * width)
+        & (y >= ys[0] - MAP_EXTENTS * height)
+        & (y <= ys[1] + MAP_EXTENTS * height)
+    )
+    under = terrain.interpolate(*terrain.crs_to_pixel(x, y))
+    under = np.where(np.isfinite(under), under, np.nanmin(terrain.values))
+    return near & (z > under) & (z <= np.nanmax(terrain.values) + MAP_ALTITUDE)
+
+
+def detect_world(terrain: Terrain, centres: np.ndarray) -> str:
+    """The world frame (``"body"`` or ``"map"``) of cameras with ``centres`` (n, 3) over
+    ``terrain`` (its own ``world`` is ignored). Geographic CRSs are always ``"body"``.
+
+    Raises InputError, asking for ``--world body|map``, when there are no cameras, when a
+    camera fits both frames or neither, or when the cameras disagree.
+    """
+    if not terrain.crs.is_projected:
+        return "body"
+    centres = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    if centres.size == 0:
+        raise InputError(
+            f"{terrain.name}: no cameras to tell the world frame of a projected DEM from; "
+            "give --world body or --world map"
+        )
+    body, map_ = body_plausible(terrain, centres), map_plausible(terrain, centres)
+    if (body & ~map_).all():
+        return "body"
+    if (map_ & ~body).all():
+        return "map"
+    both, neither = np.flatnonzero(body & map_), np.flatnonzero(~body & ~map_)
+    if both.size:
+        why = f"camera {both[0] + 1} fits both body-fixed metres and the DEM's map frame"
+    elif neither.size:
+        why = (
+            f"camera {neither[0] + 1} fits neither body-fixed metres nor the DEM's map frame "
+            f"(within {MAP_EXTENTS:g} DEM extents of its map extent, above its heights)"
+        )
+    else:
+        why = (
+            f"camera {np.flatnonzero(body)[0] + 1} fits body-fixed metres, camera "
+            f"{np.flatnonzero(map_)[0] + 1} the DEM's map frame"
+        )
+    raise InputError(
+        f"{terrain.name}: cannot tell the cameras' world frame: {why}; "
+        "give --world body or --world map"
+    )

@@ -1,0 +1,79 @@
+"""``orthomvp bench --peer orthority``: figures consistent, a clear error without Orthority."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from orthomvp import bench
+from orthomvp.camera import read_camera
+from orthomvp.cli import main
+from orthomvp.errors import InputError
+from orthomvp.raster import read_image
+from orthomvp.terrain import Terrain
+from orthomvp.world import detect_world
+
+
+def require_orthority() -> None:
+    try:
+        bench.import_orthority()
+    except InputError as exc:
+        pytest.skip(f"the peer tool is absent: {exc}")
+
+
+def test_without_orthority_one_line_and_exit_2(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "orthority", None)  # makes the import fail
+    assert main(["bench", "--peer", "orthority", "--json", str(tmp_path / "b.json")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and not (tmp_path / "b.json").exists()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("orthomvp: error:")
+    assert "orthority is not installed" in lines[0] and "pip install orthority" in lines[0]
+
+
+def test_import_keeps_proj_offline(monkeypatch: pytest.MonkeyPatch) -> None:
+    require_orthority()
+    monkeypatch.delitem(sys.modules, "orthority")
+    monkeypatch.setenv("PROJ_NETWORK", "OFF")
+    bench.import_orthority()  # a fresh import sets PROJ_NETWORK=ON
+    assert os.environ["PROJ_NETWORK"] == "OFF"
+
+
+def test_synthetic_case_is_an_aerial_map_frame_scene(tmp_path: Path) -> None:
+    case = bench.synthetic_case(tmp_path)
+    terrain = Terrain.read(case.dem)
+    assert terrain.crs.is_projected and terrain.shape == (508, 327)
+    assert read_image(case.image).shape == (3, 1152, 640)
+    camera = read_camera(case.exterior, case.image)
+    assert detect_world(terrain, camera.center[None]) == "map"
+
+
+def test_bench_orthority_figures_are_consistent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    require_orthority()
+    out = tmp_path / "bench.json"
+    args = ["bench", "--peer", "orthority", "--peer-data", str(tmp_path / "absent")]
+    assert main([*args, "--peer-repeat", "1", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "synthetic aerial scene" in text and "ratio" in text
+    (key,) = json.loads(out.read_text())
+    row = json.loads(out.read_text())[key]
+    assert key == "orthority" and row["case"] == "synthetic hills" and row["res_m"] == 24.0
+    for name in ("orthority_s", "orthomvp_s", "orthomvp_naive_s"):
+        assert row[name] > 0
+    assert row["ratio"] == pytest.approx(row["orthomvp_s"] / row["orthority_s"])
+    assert row["naive_ratio"] == pytest.approx(row["orthomvp_naive_s"] / row["orthority_s"])
+    steps = row["orthomvp_steps_s"]
+    assert tuple(steps) == bench.RUN_STEPS
+    assert sum(steps.values()) == pytest.approx(row["orthomvp_s"], rel=0.05)
+    assert row["posts"] == np.prod(row["grid"]) > 10_000
+    assert row["max_abs_diff"] == 0.0  # same grid and positions: the same bilinear samples
+    assert main([*args, "--peer-res", "0"]) == 2
