@@ -19,7 +19,6 @@ RPLOT_RANGE_POSTS = 5.0  # default rplot half-range, in post spacings
 RPLOT_STEPS = 101
 LLPLOT_RANGE = 20.0  # default llplot half-range, degrees of tilt
 LLPLOT_STEPS = 41
-PLOT_COMMANDS = ("rplot", "llplot", "patches", "sweep")
 
 
 def _numbers(arg: str, kinds: tuple[type, ...], command: str) -> list:
