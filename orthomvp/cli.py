@@ -68,6 +68,17 @@ def _load_view(image_path: Path, camera_path: Path):  # noqa: ANN202
     return image, check_image(image, read_camera(camera_path, image_path), str(image_path))
 
 
+def _pair_paths(args: argparse.Namespace, minimum: int = 1) -> list[tuple[Path, Path]]:
+    """The IMAGE CAMERA pairs of ``args.pairs``; at least ``minimum`` of them."""
+    from orthomvp.errors import InputError
+
+    if len(args.pairs) % 2:
+        raise InputError(f"{args.command} needs IMAGE CAMERA pairs: got an odd number of files")
+    if len(args.pairs) < 2 * minimum:
+        raise InputError(f"{args.command} needs at least {minimum} IMAGE CAMERA pairs")
+    return list(zip(args.pairs[::2], args.pairs[1::2], strict=True))
+
+
 def _warn_partial(vis, terrain, what: str) -> None:  # noqa: ANN001
     outside = int(((vis.codes == 0) & terrain.valid).sum())
     if outside:
@@ -660,13 +671,10 @@ def _post_scale(grid, terrain) -> float:  # noqa: ANN001
 
 
 def _cmd_mosaic(args: argparse.Namespace) -> None:
-    from orthomvp.errors import InputError
     from orthomvp.ortho import mosaic
     from orthomvp.raster import write_geotiff
 
-    if len(args.pairs) % 2:
-        raise InputError("mosaic needs IMAGE CAMERA pairs: got an odd number of files")
-    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    views = [_load_view(image, camera) for image, camera in _pair_paths(args)]
     terrain = _read_terrain(args, [v[1] for v in views])
     result = mosaic(terrain, views, args.eps, args.interp, progress=not args.quiet)
     write_geotiff(args.output, result.data, result.transform, result.crs, nodata=np.nan)
@@ -684,13 +692,10 @@ def _cmd_fit(args: argparse.Namespace) -> None:
     from orthomvp.mvp import FitOptions, fit_dem
     from orthomvp.raster import write_geotiff
 
-    if len(args.pairs) % 2:
-        raise InputError("fit needs IMAGE CAMERA pairs: got an odd number of files")
-    if len(args.pairs) < 4:
-        raise InputError("fit needs at least 2 IMAGE CAMERA pairs")
+    pairs = _pair_paths(args, minimum=2)
     if args.hwin < 1 or (args.sigma is not None and not args.sigma > 0) or args.levels < 1:
         raise InputError("--hwin and --levels must be >= 1 and --sigma positive")
-    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    views = [_load_view(image, camera) for image, camera in pairs]
     terrain = _read_terrain(args, [v[1] for v in views])
     opts = FitOptions(
         hwin=args.hwin,
@@ -739,8 +744,7 @@ def _cmd_explore(args: argparse.Namespace) -> None:
     from orthomvp.errors import InputError
     from orthomvp.explore import Explorer, ExplorerShell, run_commands, split_commands
 
-    if len(args.pairs) % 2:
-        raise InputError("explore needs IMAGE CAMERA pairs: got an odd number of files")
+    pairs = _pair_paths(args)
     if args.commands is not None and args.script is not None:
         raise InputError("give -c or --script, not both")
     if args.levels < 1:
@@ -754,13 +758,13 @@ def _cmd_explore(args: argparse.Namespace) -> None:
         script = split_commands(sys.stdin.read())
     if not args.quiet:
         print("Loading images...", end=" ", flush=True)
-    views = [_load_view(a, b) for a, b in zip(args.pairs[::2], args.pairs[1::2], strict=True)]
+    views = [_load_view(image, camera) for image, camera in pairs]
     terrain = _read_terrain(args, [v[1] for v in views])
     explorer = Explorer(
         terrain,
         [v[0] for v in views],
         [v[1] for v in views],
-        [Path(a).name for a in args.pairs[::2]],
+        [image.name for image, _ in pairs],
         eps=args.eps,
         levels=args.levels,
     )
