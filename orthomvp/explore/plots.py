@@ -148,13 +148,13 @@ def patches_plot(
     return Plot(fig, header, rows)
 
 
-def sweep_plot(results: list[tuple[int, Curve]], sigmas: list[float], where: str) -> Plot:
+def sweep_plot(results: list[tuple[int, float, Curve]], where: str) -> Plot:
     """Height curves for several window sizes (each scaled to its own range, so shapes compare)
     and, beside them, the minimum's height and the count of local minima per window."""
     fig = Figure(figsize=(10, 4.3), layout="constrained")
     ax, ax2 = fig.subplots(1, 2, width_ratios=[1.6, 1])
     cmap = _cmap("viridis")
-    for k, (hwin, c) in enumerate(results):
+    for k, (hwin, _, c) in enumerate(results):
         finite = np.isfinite(c.cost)
         lo, hi = np.min(c.cost[finite]), np.max(c.cost[finite])
         y = (c.cost - lo) / max(hi - lo, 1e-30)
@@ -166,19 +166,19 @@ def sweep_plot(results: list[tuple[int, Curve]], sigmas: list[float], where: str
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     _title(ax, "sweep: height curves by window half-size", where)
-    hw = [h for h, _ in results]
-    ax2.bar(hw, [c.local_minima for _, c in results], color="0.85", width=0.6)
+    hw = [h for h, _, _ in results]
+    ax2.bar(hw, [c.local_minima for _, _, c in results], color="0.85", width=0.6)
     ax2.set_ylabel("local minima in the range (bars)")
     ax2.set_xlabel("window half-size hwin (posts)")
     ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax3 = ax2.twinx()
-    ax3.plot(hw, [c.h_min for _, c in results], "o-", color="tab:red")
+    ax3.plot(hw, [c.h_min for _, _, c in results], "o-", color="tab:red")
     ax3.set_ylabel("height of the minimum (m, red)", color="tab:red")
     _title(ax2, "minimum and local minima against window size", "")
     header = ["hwin", "sigma", "h_min_m", "cost_min", "curvature_per_m2", "local_minima"]
     rows = [
         [h, f"{s:g}", f"{c.h_min:.4f}", f"{c.cost_min:.8g}", f"{c.curvature:.6g}", c.local_minima]
-        for (h, c), s in zip(results, sigmas, strict=True)
+        for h, s, c in results
     ]
     return Plot(fig, header, rows)
 

@@ -20,10 +20,16 @@ from scipy.signal import find_peaks
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
-from orthomvp.mvp.fit import FitOptions, Iterate, PlaneModel, fit_planes, pyramid_levels
+from orthomvp.mvp.fit import (
+    FitOptions,
+    Iterate,
+    PlaneModel,
+    first_bands,
+    fit_planes,
+    pyramid_levels,
+)
 from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
 from orthomvp.mvp.plane import angles_from_normal, normal_from_angles, post_lines
-from orthomvp.ortho import check_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import CODE_NAMES, VISIBLE, Visibility, compute_visibility
@@ -106,12 +112,7 @@ class Explorer:
             raise InputError("the explorer needs IMAGE CAMERA pairs")
         self.terrain = terrain
         self.names = names or [f"view {k + 1}" for k in range(len(images))]
-        bands, cams = [], []
-        for k, (image, camera) in enumerate(zip(images, cameras, strict=True)):
-            img = np.asarray(image)
-            img = img[None] if img.ndim == 2 else img
-            cams.append(check_image(img, camera, self.names[k]))
-            bands.append(img[0].astype(np.float32))
+        bands, cams = first_bands(images, cameras, self.names)
         caster = RayCaster(terrain_mesh(terrain))
         self.visibility: list[Visibility] = [
             compute_visibility(terrain, cam, eps, caster) for cam in cams
@@ -228,14 +229,17 @@ class Explorer:
             )
         return W
 
-    def evaluate(self, thetas: np.ndarray, W: np.ndarray, keep_patches: bool = False) -> Evaluation:
-        """Eq. (20) at level 0 for planes ``thetas`` (N, 3) with views ``W`` (K,)."""
+    def evaluate(
+        self, thetas: np.ndarray, W: np.ndarray, extras: bool = False, keep_patches: bool = False
+    ) -> Evaluation:
+        """Eq. (20) at level 0 for planes ``thetas`` (N, 3) with views ``W`` (K,); ``extras``
+        adds the leave-one-out correlations."""
         thetas = np.atleast_2d(thetas)
         model = self.model.take(np.zeros(len(thetas), int))
         H, _ = model.homographies(thetas, 0, derivatives=False)
         offsets, g = self._window()
         Wn = np.broadcast_to(W, (len(thetas), len(W)))
-        return self.stack.evaluate(0, H, Wn, offsets, g, extras=True, keep_patches=keep_patches)
+        return self.stack.evaluate(0, H, Wn, offsets, g, extras=extras, keep_patches=keep_patches)
 
     def height_curve(self, half_range: float, steps: int) -> Curve:
         """The objective at ``steps`` heights within +-``half_range`` metres of the current
@@ -284,7 +288,7 @@ class Explorer:
         loo = np.full(len(W), np.nan)
         used = np.zeros(len(W), bool)
         if W.sum() >= 2:
-            ev = self.evaluate(self.theta, W)
+            ev = self.evaluate(self.theta, W, extras=True)
             used, loo = ev.used[0], np.where(ev.used[0], ev.loo[0], np.nan)
         return [
             ViewInfo(
@@ -298,12 +302,13 @@ class Explorer:
             for k, v in enumerate(self.visibility)
         ]
 
-    def patches(self) -> tuple[list[str], np.ndarray, np.ndarray, float]:
+    def patches(self) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray, float]:
         """Names of the used views, their normalised patches (n, 2 hwin + 1, 2 hwin + 1), the
-        albedo (2 hwin + 1, 2 hwin + 1) and the cost, at the current plane. Rows run along
-        the DEM's rows, columns along its columns."""
+        albedo (2 hwin + 1, 2 hwin + 1), the views' leave-one-out correlations (n,) and the
+        cost, at the current plane. Rows run along the DEM's rows, columns along its
+        columns."""
         W = self._views_or_fail()
-        ev = self.evaluate(self.theta, W, keep_patches=True)
+        ev = self.evaluate(self.theta, W, extras=True, keep_patches=True)
         side = 2 * self.hwin + 1
         used = np.nonzero(ev.used[0])[0]
         patches = ev.patches[0, used].reshape(len(used), side, side)
@@ -311,6 +316,7 @@ class Explorer:
             [self.names[k] for k in used],
             patches,
             ev.albedo[0].reshape(side, side),
+            ev.loo[0, used],
             float(ev.cost[0]),
         )
 
@@ -340,17 +346,19 @@ class Explorer:
         self.path = path
         return path, trace
 
-    def sweep(self, hwins: list[int], half_range: float, steps: int) -> list[tuple[int, Curve]]:
-        """The height curve (orientation held) for each window half-size in ``hwins``, with
-        sigma = hwin / 2 unless sigma was set; the explorer's own window is left unchanged."""
-        keep = (self.hwin, self.sigma)
+    def sweep(
+        self, hwins: list[int], half_range: float, steps: int
+    ) -> list[tuple[int, float, Curve]]:
+        """(hwin, sigma, height curve with the orientation held) for each window half-size in
+        ``hwins``, sigma = hwin / 2 unless sigma was set; the explorer's window is kept."""
+        keep = self.hwin
         out = []
         try:
             for h in hwins:
                 self.hwin = h
-                out.append((h, self.height_curve(half_range, steps)))
+                out.append((h, self.window_sigma, self.height_curve(half_range, steps)))
         finally:
-            self.hwin, self.sigma = keep
+            self.hwin = keep
         return out
 
 

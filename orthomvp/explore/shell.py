@@ -269,9 +269,8 @@ class ExplorerShell(cmd.Cmd):
         Show the normalised orthoimage patches (eq. 19) of the views taking part at the
         current plane and their mean, the albedo (eq. 21), side by side."""
         _numbers(arg, (), "patches")
-        names, patches, albedo, cost = self.ex.patches()
-        loo = {v.name: v.loo for v in self.ex.views()}
-        plot = patches_plot(names, patches, albedo, [loo[n] for n in names], self._where())
+        names, patches, albedo, loo, cost = self.ex.patches()
+        plot = patches_plot(names, patches, albedo, list(loo), self._where())
         self._show(plot, "patches", arg)
         self.say(f"patches: {len(names)} views ({', '.join(names)}), f {cost:.5g}")
 
@@ -312,10 +311,9 @@ class ExplorerShell(cmd.Cmd):
         hwins = list(range(a, b + 1, step))
         half = RPLOT_RANGE_POSTS * self.ex.spacing
         results = self.ex.sweep(hwins, half, RPLOT_STEPS)
-        sigmas = [self.ex.sigma if self.ex.sigma is not None else h / 2.0 for h in hwins]
-        self._show(sweep_plot(results, sigmas, self._where(window=False)), "sweep", arg)
+        self._show(sweep_plot(results, self._where(window=False)), "sweep", arg)
         self.say(f"{'hwin':>4} {'sigma':>6} {'h_min m':>12} {'f_min':>9} {'curv/m^2':>10} minima")
-        for (h, c), s in zip(results, sigmas, strict=True):
+        for h, s, c in results:
             self.say(
                 f"{h:>4} {s:>6g} {c.h_min:>12.3f} {c.cost_min:>9.4g} {c.curvature:>10.3g} "
                 f"{c.local_minima:>6}"

@@ -375,6 +375,20 @@ def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
     return max(1, min(wanted, int(np.floor(np.log2(max(smallest / 16, 1)))) + 1))
 
 
+def first_bands(
+    images: list[np.ndarray], cameras: list[PinholeCamera], names: list[str] | None = None
+) -> tuple[list[np.ndarray], list[PinholeCamera]]:
+    """Band 1 of each image ((bands, rows, cols) or (rows, cols)) as float32, and each camera
+    checked against its image and given its size; ``names`` label errors."""
+    bands, cams = [], []
+    for k, (image, camera) in enumerate(zip(images, cameras, strict=True)):
+        img = np.asarray(image)
+        img = img[None] if img.ndim == 2 else img
+        cams.append(check_image(img, camera, names[k] if names else f"image {k + 1}"))
+        bands.append(img[0].astype(np.float32))
+    return bands, cams
+
+
 def fit_dem(
     terrain: Terrain,
     images: list[np.ndarray],
@@ -394,12 +408,7 @@ def fit_dem(
     opts = options or FitOptions()
     if len(images) != len(cameras) or len(images) < 2:
         raise InputError(f"the fit needs at least 2 images with cameras, got {len(images)}")
-    bands, cams = [], []
-    for k, (image, camera) in enumerate(zip(images, cameras, strict=True)):
-        img = np.asarray(image)
-        img = img[None] if img.ndim == 2 else img
-        cams.append(check_image(img, camera, f"image {k + 1}"))
-        bands.append(img[0].astype(np.float32))
+    bands, cams = first_bands(images, cameras)
     if visible is None:
         caster = RayCaster(terrain_mesh(terrain))
         visible = np.stack(
