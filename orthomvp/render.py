@@ -24,7 +24,7 @@ import pyvista as pv
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh, terrain_mesh
+from orthomvp.mesh import TerrainMesh, terrain_mesh, vis_palette
 from orthomvp.palette import VIS_RGB
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
@@ -33,8 +33,6 @@ from orthomvp.visibility import CODE_NAMES, FACING_AWAY, NODATA, OCCLUDED, VISIB
 
 VIEWS = ("oblique", "top", "from-camera")
 DEFAULT_SIZE = (1024, 768)
-VIS_COLOURS = VIS_RGB
-"""RGB colour of each visibility code."""
 NAN_COLOUR = (48, 48, 54)
 """RGB colour of posts without a value (an empty orthophoto post, an unknown height error)."""
 CAMERA_COLOURS = ("#ffd21f", "#ff4fd8", "#4fc3ff", "#ffffff", "#a98bff", "#ff6b6b")
@@ -100,7 +98,7 @@ def snapshot(
     - ``ortho``: an orthophoto, 1 band (grey) or 3 (RGB), stretched between its 1st and 99th
       percentiles; NaN posts are dark grey.
     - ``visibility``: codes 0 outside / no data, 1 visible, 2 occluded, 3 facing away
-      (colours :data:`VIS_COLOURS`: occluded green), with a legend.
+      (colours :data:`orthomvp.palette.VIS_RGB`: occluded green), with a legend.
     - ``heights`` and ``truth`` (both, metres): the error ``heights - truth`` on a diverging
       colour map symmetric about 0 (blue below, red above), saturating at +-``error_limit``
       metres (default: the 99th percentile of |error|), with a colour bar in metres.
@@ -350,21 +348,18 @@ def _add_terrain(
     kind, data = colouring
     post = shown.vertex_post
     if kind == "relief":
-        plotter.add_mesh(poly, color=VIS_COLOURS[VISIBLE], **material)
+        plotter.add_mesh(poly, color=VIS_RGB[VISIBLE], **material)
     elif kind == "ortho":  # the orthophoto has its own shading: light it less
         material.update(ambient=0.55, diffuse=0.5)
         plotter.add_mesh(poly, scalars=data[post], rgb=True, **material)
     elif kind == "visibility":
-        lut = np.zeros((256, 3), np.uint8)
-        for code, rgb in VIS_COLOURS.items():
-            lut[code] = rgb
         codes = data.ravel()[post]
-        plotter.add_mesh(poly, scalars=lut[codes], rgb=True, **material)
+        plotter.add_mesh(poly, scalars=vis_palette()[codes], rgb=True, **material)
         if legend:
             labels = [
                 [
                     f"{CODE_NAMES[k]}: {100 * np.mean(codes == k):.1f}%",
-                    np.array(VIS_COLOURS[k]) / 255,
+                    np.array(VIS_RGB[k]) / 255,
                 ]
                 for k in (VISIBLE, OCCLUDED, FACING_AWAY, NODATA)
             ]
