@@ -28,17 +28,18 @@ from affine import Affine
 from pyproj import CRS
 from scipy.ndimage import gaussian_filter
 
-from orthomvp.camera import PinholeCamera, read_camera
+from orthomvp.camera import PinholeCamera, check_image, read_camera
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp import patches
 from orthomvp.mvp.fit import TILE, FitOptions, fit_dem
-from orthomvp.ortho import check_image, orthorectify
+from orthomvp.ortho import orthorectify
 from orthomvp.raster import open_raster, read_image, write_geotiff
 from orthomvp.raycast import BACKENDS, RayCaster
 from orthomvp.synth import ViewSpec, make_scene, orbital_camera
 from orthomvp.terrain import Terrain, horizontal_crs, unit_vector
-from orthomvp.visibility import VISIBLE, compute_visibility
+from orthomvp.visibility import compute_visibility
 from orthomvp.world import detect_world
 
 LUNAR_CRS = "+proj=longlat +R=1737400 +no_defs"
@@ -246,7 +247,7 @@ def bench_mvp(size: int = 96) -> dict:
     images = [scene.render(camera) for camera in cameras]
     caster = RayCaster(terrain_mesh(initial))
     visible = np.stack(
-        [compute_visibility(initial, c, caster=caster).codes == VISIBLE for c in cameras]
+        [compute_visibility(initial, c, caster=caster).codes == Code.VISIBLE for c in cameras]
     )
     options = FitOptions(hwin=10)
     tally: Counter[int] = Counter()

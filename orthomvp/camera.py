@@ -456,3 +456,17 @@ def _write_atomic(path: str | Path, text: str) -> None:
 def write_json(camera: PinholeCamera, path: str | Path) -> None:
     """Write ``camera`` in our JSON form, every number exact."""
     _write_atomic(path, json.dumps(camera_to_dict(camera), indent=2) + "\n")
+
+
+def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
+    """Validate a (bands, rows, cols) image and return the camera with the image's size."""
+    if image.ndim != 3 or image.shape[0] < 1 or min(image.shape[1:]) < 2:
+        raise InputError(
+            f"{name}: expected an image of shape (bands, rows, cols), got {image.shape}"
+        )
+    rows, cols = image.shape[1:]
+    if camera.width is not None and (camera.width, camera.height) != (cols, rows):
+        raise InputError(
+            f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"
+        )
+    return camera.with_image_size(cols, rows)

@@ -60,8 +60,7 @@ def _add_eps_option(p: argparse.ArgumentParser) -> None:
 
 
 def _load_view(image_path: Path, camera_path: Path):  # noqa: ANN202
-    from orthomvp.camera import read_camera
-    from orthomvp.ortho import check_image
+    from orthomvp.camera import check_image, read_camera
     from orthomvp.raster import read_image
 
     image = read_image(image_path)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orthomvp.codes import classify
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
@@ -36,12 +37,11 @@ CSV_FIELDS = (
 )
 
 
-def classify(vis: Visibility, eps: np.ndarray | float) -> np.ndarray:
+def reclassify(vis: Visibility, eps: np.ndarray | float) -> np.ndarray:
     """Visibility codes for another epsilon, from a :class:`Visibility` computed once."""
     codes = vis.codes.copy()
-    cast = ~np.isnan(vis.miss)  # inf: the ray hit nothing, so nothing hides the post
-    hidden = np.isfinite(vis.miss) & (vis.miss > eps)
-    codes[cast] = np.where(hidden[cast], 2, 1)
+    cast = ~np.isnan(vis.miss)
+    codes[cast] = classify(vis.miss[cast], eps if np.isscalar(eps) else np.asarray(eps)[cast])
     return codes
 
 
@@ -65,7 +65,7 @@ def eps_study(
             keep = away_from_boundaries(view.truth)
             # vis.eps holds the default rule (no eps was given) at every post that was cast
             for eps, label in [(e, float(e)) for e in eps_values] + [(vis.eps, "default")]:
-                scores = classification_scores(classify(vis, eps), view.truth, keep)
+                scores = classification_scores(reclassify(vis, eps), view.truth, keep)
                 rows.append({"noise_m": sigma, "view": name, "eps": label, **scores})
     return rows
 

@@ -19,12 +19,13 @@ import numpy as np
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import PinholeCamera, check_image
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import VISIBLE, Visibility, compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility
 
 INTERPOLATION = {
     "nearest": cv2.INTER_NEAREST,
@@ -54,20 +55,6 @@ class Mosaic:
     transform: Affine
     crs: CRS
     visibilities: list[Visibility]
-
-
-def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
-    """Validate a (bands, rows, cols) image and return the camera with the image's size."""
-    if image.ndim != 3 or image.shape[0] < 1 or min(image.shape[1:]) < 2:
-        raise InputError(
-            f"{name}: expected an image of shape (bands, rows, cols), got {image.shape}"
-        )
-    rows, cols = image.shape[1:]
-    if camera.width is not None and (camera.width, camera.height) != (cols, rows):
-        raise InputError(
-            f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"
-        )
-    return camera.with_image_size(cols, rows)
 
 
 def sample_image(image: np.ndarray, uv: np.ndarray, interp: str = "bilinear") -> np.ndarray:
@@ -122,7 +109,7 @@ def orthorectify(
         terrain, camera, eps, caster, progress, post_scale=post_scale, occlusion=occlusion
     )
     data = sample_image(image, vis.uv, interp)
-    keep = vis.codes == VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)
+    keep = vis.codes == Code.VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)
     data[:, ~keep] = np.nan
     return Ortho(data, terrain.transform, terrain.crs, vis)
 
@@ -155,7 +142,9 @@ def mosaic(
         )
         vis = ortho.visibility
         visibilities.append(vis)
-        better = (vis.codes == VISIBLE) & (vis.emission < best) & np.isfinite(ortho.data).all(0)
+        better = (
+            (vis.codes == Code.VISIBLE) & (vis.emission < best) & np.isfinite(ortho.data).all(0)
+        )
         data[:, better] = ortho.data[:, better]
         source[better] = k
         best[better] = vis.emission[better]

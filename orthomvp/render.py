@@ -23,13 +23,13 @@ import numpy as np
 import pyvista as pv
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh, terrain_mesh, vis_palette
 from orthomvp.palette import VIS_RGB
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import CODE_NAMES, FACING_AWAY, NODATA, OCCLUDED, VISIBLE
 
 VIEWS = ("oblique", "top", "from-camera")
 DEFAULT_SIZE = (1024, 768)
@@ -189,8 +189,8 @@ def snapshot(
 def visibility_codes(data: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Visibility codes (rows, cols) uint8 from a raster on the DEM grid (NaN -> 0)."""
     band = _bands("visibility", data, shape)[0]
-    band = np.where(np.isfinite(band), band, NODATA)
-    if not np.isin(band, list(CODE_NAMES)).all():
+    band = np.where(np.isfinite(band), band, Code.NODATA)
+    if not np.isin(band, list(Code)).all():
         raise InputError(
             "the visibility raster holds values other than the codes 0 (outside), 1 (visible), "
             "2 (occluded) and 3 (facing away)"
@@ -348,7 +348,7 @@ def _add_terrain(
     kind, data = colouring
     post = shown.vertex_post
     if kind == "relief":
-        plotter.add_mesh(poly, color=VIS_RGB[VISIBLE], **material)
+        plotter.add_mesh(poly, color=VIS_RGB[Code.VISIBLE], **material)
     elif kind == "ortho":  # the orthophoto has its own shading: light it less
         material.update(ambient=0.55, diffuse=0.5)
         plotter.add_mesh(poly, scalars=data[post], rgb=True, **material)
@@ -358,10 +358,10 @@ def _add_terrain(
         if legend:
             labels = [
                 [
-                    f"{CODE_NAMES[k]}: {100 * np.mean(codes == k):.1f}%",
+                    f"{Code(k).label}: {100 * np.mean(codes == k):.1f}%",
                     np.array(VIS_RGB[k]) / 255,
                 ]
-                for k in (VISIBLE, OCCLUDED, FACING_AWAY, NODATA)
+                for k in (Code.VISIBLE, Code.OCCLUDED, Code.FACING_AWAY, Code.NODATA)
             ]
             box = plotter.add_legend(labels, bcolor=(0.1, 0.1, 0.12), face="rectangle")
             box.SetPosition(0.69, 0.79)  # upper right: lower-left corner, viewport fractions

@@ -25,10 +25,9 @@ from affine import Affine
 from pyproj import CRS, Transformer
 from pyproj.exceptions import CRSError
 
+from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
 from orthomvp.raster import open_raster, write_geotiff
-
-WORLD_FRAMES = ("body", "map")
 
 
 def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
@@ -98,7 +97,7 @@ class Terrain:
     transform: Affine
     crs: CRS
     radius_values: bool = False
-    world: str = "body"
+    world: WorldFrame = WorldFrame.BODY
     name: str = field(default="dem", compare=False)
 
     def __post_init__(self) -> None:
@@ -107,11 +106,14 @@ class Terrain:
             raise InputError(f"{self.name}: a DEM needs at least 2 x 2 posts, got {vals.shape}")
         object.__setattr__(self, "values", vals)
         object.__setattr__(self, "crs", horizontal_crs(self.crs))
-        if self.world not in WORLD_FRAMES:
-            raise InputError(f"world frame must be one of {WORLD_FRAMES}, not {self.world!r}")
+        try:
+            object.__setattr__(self, "world", WorldFrame(self.world))
+        except ValueError:
+            names = ", ".join(w.value for w in WorldFrame)
+            raise InputError(f"world frame must be one of {names}, not {self.world!r}") from None
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")
-        if self.world == "map" and not self.crs.is_projected:
+        if self.world == WorldFrame.MAP and not self.crs.is_projected:
             raise InputError(f"{self.name}: world='map' needs a projected CRS")
         if self.transform.b != 0 or self.transform.d != 0:
             raise InputError(f"{self.name}: rotated georeferences are not supported")
@@ -124,7 +126,7 @@ class Terrain:
         cls,
         path: str | Path,
         radius_values: bool = False,
-        world: str = "body",
+        world: WorldFrame | str = WorldFrame.BODY,
         crs: object | None = None,
     ) -> Terrain:
         """Read band 1 of a GeoTIFF DEM; nodata posts become NaN. ``crs`` overrides the file's."""
@@ -268,7 +270,7 @@ class Terrain:
         use the planetocentric direction). Map frame: ``(easting, northing, value)``.
         """
         value = np.asarray(value, dtype=np.float64)
-        if self.world == "map":
+        if self.world == WorldFrame.MAP:
             x, y = self.pixel_to_crs(c, r)
             return np.stack(np.broadcast_arrays(x, y, value), axis=-1)
         lon, lat = self.pixel_to_lonlat(c, r, wrap=False)
@@ -284,7 +286,7 @@ class Terrain:
         """Exact inverse of :meth:`to_world`: world xyz (..., 3) to pixel ``(c, r)`` and value."""
         xyz = np.asarray(xyz, dtype=np.float64)
         x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
-        if self.world == "map":
+        if self.world == WorldFrame.MAP:
             c, r = self.crs_to_pixel(x, y)
             return c, r, z.copy()
         if self.radius_values or self.is_sphere:
@@ -304,7 +306,7 @@ class Terrain:
 
     def up_vectors(self, xyz: np.ndarray) -> np.ndarray:
         """Unit 'up' directions at world points: radial in the body frame, +z in the map frame."""
-        if self.world == "map":
+        if self.world == WorldFrame.MAP:
             up = np.zeros_like(xyz)
             up[..., 2] = 1.0
             return up

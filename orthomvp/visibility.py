@@ -3,12 +3,8 @@
 For every post: project it into the image, back-project that pixel with the camera's own ray
 (lens distortion included), find the first hit on the Cartesian DEM mesh, map the hit back to
 the DEM grid, and call the post visible when the hit lands within ``eps`` posts of the post's
-own grid position. Codes (uint8 raster on the DEM grid):
-
-- 0: no data, or the post projects outside the image (or behind the camera)
-- 1: visible
-- 2: occluded by terrain (the ray from the camera hits the surface elsewhere first)
-- 3: facing away (the DEM's surface normal points away from the camera)
+own grid position. Codes (uint8 raster on the DEM grid) are :class:`orthomvp.codes.Code`:
+0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
 
 Epsilon is measured in DEM posts (map distance divided by the post spacing), not as a fixed
 angle: a fixed angle is stricter towards the poles and ignores the resolution. See
@@ -26,19 +22,13 @@ import numpy as np
 from tqdm import tqdm
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.codes import Code, classify
 from orthomvp.distortion import NullDistortion
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, grid_normals
 
-NODATA, VISIBLE, OCCLUDED, FACING_AWAY = 0, 1, 2, 3
-CODE_NAMES = {
-    NODATA: "no data / outside",
-    VISIBLE: "visible",
-    OCCLUDED: "occluded",
-    FACING_AWAY: "facing away",
-}
 TILE = 512
 EPS_FLOOR = 4.0
 EPS_GSD_FACTOR = 1.0
@@ -82,8 +72,8 @@ class Visibility:
     eps: np.ndarray
 
     def counts(self) -> dict[str, int]:
-        """Number of posts per code name."""
-        return {name: int((self.codes == k).sum()) for k, name in CODE_NAMES.items()}
+        """Number of posts per code label."""
+        return {code.label: int((self.codes == code).sum()) for code in Code}
 
 
 def grid_tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
@@ -180,7 +170,9 @@ def compute_visibility(
         t_eps = np.full(p.shape[:-1], float(eps)) if eps else default_eps(t_gsd / spacing)
         facing = cos_e > 0
         cast = inside & facing & occlusion
-        t_codes = np.where(inside, np.where(facing, VISIBLE, FACING_AWAY), NODATA).astype(np.uint8)
+        t_codes = np.where(
+            inside, np.where(facing, Code.VISIBLE, Code.FACING_AWAY), Code.NODATA
+        ).astype(np.uint8)
         t_miss = np.full(p.shape[:-1], np.nan)
         if cast.any():
             if isinstance(camera.distortion, NullDistortion):
@@ -196,7 +188,7 @@ def compute_visibility(
                 dist[hits.mask] = np.hypot(hc - pc, hr - pr) * post_scale
             t_miss[cast] = dist
             # a ray that hits nothing has nothing in its way: the post is visible
-            t_codes[cast] = np.where(np.isfinite(dist) & (dist > t_eps[cast]), OCCLUDED, VISIBLE)
+            t_codes[cast] = classify(dist, t_eps[cast])
         codes[rs, cs] = t_codes
         uv[rs, cs] = np.where(inside[..., None], t_uv, np.nan)
         miss[rs, cs] = t_miss
@@ -205,9 +197,9 @@ def compute_visibility(
         eps_out[rs, cs] = np.where(cast, t_eps, np.nan)
 
     run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
-    if not (codes != NODATA).any():
+    if not (codes != Code.NODATA).any():
         raise GeometryError(_no_overlap_reason(terrain, camera))
-    if not np.isin(codes, (VISIBLE, OCCLUDED)).any():
+    if not np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).any():
         raise GeometryError(
             "every post in the image faces away from the camera: it looks at the surface "
             "from below (is the camera inside the body, or the DEM upside down?)"

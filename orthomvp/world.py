@@ -21,6 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
 from orthomvp.terrain import Terrain
 
@@ -36,7 +37,7 @@ _SAMPLES = 64  # posts per side sampled for the body-frame test
 def body_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     """Boolean (n,): camera centres (n, 3) that lie above the tangent plane (outward normal =
     local vertical) of at least one of up to 64 x 64 sampled DEM posts in body-fixed metres."""
-    body = terrain if terrain.world == "body" else replace(terrain, world="body")
+    body = terrain if terrain.world == WorldFrame.BODY else replace(terrain, world=WorldFrame.BODY)
     rows, cols = body.shape
     step_r, step_c = max(rows // _SAMPLES, 1), max(cols // _SAMPLES, 1)
     c, r = body.grid()
@@ -70,7 +71,7 @@ def map_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     return near & (z > under) & (z <= np.nanmax(terrain.values) + MAP_ALTITUDE)
 
 
-def detect_world(terrain: Terrain, centres: np.ndarray) -> str:
+def detect_world(terrain: Terrain, centres: np.ndarray) -> WorldFrame:
     """The world frame (``"body"`` or ``"map"``) of cameras with ``centres`` (n, 3) over
     ``terrain`` (its own ``world`` is ignored). Geographic CRSs are always ``"body"``.
 
@@ -78,7 +79,7 @@ def detect_world(terrain: Terrain, centres: np.ndarray) -> str:
     camera fits both frames or neither, or when the cameras disagree.
     """
     if not terrain.crs.is_projected:
-        return "body"
+        return WorldFrame.BODY
     centres = np.atleast_2d(np.asarray(centres, dtype=np.float64))
     if centres.size == 0:
         raise InputError(
@@ -87,9 +88,9 @@ def detect_world(terrain: Terrain, centres: np.ndarray) -> str:
         )
     body, map_ = body_plausible(terrain, centres), map_plausible(terrain, centres)
     if (body & ~map_).all():
-        return "body"
+        return WorldFrame.BODY
     if (map_ & ~body).all():
-        return "map"
+        return WorldFrame.MAP
     both, neither = np.flatnonzero(body & map_), np.flatnonzero(~body & ~map_)
     if both.size:
         why = f"camera {both[0] + 1} fits both body-fixed metres and the DEM's map frame"

@@ -8,7 +8,7 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.epsstudy import classify, eps_study
+from orthomvp.epsstudy import eps_study, reclassify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.ortho import mosaic, orthorectify, sample_image
 from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
@@ -77,11 +77,11 @@ def test_eps_rule_and_study(crater_dir) -> None:
     assert oblique[500.0]["recall_hidden"] < oblique[4.0]["recall_hidden"]
 
 
-def test_classify_matches_a_fresh_run(scene) -> None:
+def test_reclassify_matches_a_fresh_run(scene) -> None:
     view = scene.views["oblique"]
     vis = compute_visibility(scene.terrain, view.camera)
     again = compute_visibility(scene.terrain, view.camera, eps=1.5)
-    np.testing.assert_array_equal(classify(vis, 1.5), again.codes)
+    np.testing.assert_array_equal(reclassify(vis, 1.5), again.codes)
 
 
 def test_sample_image_against_exact_bilinear() -> None:

@@ -11,13 +11,13 @@ import rasterio
 from scipy.ndimage import gaussian_filter
 from scipy.ndimage import shift as nd_shift
 
-from orthomvp.camera import read_camera
+from orthomvp.camera import check_image, read_camera
 from orthomvp.cli import main
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.ortho import check_image, orthorectify
+from orthomvp.ortho import orthorectify
 from orthomvp.raster import read_image
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import VISIBLE
 from tests.conftest import shared
 
 
@@ -114,8 +114,8 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
         filled = np.isfinite(data).all(axis=0)
         inside = np.nan_to_num(code) > 0
         assert data.shape[0] == 3 and filled.sum() > 40_000
-        assert not filled[code != VISIBLE].any()  # only visible posts get values
-        assert (code == VISIBLE).sum() > 0.99 * inside.sum()  # gentle terrain, near nadir
+        assert not filled[code != Code.VISIBLE].any()  # only visible posts get values
+        assert (code == Code.VISIBLE).sum() > 0.99 * inside.sum()  # gentle terrain, near nadir
     corr = pairwise([o[0] for o in orthos])  # band 1 (red)
     assert min(corr) > 0.75 and np.mean(corr) > 0.85, corr
     pairs = [str(p) for name in NGI_FRAMES for p in (d / f"{name}.tif", exterior)]
@@ -212,7 +212,7 @@ def test_ngi_aerial_agrees_with_orthority(tmp_path: Path) -> None:
                 slice(round(col), round(col) + ds.width),
             )
             theirs[:, window[0], window[1]] = ds.read()
-        both = (ours.visibility.codes == VISIBLE) & np.isfinite(ours.data).all(0)
+        both = (ours.visibility.codes == Code.VISIBLE) & np.isfinite(ours.data).all(0)
         both &= np.isfinite(theirs).all(0)
         assert both.sum() > 40_000
         for a, b in zip(ours.data, theirs, strict=True):
@@ -251,7 +251,7 @@ def test_as15_hadley_orthophoto_from_the_isis_cube() -> None:
     assert np.nanmax(slope) < elevation - 20
     assert counts["occluded"] == 0 and counts["facing away"] == 0
     assert counts["visible"] == inside.sum()
-    hit = vis.miss[vis.codes == VISIBLE]
+    hit = vis.miss[vis.codes == Code.VISIBLE]
     assert np.max(hit[np.isfinite(hit)]) < 1e-3 and np.isfinite(hit).mean() > 0.95
     filled = np.isfinite(ortho.data[0])
     assert filled.sum() > 0.99 * counts["visible"] and not filled[~inside].any()

@@ -9,11 +9,11 @@ import pytest
 from PIL import Image
 
 from orthomvp.cli import main
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.raster import write_geotiff
 from orthomvp.render import snapshot
 from orthomvp.synth import Scene, make_scene
-from orthomvp.visibility import OCCLUDED
 
 SIZE = (320, 240)
 
@@ -74,7 +74,7 @@ def test_relief_snapshot_is_not_blank(crater: Scene, tmp_path: Path) -> None:
 def test_visibility_snapshot_shows_occluded_posts_green(crater: Scene, view: str) -> None:
     camera = crater.cameras["oblique"]
     vis = crater.visibility_truth(camera)
-    assert (vis == OCCLUDED).mean() > 0.03
+    assert (vis == Code.OCCLUDED).mean() > 0.03
     image = render(crater.terrain, visibility=vis, cameras=[camera], view=view, legend=False)
     assert green(image).mean() > 0.005
     # the same scene with every post visible has no green at all
@@ -86,7 +86,7 @@ def test_visibility_snapshot_shows_occluded_posts_green(crater: Scene, view: str
 def test_no_green_where_the_scene_has_no_occlusion(crater: Scene) -> None:
     camera = crater.cameras["nadir"]
     vis = crater.visibility_truth(camera)
-    assert not (vis == OCCLUDED).any()
+    assert not (vis == Code.OCCLUDED).any()
     snap = snapshot(crater.terrain, visibility=vis, cameras=[camera], rays=8, size=SIZE)
     try:
         assert snap.plotter.legend is not None

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.signal import find_peaks
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.codes import Code, WorldFrame
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.fit import (
@@ -32,7 +33,7 @@ from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
 from orthomvp.mvp.plane import angles_from_normal, normal_from_angles, post_lines
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import CODE_NAMES, VISIBLE, Visibility, compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility
 
 PROMINENCE = 0.02  # a local minimum counts when this fraction of the curve's range deep
 
@@ -144,7 +145,7 @@ class Explorer:
         h0 = float(self.terrain.values[r, c])
         lines = post_lines(self.terrain, np.array([float(c)]), np.array([float(r)]), np.array([h0]))
         up = lines.up[0]
-        if self.terrain.world == "map":
+        if self.terrain.world == WorldFrame.MAP:
             east = np.array([1.0, 0.0, 0.0])
         else:
             east = np.cross([0.0, 0.0, 1.0], up)
@@ -157,7 +158,7 @@ class Explorer:
         self.model = PlaneModel(
             lines, up[None], self.stack.F, self.spacing, east[None], north[None]
         )
-        self.visible = np.array([v.codes[r, c] == VISIBLE for v in self.visibility])
+        self.visible = np.array([v.codes[r, c] == Code.VISIBLE for v in self.visibility])
         self.reset_plane()
 
     def lonlat_to_post(self, lon: float, lat: float) -> tuple[int, int]:
@@ -293,7 +294,7 @@ class Explorer:
         return [
             ViewInfo(
                 self.names[k],
-                CODE_NAMES[int(v.codes[r, c])],
+                Code(int(v.codes[r, c])).label,
                 float(v.emission[r, c]),
                 float(v.gsd[r, c]),
                 bool(used[k]),

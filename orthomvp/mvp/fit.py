@@ -29,16 +29,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import PinholeCamera, check_image
+from orthomvp.codes import Code
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.deconvolve import deconvolve
 from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
 from orthomvp.mvp.plane import PostLines, angles_from_normal, plane_map, post_lines, tangent_basis
-from orthomvp.ortho import check_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import VISIBLE, compute_visibility, run_tiles
+from orthomvp.visibility import compute_visibility, run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
 PREDICTED_TOL = 1e-4  # converged when a step would lower f by less than this fraction
@@ -412,7 +412,7 @@ def fit_dem(
     if visible is None:
         caster = RayCaster(terrain_mesh(terrain))
         visible = np.stack(
-            [compute_visibility(terrain, cam, eps, caster).codes == VISIBLE for cam in cams]
+            [compute_visibility(terrain, cam, eps, caster).codes == Code.VISIBLE for cam in cams]
         )
     visible = np.asarray(visible, bool)
     if visible.shape != (len(cams), *terrain.shape):

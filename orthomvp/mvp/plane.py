@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from orthomvp.codes import WorldFrame
 from orthomvp.terrain import Terrain, unit_vector
 
 FD_STEP = 0.5  # pixels, for the local affine maps of projected CRSs and ellipsoids
@@ -143,7 +144,7 @@ class PostLines:
 
 def uses_central_model(terrain: Terrain) -> bool:
     """True in the body frame (height lines from a centre), False in the map frame."""
-    return terrain.world == "body"
+    return terrain.world == WorldFrame.BODY
 
 
 def _curvature_radius(terrain: Terrain, lat: np.ndarray) -> np.ndarray:
@@ -164,7 +165,7 @@ def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -
     r = np.asarray(r, dtype=np.float64)
     h0 = np.asarray(h0, dtype=np.float64)
     st = FD_STEP
-    if terrain.world == "body" and (terrain.is_sphere or terrain.radius_values):
+    if terrain.world == WorldFrame.BODY and (terrain.is_sphere or terrain.radius_values):
         lon, lat = terrain.pixel_to_lonlat(c, r)
         M = np.einsum("...ij,...jk->...ik", L_matrix(lon, lat), local_S(terrain, c, r))[..., :3, :]
         e = unit_vector(lon, lat)
@@ -174,7 +175,7 @@ def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -
     up = terrain.to_world(c, r, h0 + 0.5) - terrain.to_world(c, r, h0 - 0.5)
     up /= np.linalg.norm(up, axis=-1, keepdims=True)
     a = X - h0[..., None] * up
-    if terrain.world == "body":  # an ellipsoid: lines through the centre of curvature
+    if terrain.world == WorldFrame.BODY:  # an ellipsoid: lines through the centre of curvature
         _, lat = terrain.pixel_to_lonlat(c, r)
         C = X - (_curvature_radius(terrain, lat) + h0)[..., None] * up
 
@@ -193,7 +194,7 @@ def post_lines(terrain: Terrain, c: np.ndarray, r: np.ndarray, h0: np.ndarray) -
     dc = (d(c + st, r) - d(c - st, r)) / (2 * st)
     dr = (d(c, r + st) - d(c, r - st)) / (2 * st)
     M = np.stack([dc, dr, base - dc * c[..., None] - dr * r[..., None]], axis=-1)
-    return PostLines(terrain.world == "body", c, r, M, a, up, C)
+    return PostLines(terrain.world == WorldFrame.BODY, c, r, M, a, up, C)
 
 
 def plane_map(lines: PostLines, h: np.ndarray, n: np.ndarray) -> np.ndarray:

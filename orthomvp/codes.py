@@ -1,0 +1,71 @@
+"""The shared vocabulary: visibility codes with their names and colours, and the string enums
+used as options (and as CLI choices).
+
+This module is the bottom layer: it imports nothing from orthomvp.
+"""
+
+from __future__ import annotations
+
+from enum import Enum, IntEnum
+
+import numpy as np
+
+
+class Code(IntEnum):
+    """Per-post visibility of one image, as stored in uint8 rasters on the DEM grid."""
+
+    NODATA = 0
+    """no data, or the post projects outside the image (or behind the camera)"""
+    VISIBLE = 1
+    OCCLUDED = 2
+    """the ray from the camera hits the surface elsewhere first"""
+    FACING_AWAY = 3
+    """the surface normal points away from the camera"""
+
+    @property
+    def label(self) -> str:
+        """Human-readable name (legends, counts)."""
+        return _LABELS[self]
+
+    @property
+    def rgb(self) -> tuple[int, int, int]:
+        """RGB uint8 colour of the code in figures, meshes and snapshots (occluded is green,
+        as in the occlusion poster's figure 4)."""
+        return _RGB[self]
+
+
+_LABELS = {
+    Code.NODATA: "no data / outside",
+    Code.VISIBLE: "visible",
+    Code.OCCLUDED: "occluded",
+    Code.FACING_AWAY: "facing away",
+}
+_RGB = {
+    Code.NODATA: (90, 115, 190),  # blue
+    Code.VISIBLE: (215, 215, 210),  # light grey
+    Code.OCCLUDED: (20, 200, 40),  # green
+    Code.FACING_AWAY: (235, 115, 30),  # orange
+}
+
+CODE_RGB = np.array([c.rgb for c in Code], np.uint8)
+"""RGB uint8 (4, 3) look-up table indexed by code."""
+
+
+def classify(miss: np.ndarray, eps: np.ndarray | float) -> np.ndarray:
+    """The epsilon rule on the posts whose ray was cast: OCCLUDED where the first hit lies more
+    than ``eps`` DEM posts from the post (``miss``, finite), VISIBLE otherwise, including rays
+    that hit nothing (``miss`` inf: nothing is in their way). uint8 codes, shape of ``miss``."""
+    miss = np.asarray(miss)
+    hidden = np.isfinite(miss) & (miss > eps)
+    return np.where(hidden, Code.OCCLUDED, Code.VISIBLE).astype(np.uint8)
+
+
+class WorldFrame(str, Enum):
+    """The frame in which cameras live: body-fixed Cartesian metres, or the DEM's projected CRS
+    taken as Cartesian (easting, northing, height; aerial data, Orthority's convention)."""
+
+    BODY = "body"
+    MAP = "map"
+
+    def __str__(self) -> str:
+        return self.value
