@@ -181,6 +181,15 @@ class PinholeCamera:
         """A copy with the image size (pixels) set."""
         return replace(self, width=width, height=height)
 
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """Whether pixel positions ``uv`` (..., 2) lie on the image: within half a pixel of the
+        outermost pixel centres, ``-0.5 <= u <= width - 0.5`` and likewise for v. NaN is
+        outside. Needs the image size."""
+        if self.width is None or self.height is None:
+            raise InputError("the camera needs its image size (width, height)")
+        u, v = uv[..., 0], uv[..., 1]
+        return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
+
     def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points ``xyz`` (..., 3), metres, into the image (VW ``point_to_pixel``).
 

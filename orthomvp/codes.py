@@ -69,3 +69,25 @@ class WorldFrame(str, Enum):
 
     def __str__(self) -> str:
         return self.value
+
+
+class Interp(str, Enum):
+    """Image interpolation when sampling orthophotos."""
+
+    NEAREST = "nearest"
+    BILINEAR = "bilinear"
+    CUBIC = "cubic"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class View(str, Enum):
+    """Viewpoints of 3D snapshots: oblique from an azimuth, straight down, or through a camera."""
+
+    OBLIQUE = "oblique"
+    TOP = "top"
+    FROM_CAMERA = "from-camera"
+
+    def __str__(self) -> str:
+        return self.value

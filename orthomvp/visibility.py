@@ -155,14 +155,7 @@ def compute_visibility(
         p, n = _tile_normals(terrain, rs, cs)
         ok = np.isfinite(p).all(axis=-1) & np.isfinite(n).all(axis=-1)
         t_uv, depth = camera.project(p)
-        inside = (
-            ok
-            & (depth > 0)
-            & (t_uv[..., 0] >= -0.5)
-            & (t_uv[..., 0] <= camera.width - 0.5)
-            & (t_uv[..., 1] >= -0.5)
-            & (t_uv[..., 1] <= camera.height - 0.5)
-        )
+        inside = ok & (depth > 0) & camera.in_image(t_uv)
         to_cam = camera.center - p
         rng = np.linalg.norm(to_cam, axis=-1)
         cos_e = np.einsum("...i,...i->...", n, to_cam) / rng
