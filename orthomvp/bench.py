@@ -28,7 +28,7 @@ from affine import Affine
 from pyproj import CRS
 from scipy.ndimage import gaussian_filter
 
-from orthomvp.camera import PinholeCamera, check_image, read_camera
+from orthomvp.camera import PinholeCamera, load_view
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
@@ -430,8 +430,7 @@ def run_orthomvp(
     ``grid`` (DEM resampled to the output grid), ``ortho`` (visibility and sampling),
     ``write``."""
     times = [time.perf_counter()]
-    image = read_image(case.image)
-    camera = check_image(image, read_camera(case.exterior, case.image), str(case.image))
+    image, camera = load_view(case.image, case.exterior)
     terrain = Terrain.read(case.dem)
     terrain = replace(terrain, world=detect_world(terrain, camera.center[None]))
     times.append(time.perf_counter())

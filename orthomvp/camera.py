@@ -479,3 +479,13 @@ def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -
             f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"
         )
     return camera.with_image_size(cols, rows)
+
+
+def load_view(image_path: str | Path, camera_path: str | Path) -> tuple[np.ndarray, PinholeCamera]:
+    """Read an image (float32 (bands, rows, cols), see :func:`orthomvp.raster.read_image`) and
+    its camera (:func:`read_camera`, the image's name picking its row in multi-camera files),
+    checked against each other; the camera carries the image's size."""
+    from orthomvp.raster import read_image
+
+    image = read_image(image_path)
+    return image, check_image(image, read_camera(camera_path, image_path), str(image_path))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from orthomvp import __version__
+from orthomvp.camera import load_view
 from orthomvp.errors import OrthoMVPError
 
 
@@ -57,14 +58,6 @@ def _add_eps_option(p: argparse.ArgumentParser) -> None:
         help="visibility tolerance in DEM posts (default: max(4, image ground sample distance "
         "in posts); see the README)",
     )
-
-
-def _load_view(image_path: Path, camera_path: Path):  # noqa: ANN202
-    from orthomvp.camera import check_image, read_camera
-    from orthomvp.raster import read_image
-
-    image = read_image(image_path)
-    return image, check_image(image, read_camera(camera_path, image_path), str(image_path))
 
 
 def _pair_paths(args: argparse.Namespace, minimum: int = 1) -> list[tuple[Path, Path]]:
@@ -626,7 +619,7 @@ def _cmd_visibility(args: argparse.Namespace) -> None:
     from orthomvp.raster import write_geotiff
     from orthomvp.visibility import compute_visibility
 
-    _, camera = _load_view(args.image, args.camera)
+    _, camera = load_view(args.image, args.camera)
     terrain = _read_terrain(args, [camera])
     vis = compute_visibility(terrain, camera, args.eps, progress=not args.quiet)
     _warn_partial(vis, terrain, str(args.image))
@@ -641,7 +634,7 @@ def _cmd_ortho(args: argparse.Namespace) -> None:
     from orthomvp.raster import write_geotiff
     from orthomvp.raycast import RayCaster
 
-    image, camera = _load_view(args.image, args.camera)
+    image, camera = load_view(args.image, args.camera)
     terrain = _read_terrain(args, [camera])
     caster = RayCaster(terrain_mesh(terrain))
     grid = terrain.regrid(args.res, args.bounds) if args.res or args.bounds else terrain
@@ -673,7 +666,7 @@ def _cmd_mosaic(args: argparse.Namespace) -> None:
     from orthomvp.ortho import mosaic
     from orthomvp.raster import write_geotiff
 
-    views = [_load_view(image, camera) for image, camera in _pair_paths(args)]
+    views = [load_view(image, camera) for image, camera in _pair_paths(args)]
     terrain = _read_terrain(args, [v[1] for v in views])
     result = mosaic(terrain, views, args.eps, args.interp, progress=not args.quiet)
     write_geotiff(args.output, result.data, result.transform, result.crs, nodata=np.nan)
@@ -694,7 +687,7 @@ def _cmd_fit(args: argparse.Namespace) -> None:
     pairs = _pair_paths(args, minimum=2)
     if args.hwin < 1 or (args.sigma is not None and not args.sigma > 0) or args.levels < 1:
         raise InputError("--hwin and --levels must be >= 1 and --sigma positive")
-    views = [_load_view(image, camera) for image, camera in pairs]
+    views = [load_view(image, camera) for image, camera in pairs]
     terrain = _read_terrain(args, [v[1] for v in views])
     opts = FitOptions(
         hwin=args.hwin,
@@ -757,7 +750,7 @@ def _cmd_explore(args: argparse.Namespace) -> None:
         script = split_commands(sys.stdin.read())
     if not args.quiet:
         print("Loading images...", end=" ", flush=True)
-    views = [_load_view(image, camera) for image, camera in pairs]
+    views = [load_view(image, camera) for image, camera in pairs]
     terrain = _read_terrain(args, [v[1] for v in views])
     explorer = Explorer(
         terrain,

@@ -11,7 +11,7 @@ import rasterio
 from scipy.ndimage import gaussian_filter
 from scipy.ndimage import shift as nd_shift
 
-from orthomvp.camera import check_image, read_camera
+from orthomvp.camera import check_image, load_view, read_camera
 from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
@@ -198,8 +198,7 @@ def test_ngi_aerial_agrees_with_orthority(tmp_path: Path) -> None:
     for name in NGI_FRAMES:
         case = PeerCase(name, dem, d / f"{name}.tif", params / "ngi_int_param.yaml",
                         params / "ngi_xyz_opk.csv")  # fmt: skip
-        image = read_image(case.image)
-        camera = check_image(image, read_camera(case.exterior, case.image))
+        image, camera = load_view(case.image, case.exterior)
         ours = orthorectify(terrain, image, camera)
         out = tmp_path / f"{name}.oty.tif"
         run_orthority(case, out, 24.0)
