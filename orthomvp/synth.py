@@ -29,13 +29,12 @@ from affine import Affine
 from pyproj import CRS
 from tqdm import tqdm
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import PinholeCamera, write_tsai
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import atomic_path, write_geotiff
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, unit_vector
-from orthomvp.tsai import write_tsai
 
 MOON_RADIUS = 1737400.0
 MOON_CRS = "+proj=longlat +R=1737400 +no_defs"

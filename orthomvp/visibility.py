@@ -21,9 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.codes import Code, classify
-from orthomvp.distortion import NullDistortion
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster

@@ -7,6 +7,7 @@ Expected values come from hand calculation with the formulas of the ASP document
 
 from __future__ import annotations
 
+import ast
 import json
 import math
 import struct
@@ -17,10 +18,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from orthomvp.camera import PinholeCamera, read_camera, write_json
-from orthomvp.distortion import BrownConradyDistortion, NullDistortion, TsaiDistortion
+import orthomvp.camera
+from orthomvp.camera import (
+    BrownConradyDistortion,
+    NullDistortion,
+    PinholeCamera,
+    TsaiDistortion,
+    read_camera,
+    tsai_text,
+    write_json,
+    write_tsai,
+)
 from orthomvp.errors import FormatError, InputError
-from orthomvp.tsai import tsai_text, write_tsai
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 APOLLO = DATA / "apollo15-mvp"
@@ -547,6 +556,17 @@ def test_unknown_extensions_are_sniffed(tmp_path: Path) -> None:
     (tmp_path / "d.xyz").write_bytes(b"\xff\xfe\x00garbage")
     with pytest.raises(FormatError, match=r"d\.xyz: not a camera file"):
         read_camera(tmp_path / "d.xyz")
+
+
+def test_formats_never_import_the_registry() -> None:
+    """orthomvp.camera imports its model, distortion and format modules, never the reverse."""
+    package = Path(orthomvp.camera.__file__).parent
+    for path in [package / "model.py", package / "distortion.py", *package.glob("formats/*.py")]:
+        nodes = list(ast.walk(ast.parse(path.read_text())))
+        imported = {node.module for node in nodes if isinstance(node, ast.ImportFrom)}
+        imported |= {a.name for node in nodes if isinstance(node, ast.Import) for a in node.names}
+        assert "orthomvp.camera" not in imported, path
+        assert "orthomvp.camera.formats" not in imported, path
 
 
 def test_missing_file_is_input_error(tmp_path: Path) -> None:

@@ -19,8 +19,7 @@ import pytest
 from conftest import shared
 from scipy.spatial.transform import Rotation
 
-from orthomvp.camera import PinholeCamera, read_camera, write_json
-from orthomvp.distortion import (
+from orthomvp.camera import (
     BrownConradyDistortion,
     Distortion,
     FisheyeDistortion,
@@ -28,11 +27,16 @@ from orthomvp.distortion import (
     NullDistortion,
     OpenCVDistortion,
     PhotometrixDistortion,
+    PinholeCamera,
     TsaiDistortion,
+    orthority_rotation,
+    read_camera,
+    read_orthority_cameras,
+    tsai_text,
+    write_json,
+    write_tsai,
 )
 from orthomvp.errors import FormatError, InputError
-from orthomvp.orthority import orthority_rotation, read_orthority_cameras
-from orthomvp.tsai import tsai_text, write_tsai
 
 WIDTH, HEIGHT = 1000, 800
 FOCAL = np.array([1200.0, 1150.0])
@@ -496,6 +500,8 @@ def test_geojson_exterior_and_radians(tmp_path: Path) -> None:
     rad = read_orthority_cameras(interior, tmp_path / "rad.csv", radians=True)["img_b"]
     assert tsai_text(geo) == tsai_text(rad) == expected
     assert tsai_text(read_camera(tmp_path / "ext.json", "img_b.jpg")) == expected
+    (tmp_path / "ext.txt").write_text((tmp_path / "ext.geojson").read_text())
+    assert tsai_text(read_camera(tmp_path / "ext.txt", "img_b.jpg")) == expected  # by content
 
 
 BAD_INTERIOR = {

@@ -189,7 +189,7 @@ def test_lens_distortion_is_followed(scene) -> None:
     distorted pixel with the camera's own (distortion-aware) ray, so the round trip holds."""
     from dataclasses import replace
 
-    from orthomvp.distortion import TsaiDistortion
+    from orthomvp.camera import TsaiDistortion
 
     view = scene.views["oblique"]
     cam = view.camera

@@ -25,8 +25,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
-from orthomvp.distortion import NullDistortion
+from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.errors import InputError
 
 MIN_STD = 1e-6  # relative to the image's own standard deviation: flatter patches carry nothing

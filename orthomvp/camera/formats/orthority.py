@@ -4,7 +4,7 @@ Interior parameters (``int_param.yaml``) give each camera's model, image size, f
 principal point and distortion; exterior parameters (``xyz_opk.csv``, GeoJSON) give each image's
 position, its omega, phi, kappa angles and the camera that took it.
 :func:`read_orthority_cameras` combines the two into pinhole cameras by image stem, and
-:func:`orthority_camera` picks one image's camera for :func:`orthomvp.camera.read_camera`.
+:func:`read_exterior` picks one image's camera for :func:`orthomvp.camera.read_camera`.
 YAML is read with PyYAML's safe loader, as Orthority itself reads it.
 """
 
@@ -21,14 +21,22 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from orthomvp.camera import PinholeCamera, _build, _number, _read_bytes, _text
-from orthomvp.distortion import (
+from orthomvp.camera.distortion import (
     Distortion,
     FisheyeDistortion,
     NullDistortion,
     OpenCVDistortion,
     TsaiDistortion,
 )
+from orthomvp.camera.formats._common import (
+    CameraFile,
+    CameraFormat,
+    build_camera,
+    decode_text,
+    number,
+    read_bytes,
+)
+from orthomvp.camera.model import PinholeCamera
 from orthomvp.errors import FormatError, InputError
 
 _ORTHORITY_MODELS: dict[str, tuple[str, ...]] = {
@@ -39,8 +47,6 @@ _ORTHORITY_MODELS: dict[str, tuple[str, ...]] = {
 }
 _ORTHORITY_COMMON = ("type", "im_size", "focal_len", "sensor_size", "cx", "cy")
 _CSV_LEGACY_FIELDS = ("filename", "x", "y", "z", "omega", "phi", "kappa")
-EXTERIOR_SUFFIXES = (".csv", ".geojson")
-"""File name extensions (lower case) of exterior parameter files; ``.json`` GeoJSON also reads."""
 INTERIOR_SUFFIXES = (".yaml", ".yml")
 """File name extensions (lower case) of interior parameter files."""
 _FEATURE_COLLECTION = re.compile(r'"type"\s*:\s*"FeatureCollection"')
@@ -114,8 +120,17 @@ def read_orthority_cameras(
     """
     interior, exterior = Path(interior), Path(exterior)
     cameras = _read_interior(interior)
+    text = decode_text(exterior, read_bytes(exterior, "exterior parameter file"))
+    return _combine(cameras, interior, exterior, text, radians)
+
+
+def _combine(
+    cameras: dict[str, _Interior], interior: Path, exterior: Path, text: str, radians: bool
+) -> dict[str, PinholeCamera]:
+    """The cameras of the exterior file ``exterior`` holding ``text``, by image file stem, with
+    the interior ``cameras`` of the file ``interior`` (see :func:`read_orthority_cameras`)."""
     out: dict[str, PinholeCamera] = {}
-    for ext in _read_exterior(exterior, radians):
+    for ext in _read_exterior(exterior, text, radians):
         key = Path(ext.filename).stem
         if key in out:
             raise FormatError(exterior, f"image {key!r} appears twice", ext.line)
@@ -136,7 +151,7 @@ def read_orthority_cameras(
                 f"image {key!r} names no camera, and {interior} holds {len(cameras)}",
                 ext.line,
             )
-        out[key] = _build(
+        out[key] = build_camera(
             exterior,
             lambda _, line=ext.line: line,
             fu=intr.fu,
@@ -152,10 +167,12 @@ def read_orthority_cameras(
     return out
 
 
-def orthority_camera(
-    path: Path, image: str | Path | None, interior: str | Path | None
-) -> PinholeCamera:
-    """The camera of ``image`` in the exterior file ``path`` (see :func:`.camera.read_camera`)."""
+def read_exterior(file: CameraFile) -> PinholeCamera:
+    """The camera of ``file.image`` in an exterior parameter file, with the interior parameters
+    of ``file.interior`` or of the one ``.yaml`` file beside it (see
+    :func:`orthomvp.camera.read_camera`); CSV angles in degrees."""
+    path, interior = file.path, file.interior
+    text = file.text  # read first: a missing or unreadable camera file is reported as such
     if interior is None:
         found = sorted(p for p in path.parent.iterdir() if p.suffix.lower() in INTERIOR_SUFFIXES)
         if len(found) != 1:
@@ -165,14 +182,15 @@ def orthority_camera(
                 f"{what} .yaml files beside it; give it explicitly"
             )
         interior = found[0]
-    cameras = read_orthority_cameras(interior, path)
-    if image is None:
+    interior = Path(interior)
+    cameras = _combine(_read_interior(interior), interior, path, text, radians=False)
+    if file.image is None:
         if len(cameras) != 1:
             raise InputError(
                 f"{path}: holds {len(cameras)} cameras; name the image to pick one by its stem"
             )
         return next(iter(cameras.values()))
-    stem = Path(image).stem
+    stem = Path(file.image).stem
     if stem not in cameras:
         raise InputError(
             f"{path}: no camera for image {stem!r} (it has {', '.join(map(repr, cameras))})"
@@ -180,14 +198,31 @@ def orthority_camera(
     return cameras[stem]
 
 
-def is_geojson(text: str) -> bool:
-    """Whether JSON ``text`` looks like a GeoJSON FeatureCollection (an exterior file)."""
-    return _FEATURE_COLLECTION.search(text) is not None
+def refuse_interior(file: CameraFile) -> PinholeCamera:
+    """Raise InputError: an interior parameter file alone holds no camera pose."""
+    raise InputError(
+        f"{file.path}: Orthority interior parameters hold no camera position; give the exterior "
+        "parameter file (.csv or .geojson) as the camera, with this file beside it"
+    )
+
+
+def is_geojson(file: CameraFile) -> bool:
+    """Whether the file looks like a GeoJSON FeatureCollection (an exterior file)."""
+    return _FEATURE_COLLECTION.search(file.head) is not None
+
+
+FORMATS = (
+    CameraFormat("Orthority interior parameters", INTERIOR_SUFFIXES, refuse_interior),
+    CameraFormat("Orthority CSV", (".csv",), read_exterior),
+    CameraFormat("Orthority GeoJSON", (".geojson", ".json"), read_exterior, is_geojson),
+)
+"""The formats this module reads, for :mod:`orthomvp.camera`'s registry: an exterior parameter
+file, whose interior file lies beside it or is given, and an interior file alone, refused."""
 
 
 def _read_interior(path: Path) -> dict[str, _Interior]:
     """The cameras of an Orthority interior parameter (YAML) file, by camera id."""
-    loader = yaml.SafeLoader(_text(path, _read_bytes(path, "interior parameter file")))
+    loader = yaml.SafeLoader(decode_text(path, read_bytes(path, "interior parameter file")))
     try:
         root = loader.get_single_node()
         if not isinstance(root, yaml.MappingNode) or not root.value:
@@ -295,9 +330,9 @@ def _interior(
     )
 
 
-def _read_exterior(path: Path, radians: bool) -> list[_Exterior]:
-    """The images of an Orthority exterior parameter file (CSV, or GeoJSON)."""
-    text = _text(path, _read_bytes(path, "exterior parameter file"))
+def _read_exterior(path: Path, text: str, radians: bool) -> list[_Exterior]:
+    """The images of the Orthority exterior parameter file ``path`` (CSV, or GeoJSON) holding
+    ``text``."""
     if path.suffix.lower() == ".csv":
         return _csv_exterior(path, text, radians)
     return _geojson_exterior(path, text)
@@ -341,7 +376,7 @@ def _csv_exterior(path: Path, text: str, radians: bool) -> list[_Exterior]:
         if len(row) != len(fields):
             raise FormatError(path, f"expected {len(fields)} fields, found {len(row)}", line)
         values = dict(zip(fields, row, strict=True))
-        numbers = [_number(path, values[key], key, line) for key in _CSV_LEGACY_FIELDS[1:]]
+        numbers = [number(path, values[key], key, line) for key in _CSV_LEGACY_FIELDS[1:]]
         angles = numbers[3:] if radians else [math.radians(a) for a in numbers[3:]]
         out.append(
             _Exterior(

@@ -3,7 +3,7 @@
 ``.tsai`` text: ASP/VW VERSION_1 to VERSION_4 and the unversioned form, read as VW's
 ``PinholeModel::read`` does and written as VERSION_4 with every number exact. ``.pinhole``:
 VW's binary protobuf of the same fields (``TsaiFile.proto``), decoded here without a protobuf
-library. Units and conventions are those of :class:`orthomvp.camera.PinholeCamera`.
+library. Units and conventions are those of :class:`orthomvp.camera.model.PinholeCamera`.
 """
 
 from __future__ import annotations
@@ -14,8 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, _build, _distortion, _number, _write_atomic
-from orthomvp.distortion import distortion_class
+from orthomvp.camera.distortion import distortion_class
+from orthomvp.camera.formats._common import (
+    CameraFile,
+    CameraFormat,
+    build_camera,
+    build_distortion,
+    number,
+    write_text,
+)
+from orthomvp.camera.model import PinholeCamera
 from orthomvp.errors import FormatError, InputError
 
 # .tsai text
@@ -67,7 +75,17 @@ class _Lines:
             raise FormatError(
                 self.path, f"expected {count} {plural} after '{key} =', found {len(tokens)}", line
             )
-        return [_number(self.path, t, key, line) for t in tokens], line
+        return [number(self.path, t, key, line) for t in tokens], line
+
+
+def is_tsai(file: CameraFile) -> bool:
+    """Whether the file looks like ``.tsai`` text: it starts with ``VERSION_`` or ``fu =``."""
+    return re.match(r"VERSION_|fu\s*=", file.head) is not None
+
+
+def read_tsai(file: CameraFile) -> PinholeCamera:
+    """The camera of a ``.tsai`` text file (see :func:`parse_tsai`)."""
+    return parse_tsai(file.path, file.text)
 
 
 def parse_tsai(path: Path, text: str) -> PinholeCamera:
@@ -123,9 +141,9 @@ def parse_tsai(path: Path, text: str) -> PinholeCamera:
             raise FormatError(path, f"{model} distortion has no parameter {match[1]!r}", line)
         if match[1] in params:
             raise FormatError(path, f"distortion parameter {match[1]!r} given twice", line)
-        params[match[1]] = _number(path, match[2].strip(), match[1], line)
-    values["distortion"] = _distortion(path, model, params, name_line)
-    return _build(path, where.get, **values)
+        params[match[1]] = number(path, match[2].strip(), match[1], line)
+    values["distortion"] = build_distortion(path, model, params, name_line)
+    return build_camera(path, where.get, **values)
 
 
 # .pinhole protobuf
@@ -204,13 +222,22 @@ def _pb_doubles(number: int, entries: list[tuple[int, bytes]]) -> list[float]:
     return values
 
 
-def parse_pinhole(path: Path, data: bytes) -> PinholeCamera:
-    """The camera of the binary ``.pinhole`` file ``path`` holding ``data``."""
+def is_pinhole(file: CameraFile) -> bool:
+    """Whether the file decodes as a protobuf message (the ``.pinhole`` form)."""
     try:
-        decoded = decode_protobuf(data)
+        decode_protobuf(file.data)
+    except ValueError:
+        return False
+    return True
+
+
+def read_pinhole(file: CameraFile) -> PinholeCamera:
+    """The camera of a binary ``.pinhole`` file."""
+    try:
+        decoded = decode_protobuf(file.data)
     except ValueError as exc:
-        raise FormatError(path, f"corrupt .pinhole protobuf: {exc}") from exc
-    return camera_from_protobuf(path, decoded)
+        raise FormatError(file.path, f"corrupt .pinhole protobuf: {exc}") from exc
+    return camera_from_protobuf(file.path, decoded)
 
 
 def camera_from_protobuf(path: Path, decoded: dict[int, list[tuple[int, bytes]]]) -> PinholeCamera:
@@ -244,10 +271,10 @@ def camera_from_protobuf(path: Path, decoded: dict[int, list[tuple[int, bytes]]]
             f"{distortion_name} distortion needs {' or '.join(map(str, counts))} values, "
             f"got {len(dist_values)}",
         )
-    distortion = _distortion(
+    distortion = build_distortion(
         path, cls.name, dict(zip(cls.param_names(), dist_values, strict=False)), None
     )
-    return _build(
+    return build_camera(
         path,
         lambda _: None,
         fu=got["focal_length"][0],
@@ -262,6 +289,13 @@ def camera_from_protobuf(path: Path, decoded: dict[int, list[tuple[int, bytes]]]
         pitch=got["pixel_pitch"][0],
         distortion=distortion,
     )
+
+
+FORMATS = (
+    CameraFormat(".tsai text", (".tsai",), read_tsai, is_tsai),
+    CameraFormat("a .pinhole protobuf", (".pinhole",), read_pinhole, is_pinhole),
+)
+"""The formats this module reads, for :mod:`orthomvp.camera`'s registry."""
 
 
 # Writing
@@ -295,4 +329,4 @@ def tsai_text(camera: PinholeCamera) -> str:
 
 def write_tsai(camera: PinholeCamera, path: str | Path) -> None:
     """Write ``camera`` as VERSION_4 ``.tsai`` text (the image size is not stored)."""
-    _write_atomic(path, tsai_text(camera))
+    write_text(path, tsai_text(camera))

@@ -1,0 +1,114 @@
+"""Cameras: the frame (pinhole) model, its lens distortions, and reading and writing their files.
+
+The model and its conventions (world metres, R camera-to-world, intrinsics in units of the
+pitch, pixels (u, v) = (column, row) with integer values at pixel centres) are in
+:mod:`orthomvp.camera.model`, the lens distortion models in :mod:`orthomvp.camera.distortion`.
+
+:func:`read_camera` reads any file of the registry :data:`FORMATS`: ASP/VW ``.tsai`` text and
+binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
+(:mod:`.formats.orthority`) and our JSON (:mod:`.formats.json`). Each format module lists the
+formats it reads (name, file name extensions, reader, content test); a file goes to the first
+format that names its extension and recognises its content, else to the last one naming its
+extension (whose reader reports what is wrong); a file whose extension no format names goes to
+the first format that recognises its content. A new reader (USGS CSM ISD JSON, RPC) is a module
+in ``formats`` with its ``FORMATS``, added to the tuple below (ahead of ours, with a content
+test, where it shares the ``.json`` extension). Writers replace the destination atomically.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from orthomvp.camera.distortion import (
+    BrownConradyDistortion,
+    Distortion,
+    FisheyeDistortion,
+    FovDistortion,
+    NullDistortion,
+    OpenCVDistortion,
+    PhotometrixDistortion,
+    TsaiDistortion,
+    distortion_class,
+)
+from orthomvp.camera.formats import json as json_format
+from orthomvp.camera.formats import orthority, tsai
+from orthomvp.camera.formats._common import CameraFile, CameraFormat
+from orthomvp.camera.formats.json import camera_to_dict, write_json
+from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
+from orthomvp.camera.formats.tsai import tsai_text, write_tsai
+from orthomvp.camera.model import ORTHONORMAL_TOLERANCE, PinholeCamera, check_image
+from orthomvp.errors import FormatError
+from orthomvp.raster import read_image
+
+__all__ = [
+    "FORMATS",
+    "ORTHONORMAL_TOLERANCE",
+    "BrownConradyDistortion",
+    "Distortion",
+    "FisheyeDistortion",
+    "FovDistortion",
+    "NullDistortion",
+    "OpenCVDistortion",
+    "PhotometrixDistortion",
+    "PinholeCamera",
+    "TsaiDistortion",
+    "camera_to_dict",
+    "check_image",
+    "distortion_class",
+    "load_view",
+    "orthority_rotation",
+    "read_camera",
+    "read_orthority_cameras",
+    "tsai_text",
+    "write_json",
+    "write_tsai",
+]
+
+FORMATS: tuple[CameraFormat, ...] = (*orthority.FORMATS, *json_format.FORMATS, *tsai.FORMATS)
+"""Every camera file format :func:`read_camera` knows, in the order they are tried."""
+
+
+def read_camera(
+    path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
+) -> PinholeCamera:
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, or Orthority files.
+
+    Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
+    their content) ignore ``image`` and ``interior``.
+
+    Orthority's exterior parameter files (``.csv``, ``.geojson``, or a ``.json`` holding a
+    GeoJSON FeatureCollection) hold many images: ``image`` (a path or a name) picks the row
+    whose ``filename`` has the same stem (file name without directory and extension); without
+    ``image`` the file must hold one camera. The interior parameters come from ``interior``, or
+    else from the one ``.yaml``/``.yml`` file in the exterior file's directory. CSV angles are
+    in degrees (see :func:`read_orthority_cameras`). An interior ``.yaml`` alone holds no camera
+    pose and raises InputError.
+
+    A missing or unreadable file raises InputError; a file that breaks its format raises
+    FormatError naming it (and the line, for text formats).
+    """
+    file = CameraFile(Path(path), image, interior)
+    return _format_of(file).read(file)
+
+
+def _format_of(file: CameraFile) -> CameraFormat:
+    """The format of ``file`` (see the module docstring); FormatError if none recognises it."""
+    suffix = file.path.suffix.lower()
+    named = [fmt for fmt in FORMATS if suffix in fmt.suffixes]
+    for fmt in named or FORMATS:
+        if fmt.sniff is not None and fmt.sniff(file):
+            return fmt
+    if named:
+        return named[-1]
+    tried = ", not ".join(fmt.name for fmt in FORMATS if fmt.sniff is not None)
+    raise FormatError(file.path, f"not a camera file: not {tried}")
+
+
+def load_view(image_path: str | Path, camera_path: str | Path) -> tuple[np.ndarray, PinholeCamera]:
+    """Read an image (float32 (bands, rows, cols), see :func:`orthomvp.raster.read_image`) and
+    its camera (:func:`read_camera`, the image's name picking its row in multi-camera files),
+    checked against each other; the camera carries the image's size."""
+    image = read_image(image_path)
+    return image, check_image(image, read_camera(camera_path, image_path), str(image_path))
