@@ -37,7 +37,7 @@ from orthomvp.mvp.fit import TILE, FitOptions, fit_dem
 from orthomvp.ortho import orthorectify
 from orthomvp.raster import open_raster, read_image, write_geotiff
 from orthomvp.raycast import BACKENDS, RayCaster
-from orthomvp.synth import ViewSpec, make_scene, orbital_camera
+from orthomvp.synthetic import ViewSpec, make_scene, orbital_camera
 from orthomvp.terrain import Terrain, horizontal_crs, unit_vector
 from orthomvp.visibility import compute_visibility
 from orthomvp.world import detect_world
