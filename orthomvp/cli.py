@@ -466,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_synth(args: argparse.Namespace) -> None:
     from orthomvp.raster import atomic_dir
-    from orthomvp.synth import make_scene
+    from orthomvp.synthetic import make_scene
 
     scene = make_scene(args.kind, args.size, args.spacing, args.gsd_ratio, args.seed)
     with atomic_dir(args.outdir) as tmp:

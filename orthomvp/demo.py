@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
 from orthomvp.figures import height_error_maps, ortho_comparison, scene_overview
 from orthomvp.mesh import export_mesh, terrain_mesh
@@ -24,8 +25,14 @@ from orthomvp.ortho import mosaic, orthorectify
 from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
 from orthomvp.raycast import RayCaster
 from orthomvp.render import snapshot
-from orthomvp.scenes import SceneData, away_from_boundaries, classification_scores, load_scene
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import (
+    SceneData,
+    away_from_boundaries,
+    classification_scores,
+    load_scene,
+    make_scene,
+)
+from orthomvp.synthetic.scoring import HIDDEN
 from orthomvp.webpage import write_index
 
 DEMO_SIZE = 120
@@ -83,8 +90,8 @@ def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
     write_geotiff(tmp / "oblique-visibility.tif", aware.visibility.codes, t, crs, nodata=0)
     write_geotiff(tmp / "mosaic-source.tif", mos.source, t, crs, nodata=0)
     keep = away_from_boundaries(oblique.truth)
-    hidden = np.isin(oblique.truth, (2, 3)) & keep
-    visible = (oblique.truth == 1) & keep & np.isfinite(aware.data[0])
+    hidden = np.isin(oblique.truth, HIDDEN) & keep
+    visible = (oblique.truth == Code.VISIBLE) & keep & np.isfinite(aware.data[0])
     figures = {
         **classification_scores(aware.visibility.codes, oblique.truth, keep),
         "hidden_posts": int(hidden.sum()),

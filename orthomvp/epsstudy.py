@@ -19,7 +19,7 @@ from orthomvp.codes import classify
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
-from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
+from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
 from orthomvp.visibility import Visibility, compute_visibility
 
 DEFAULT_EPS_VALUES = tuple(np.round(np.geomspace(0.02, 20, 19), 3))

@@ -20,7 +20,7 @@ def shared(*parts: str) -> Path:
 @pytest.fixture(scope="session")
 def crater_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small crater scene written once per test session."""
-    from orthomvp.synth import make_scene
+    from orthomvp.synthetic import make_scene
 
     out = tmp_path_factory.mktemp("crater")
     make_scene("crater", size=64, spacing=80.0).write(out, supersample=2)

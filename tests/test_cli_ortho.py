@@ -8,7 +8,7 @@ import numpy as np
 import rasterio
 
 from orthomvp.raster import read_image
-from orthomvp.scenes import away_from_boundaries
+from orthomvp.synthetic import away_from_boundaries
 from tests.test_cli import assert_one_line_error, run
 
 

@@ -19,7 +19,7 @@ import pytest
 from orthomvp.cli import main
 from orthomvp.explore import Explorer
 from orthomvp.mvp.plane import normal_from_angles
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 from tests.conftest import shared
 

@@ -19,7 +19,7 @@ from orthomvp.errors import InputError
 from orthomvp.mesh import error_colour_limit, export_mesh, terrain_mesh
 from orthomvp.palette import VIS_RGB
 from orthomvp.raster import write_geotiff
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 
 R = 1737400.0

@@ -13,7 +13,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 from orthomvp.camera import PinholeCamera
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
-from orthomvp.synth import SmallBody, look_at, make_scene
+from orthomvp.synthetic import SmallBody, look_at, make_scene
 from orthomvp.terrain import Terrain, unit_vector
 from orthomvp.visibility import compute_visibility
 

@@ -11,7 +11,7 @@ from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.mvp.fit import PlaneModel
 from orthomvp.mvp.patches import ViewStack, gaussian_window
 from orthomvp.mvp.plane import post_lines
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.visibility import compute_visibility
 
 
@@ -44,14 +44,14 @@ def test_planar_objective_minima_at_the_true_plane(planar) -> None:  # noqa: ANN
     """Paper section 4.3: along h the minimum of f lies at the true height within 0.05 ground
     pixels; over orientations at the true normal within 0.5 degrees."""
     scene, cams, images = planar
-    gsd = scene.info["gsd"]["orbit1"]
-    n_true = np.array(scene.info["extra"]["plane_normal"])
+    gsd = scene.gsd
+    n_true = np.array(scene.facts["plane_normal"])
     stack = ViewStack.build(images, cams, 1)
     offsets, g = gaussian_window(10, 5.0)
     for c, r in ((20, 22), (27, 25), (24, 30)):
         h_true = scene.terrain.values[r, c]
         lines = post_lines(scene.terrain, np.array([c], float), np.array([r], float), [h_true])
-        model = PlaneModel(lines, n_true[None], stack.F, scene.info["spacing"])
+        model = PlaneModel(lines, n_true[None], stack.F, scene.spacing)
         theta = np.array([[h_true, 0.0, 0.0]])
         hs = h_true + np.linspace(-2, 2, 81) * gsd
         f = _objective_along(model, stack, theta, offsets, g, 0, hs)
@@ -73,9 +73,9 @@ def test_planar_objective_minima_at_the_true_plane(planar) -> None:  # noqa: ANN
 
 def test_planar_fit_converges_to_the_true_plane(planar) -> None:  # noqa: ANN001
     scene, cams, images = planar
-    gsd = scene.info["gsd"]["orbit1"]
+    gsd = scene.gsd
     truth = scene.terrain.values
-    n_true = np.array(scene.info["extra"]["plane_normal"])
+    n_true = np.array(scene.facts["plane_normal"])
     res = fit_dem(scene.terrain.with_values(truth + 20.0), images, cams, FitOptions(deconvolve=0))
     ok = res.resolved
     assert ok.sum() > 1000 and res.converged[ok].all()
@@ -116,7 +116,7 @@ def test_hills_from_a_smoothed_offset_dem(hills) -> None:  # noqa: ANN001
     at most 0.3 of the initial RMSE and at most 0.5 ground pixels."""
     scene, cams, images, start = hills
     truth = scene.terrain.values
-    gsd = scene.info["gsd"]["fore1"]
+    gsd = scene.gsd
     res = fit_dem(start, images, cams)
     keep = np.zeros(truth.shape, bool)
     keep[12:-12, 12:-12] = True
@@ -164,7 +164,7 @@ def test_outlier_view_is_dropped(hills) -> None:  # noqa: ANN001
 def test_crater_hidden_views_stay_out(crater_dir) -> None:  # noqa: ANN001
     """Posts hidden in one view and visible in >= 2 others are fitted without the hidden
     view; feeding the hidden views in as well biases them badly."""
-    from orthomvp.scenes import load_scene
+    from orthomvp.synthetic import load_scene
 
     data = load_scene(crater_dir)
     views = list(data.views.values())

@@ -21,7 +21,7 @@ from orthomvp.mvp.plane import (
     tangent_basis,
     uses_central_model,
 )
-from orthomvp.synth import look_at, make_scene
+from orthomvp.synthetic import look_at, make_scene
 from orthomvp.terrain import Terrain, unit_vector
 
 RNG = np.random.default_rng(7)

@@ -11,8 +11,7 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.epsstudy import eps_study, reclassify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.ortho import mosaic, orthorectify, sample_image
-from orthomvp.scenes import away_from_boundaries, classification_scores, load_scene
-from orthomvp.synth import look_at
+from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
 from orthomvp.terrain import Terrain, unit_vector
 from orthomvp.visibility import compute_visibility, default_eps
 

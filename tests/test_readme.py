@@ -12,7 +12,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_readme_python_example(tmp_path: Path) -> None:
-    from orthomvp.synth import make_scene
+    from orthomvp.synthetic import make_scene
 
     make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
     block = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)

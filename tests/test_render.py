@@ -13,7 +13,7 @@ from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.raster import write_geotiff
 from orthomvp.render import snapshot
-from orthomvp.synth import Scene, make_scene
+from orthomvp.synthetic import Scene, make_scene
 
 SIZE = (320, 240)
 
@@ -116,7 +116,7 @@ def test_height_error_uses_both_ends_of_a_symmetric_colour_map(crater: Scene) ->
 
 def test_draped_orthophoto(crater: Scene) -> None:
     x, y = crater.post_local()
-    ortho = crater.radiance(x, y).astype(np.float32)
+    ortho = crater.surface.radiance(x, y).astype(np.float32)
     ortho[:, :20] = np.nan
     image = render(crater.terrain, ortho=np.stack([ortho, ortho * 0.5, ortho * 0.8]))
     assert image.std() > 20 and len(np.unique(image.reshape(-1, 3), axis=0)) > 1000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -10,11 +11,12 @@ from affine import Affine
 from scipy.ndimage import binary_erosion, map_coordinates
 
 from orthomvp.camera import read_camera
+from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import read_image
 from orthomvp.raycast import RayCaster
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 
 
@@ -41,7 +43,8 @@ def test_scene_directory(crater_dir) -> None:
         vis = read_image(crater_dir / view["visibility"])[0]
         assert image.shape[0] == 1 and np.isfinite(image).all() and image.std() > 0.05
         assert vis.shape == dem.shape
-        counts = {int(k): int((vis == k).sum()) for k in range(4)}
+        counts = view["visibility_counts"]
+        assert counts == {code.label: int((vis == code).sum()) for code in Code}
         assert sum(counts.values()) == vis.size
         # every post is inside each image, and all project inside the image bounds
         uv, depth = cam.project(dem.world_points())
@@ -50,8 +53,8 @@ def test_scene_directory(crater_dir) -> None:
         assert uv[..., 1].min() > 0 and uv[..., 1].max() < image.shape[1] - 1
     oblique = read_image(crater_dir / "oblique.visibility.tif")[0]
     nadir = read_image(crater_dir / "nadir.visibility.tif")[0]
-    assert (oblique == 2).sum() > 50 and (oblique == 3).sum() > 50
-    assert (nadir == 1).all()
+    assert (oblique == Code.OCCLUDED).sum() > 50 and (oblique == Code.FACING_AWAY).sum() > 50
+    assert (nadir == Code.VISIBLE).all()
 
 
 def test_visibility_truth_matches_an_independent_ray_cast() -> None:
@@ -66,13 +69,13 @@ def test_visibility_truth_matches_an_independent_ray_cast() -> None:
         t.transform @ Affine.scale(0.25),
         t.crs,
     )
-    x, y = scene.lonlat_to_local(*fine_t.pixel_to_lonlat(*fine_t.grid()))
-    fine = fine_t.with_values(scene.height(x, y))
-    post = scene.surface_point(*scene.post_local()).reshape(-1, 3)
+    x, y = scene.surface.lonlat_to_local(*fine_t.pixel_to_lonlat(*fine_t.grid()))
+    fine = fine_t.with_values(scene.surface.height(x, y))
+    post = scene.surface.surface_point(*scene.post_local()).reshape(-1, 3)
     hits = RayCaster(terrain_mesh(fine)).first_hit(cam.center, post - cam.center)
     gap = np.linalg.norm(hits.points - post, axis=1).reshape(t.shape)
     hidden_cast = gap > 20.0  # a quarter post: the first hit is elsewhere
-    hidden_truth = truth >= 2
+    hidden_truth = np.isin(truth, (Code.OCCLUDED, Code.FACING_AWAY))
     keep = interior(hidden_truth)
     agree = np.mean(hidden_cast[keep] == hidden_truth[keep])
     assert keep.sum() > 0.7 * truth.size
@@ -86,7 +89,7 @@ def test_facing_away_matches_dem_normals() -> None:
     p = scene.terrain.world_points()
     away = np.einsum("...i,...i->...", scene.terrain.normals(), cam.center - p) < 0
     keep = interior(away)
-    assert np.mean((truth == 3)[keep] == away[keep]) > 0.99
+    assert np.mean((truth == Code.FACING_AWAY)[keep] == away[keep]) > 0.99
 
 
 def test_rendered_image_matches_truth_radiance(crater_dir) -> None:
@@ -99,25 +102,27 @@ def test_rendered_image_matches_truth_radiance(crater_dir) -> None:
         vis = read_image(crater_dir / f"{name}.visibility.tif")[0]
         uv, _ = cam.project(dem.world_points())
         sampled = map_coordinates(image, [uv[..., 1], uv[..., 0]], order=1)
-        keep = interior(vis == 1) & (vis == 1)
+        keep = interior(vis == Code.VISIBLE) & (vis == Code.VISIBLE)
         corr = np.corrcoef(sampled[keep], radiance[keep])[0, 1]
         assert corr > 0.9, f"{name}: correlation {corr:.3f}"
 
 
 def test_planar_scene_is_a_plane() -> None:
     scene = make_scene("planar", size=32)
-    n = np.array(scene.info["extra"]["plane_normal"])
-    x0 = np.array(scene.info["extra"]["plane_point"])
+    n = np.array(scene.facts["plane_normal"])
+    x0 = np.array(scene.facts["plane_point"])
     pts = scene.terrain.world_points()
     assert np.abs((pts - x0) @ n).max() < 1e-6
-    theta, phi = scene.info["extra"]["plane_normal_angles_deg"]
+    theta, phi = scene.facts["plane_normal_angles_deg"]
     t, p = np.radians(theta), np.radians(phi)
     np.testing.assert_allclose([np.cos(t) * np.cos(p), np.sin(t) * np.cos(p), np.sin(p)], n)
     # the normal is tilted a few degrees from the vertical at the tile centre
     up = pts[16, 16] / np.linalg.norm(pts[16, 16])
     assert 3.5 < np.degrees(np.arccos(up @ n)) < 8.5
     assert all(
-        v == 1 for cam in scene.cameras.values() for v in np.unique(scene.visibility_truth(cam))
+        v == Code.VISIBLE
+        for cam in scene.cameras.values()
+        for v in np.unique(scene.visibility_truth(cam))
     )
 
 
@@ -128,6 +133,8 @@ def test_hills_and_seeds() -> None:
     np.testing.assert_array_equal(a.terrain.values, b.terrain.values)
     assert np.abs(a.terrain.values - c.terrain.values).max() > 1.0
     assert len(a.cameras) == 4
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.terrain = c.terrain  # a scene is made complete and stays as made
     with pytest.raises(InputError, match="kind"):
         make_scene("volcano")
     with pytest.raises(InputError):

@@ -13,7 +13,7 @@ from orthomvp.camera import read_camera
 from orthomvp.cli import main
 from orthomvp.errors import InputError
 from orthomvp.raster import write_geotiff
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 from orthomvp.world import body_plausible, detect_world, map_plausible
 from tests.conftest import shared

@@ -20,7 +20,7 @@ from orthomvp.demo import run_demo
 from orthomvp.epsstudy import eps_study, plot, write_csv
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
 from orthomvp.raster import read_image
-from orthomvp.synth import make_scene
+from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 
 HERE = Path(__file__).resolve().parent

@@ -1,4 +1,5 @@
-"""Reading scene directories written by ``orthomvp synth`` and scoring against their truth."""
+"""Reading scene directories written by ``orthomvp synth`` (see
+:mod:`orthomvp.synthetic.writer`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import binary_erosion
 
 from orthomvp.camera import PinholeCamera, read_camera
 from orthomvp.errors import InputError
@@ -56,32 +56,3 @@ def load_scene(directory: str | Path) -> SceneData:
     except (KeyError, TypeError, json.JSONDecodeError) as exc:
         raise InputError(f"{meta}: malformed scene summary ({exc})") from exc
     return SceneData(terrain, radiance, views, summary)
-
-
-def away_from_boundaries(codes: np.ndarray, width: int = 1) -> np.ndarray:
-    """Posts farther than ``width`` posts (8-neighbourhood) from any boundary between truth
-    classes, and not next to the DEM border."""
-    st = np.ones((2 * width + 1, 2 * width + 1), bool)
-    keep = np.zeros(codes.shape, bool)
-    for k in np.unique(codes):
-        keep |= binary_erosion(codes == k, st, border_value=0)
-    return keep
-
-
-def classification_scores(predicted: np.ndarray, truth: np.ndarray, keep: np.ndarray) -> dict:
-    """Precision, recall and F1 of 'visible' (code 1) and of 'hidden' (codes 2, 3) among the
-    posts in ``keep`` whose truth is inside the image (code != 0)."""
-    keep = keep & (truth != 0)
-    out = {"scored": int(keep.sum())}
-    for label, pos_t, pos_p in (
-        ("visible", truth == 1, predicted == 1),
-        ("hidden", np.isin(truth, (2, 3)), np.isin(predicted, (2, 3))),
-    ):
-        tp = int((pos_t & pos_p & keep).sum())
-        fp = int((~pos_t & pos_p & keep).sum())
-        fn = int((pos_t & ~pos_p & keep).sum())
-        precision = tp / (tp + fp) if tp + fp else 1.0
-        recall = tp / (tp + fn) if tp + fn else 1.0
-        f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else 1.0
-        out.update({f"precision_{label}": precision, f"recall_{label}": recall, f"f1_{label}": f1})
-    return out

@@ -1,0 +1,70 @@
+"""The benchmarks' results as short text reports, each ending with what its ratio means."""
+
+from __future__ import annotations
+
+
+def format_raycast(rows: list[dict]) -> str:
+    """A small text table of :func:`~orthomvp.bench.raycast.bench_raycast` results."""
+    lines = [
+        f"ray casting: {rows[0]['rays']:,} rays onto {rows[0]['triangles']:,} triangles",
+        f"{'backend':<8} {'build s':>8} {'raw Mray/s':>11} {'wrapper Mray/s':>15} {'ratio':>6}",
+    ]
+    for r in rows:
+        lines.append(
+            f"{r['backend']:<8} {r['build_s']:>8.2f} {r['raw_rays_per_s'] / 1e6:>11.3f} "
+            f"{r['wrapper_rays_per_s'] / 1e6:>15.3f} {r['ratio']:>6.2f}"
+        )
+    lines.append("ratio = wrapper throughput / bare backend call on the same rays, same run")
+    return "\n".join(lines)
+
+
+def format_ortho(row: dict) -> str:
+    """A text summary of :func:`~orthomvp.bench.ortho.bench_ortho`."""
+    return "\n".join(
+        [
+            f"occlusion-aware orthophoto: {row['posts']:,} posts "
+            f"(mesh + BVH build {row['build_s']:.1f} s, not counted)",
+            f"  bare Embree cast, one ray per post: {row['raw_cast_s']:.2f} s",
+            f"  orthophoto with occlusion:          {row['ortho_s']:.2f} s "
+            f"({row['posts_per_s'] / 1e6:.2f} M posts/s), ratio {row['ratio']:.2f}",
+            f"  naive orthophoto (--no-occlusion, no rays): {row['naive_ortho_s']:.2f} s",
+            "ratio = orthophoto time / bare cast time on the same rays, same run",
+        ]
+    )
+
+
+def format_mvp(row: dict) -> str:
+    """A text summary of :func:`~orthomvp.bench.mvp.bench_mvp`."""
+    return "\n".join(
+        [
+            f"MVP fit, {row['size']} x {row['size']} posts, {row['views']} views, "
+            f"hwin {row['hwin']}: {row['fitted']:,} posts fitted in {row['fit_s']:.1f} s "
+            f"({row['posts_per_s']:,.0f} posts/s); height RMSE {row['rmse_m']:.2f} m "
+            f"(initial {row['initial_rmse_m']:.2f} m)",
+            f"  bilinear samples taken by the fit: {row['samples'] / 1e6:,.0f} M",
+            f"  bare cv2.remap of as many samples (value and gradients, 3 per position): "
+            f"{row['remap_s']:.2f} s; ratio {row['ratio']:.1f}x",
+            f"ratio = fit time ({row['fit_threads']} worker threads) / bare cv2.remap time "
+            f"(one call at a time, {row['cv2_threads']} cv2 threads), same run",
+        ]
+    )
+
+
+def format_orthority(row: dict) -> str:
+    """A text summary of :func:`~orthomvp.bench.peer.bench_orthority`."""
+    rows, cols = row["grid"]
+    return "\n".join(
+        [
+            f"side by side with Orthority {row['orthority_version']}: {row['case']} onto "
+            f"{cols} x {rows} posts of {row['res_m']:g} m, best of {row['repeat']}, "
+            f"{row['threads']} threads, file reading and writing included for both",
+            f"  Orthority (no occlusion):      {row['orthority_s']:.3f} s",
+            f"  orthomvp, occlusion on:        {row['orthomvp_s']:.3f} s, ratio {row['ratio']:.2f}",
+            f"  orthomvp, occlusion off:       {row['orthomvp_naive_s']:.3f} s, ratio "
+            f"{row['naive_ratio']:.2f}",
+            "  orthomvp steps with occlusion: "
+            + ", ".join(f"{k} {v:.3f} s" for k, v in row["orthomvp_steps_s"].items()),
+            f"ratio = orthomvp time / Orthority time, same run; largest difference of the two "
+            f"orthophotos where both have data: {row['max_abs_diff']:.3g}",
+        ]
+    )

@@ -1,0 +1,226 @@
+"""Side by side with Orthority (``orthomvp bench --peer orthority``): the same frame onto the
+same grid by both tools, end to end from files to a float32 GeoTIFF."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from importlib.metadata import version
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import rasterio
+from affine import Affine
+from pyproj import CRS
+from scipy.ndimage import gaussian_filter
+
+from orthomvp.camera import load_view
+from orthomvp.errors import InputError
+from orthomvp.mesh import terrain_mesh
+from orthomvp.ortho import orthorectify
+from orthomvp.raster import open_raster, read_image, write_geotiff
+from orthomvp.raycast import RayCaster
+from orthomvp.terrain import Terrain, horizontal_crs
+from orthomvp.world import detect_world
+
+PEER_IMAGE = "3324c_2015_1004_05_0182_RGB"
+"""The ngi-aerial frame that ``orthomvp bench --peer orthority`` orthorectifies."""
+
+SYNTHETIC_PEER_CRS = "+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m"
+"""The CRS of :func:`synthetic_case`: the ngi-aerial DEM's transverse Mercator (Lo25)."""
+
+
+def import_orthority() -> ModuleType:
+    """Import Orthority (AGPL-3.0; run as a peer tool, none of its code is copied here).
+
+    Orthority switches on PROJ's network access (``PROJ_NETWORK=ON``) when imported; the
+    previous setting is restored so that the rest of the process stays offline. Raises
+    InputError when Orthority is not installed.
+    """
+    before = os.environ.get("PROJ_NETWORK")
+    try:
+        return importlib.import_module("orthority")
+    except ImportError as exc:
+        raise InputError(
+            f"the peer tool orthority is not installed ({exc}); pip install orthority"
+        ) from exc
+    finally:
+        if before is None:
+            os.environ.pop("PROJ_NETWORK", None)
+        else:
+            os.environ["PROJ_NETWORK"] = before
+
+
+@dataclass(frozen=True)
+class PeerCase:
+    """One frame as files both tools read: a DEM GeoTIFF whose CRS is the horizontal part of
+    the original (so that Orthority needs no geoid grid: both tools take the DEM values as the
+    cameras' z, metres), the image, and Orthority's interior (YAML) and exterior (CSV) files."""
+
+    name: str
+    dem: Path
+    image: Path
+    interior: Path
+    exterior: Path
+
+
+def horizontal_dem(src: Path, dst: Path) -> Path:
+    """Copy the DEM GeoTIFF ``src`` to ``dst`` with only the horizontal part of its CRS."""
+    with open_raster(src) as ds:
+        profile, data = ds.profile, ds.read()
+        if ds.crs is None:
+            raise InputError(f"{src}: the DEM has no CRS")
+        crs = horizontal_crs(CRS.from_wkt(ds.crs.to_wkt()))
+    profile.update(crs=crs.to_wkt())
+    with rasterio.open(dst, "w", **profile) as out:
+        out.write(data)
+    return dst
+
+
+def ngi_case(data_dir: Path, workdir: Path) -> PeerCase:
+    """The ngi-aerial frame :data:`PEER_IMAGE` from ``data_dir`` (``shared/data/ngi-aerial``)."""
+    params = data_dir / "orthority-format"
+    return PeerCase(
+        f"ngi-aerial {PEER_IMAGE}",
+        horizontal_dem(data_dir / "dem.tif", workdir / "dem.tif"),
+        data_dir / f"{PEER_IMAGE}.tif",
+        params / "ngi_int_param.yaml",
+        params / "ngi_xyz_opk.csv",
+    )
+
+
+def synthetic_case(workdir: Path, seed: int = 0) -> PeerCase:
+    """A stand-in for :func:`ngi_case` when the real data is absent: rolling hills (149..781 m
+    like the real DEM) on 327 x 508 posts 24 m apart in the ngi DEM's transverse Mercator, a
+    640 x 1152 RGB noise image, and the same interior parameters (120 mm lens, 833 px) flown
+    5 km up, slightly tilted."""
+    rows, cols, step = 508, 327, 24.0
+    r, c = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    z = 465 + 220 * np.sin(c / 23.0) * np.cos(r / 37.0) + 90 * np.sin((c + r) / 9.0)
+    transform = Affine(step, 0, -60454.0, 0, -step, -3723500.0)
+    dem = workdir / "dem.tif"
+    write_geotiff(dem, z.astype(np.float32), transform, SYNTHETIC_PEER_CRS, nodata=np.nan)
+    rng = np.random.default_rng(seed)
+    pixels = gaussian_filter(rng.random((3, 1152, 640)), (0, 1.5, 1.5))
+    pixels = np.clip((pixels - pixels.mean()) * 1200 + 128, 0, 255).astype(np.uint8)
+    image = workdir / "synthetic.tif"
+    write_geotiff(image, pixels, Affine.identity(), None)
+    interior, exterior = workdir / "int_param.yaml", workdir / "xyz_opk.csv"
+    interior.write_text(
+        "synthetic:\n  type: pinhole\n  im_size: [640, 1152]\n  focal_len: 120.0\n"
+        "  sensor_size: [92.16, 165.888]\n  cx: 0.0\n  cy: 0.0\n"
+    )
+    exterior.write_text(
+        "filename,x,y,z,omega,phi,kappa\nsynthetic,-56530.0,-3729600.0,5300.0,1.2,-0.8,-179.0\n"
+    )
+    return PeerCase("synthetic hills", dem, image, interior, exterior)
+
+
+def run_orthority(case: PeerCase, out: Path, res: float) -> None:
+    """Orthority's orthophoto of ``case`` at ``res`` metres (bilinear image and DEM
+    interpolation, float32 with NaN nodata, deflate, no overviews), written to ``out``: the
+    camera files, DEM and image are read inside, as ``oty frame`` does."""
+    oty = import_orthority()
+    with warnings.catch_warnings(), open_raster(case.dem) as dem:
+        warnings.simplefilter("ignore")  # partial DEM coverage, size mismatch: checked by us
+        camera = oty.FrameCameras(case.interior, case.exterior).get(case.image)
+        ortho = oty.Ortho(case.image, case.dem, camera, crs=dem.crs)
+        ortho.process(
+            out,
+            resolution=(res, res),
+            interp="bilinear",
+            dem_interp="bilinear",
+            dtype="float32",
+            compress="deflate",
+            build_ovw=False,
+            overwrite=True,
+        )
+
+
+RUN_STEPS = ("read", "mesh", "grid", "ortho", "write")
+"""The steps that :func:`run_orthomvp` times, in order."""
+
+
+def run_orthomvp(
+    case: PeerCase, out: Path, res: float, bounds: tuple[float, ...], occlusion: bool
+) -> dict[str, float]:
+    """orthomvp's orthophoto of ``case`` onto the grid of ``res`` metres and ``bounds`` (left,
+    bottom, right, top) in the DEM's CRS, written to ``out`` as float32 deflate GeoTIFF: the
+    steps of ``orthomvp ortho --res --bounds`` with the world frame detected. Returns the
+    seconds per step: ``read`` (image, camera, DEM, world frame), ``mesh`` (mesh + BVH build),
+    ``grid`` (DEM resampled to the output grid), ``ortho`` (visibility and sampling),
+    ``write``."""
+    times = [time.perf_counter()]
+    image, camera = load_view(case.image, case.exterior)
+    terrain = Terrain.read(case.dem)
+    terrain = replace(terrain, world=detect_world(terrain, camera.center[None]))
+    times.append(time.perf_counter())
+    caster = RayCaster(terrain_mesh(terrain))
+    times.append(time.perf_counter())
+    grid = terrain.regrid((res, res), bounds)
+    times.append(time.perf_counter())
+    scale = res / float(np.mean(terrain.post_spacing()))
+    ortho = orthorectify(grid, image, camera, occlusion=occlusion, caster=caster, post_scale=scale)
+    times.append(time.perf_counter())
+    write_geotiff(out, ortho.data, ortho.transform, ortho.crs, nodata=np.nan)
+    times.append(time.perf_counter())
+    return dict(zip(RUN_STEPS, np.diff(times).tolist(), strict=True))
+
+
+def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -> dict:
+    """orthomvp (occlusion on and off) against Orthority on ``case``: the same image onto the
+    same grid (the DEM's CRS, ``res`` metres, default the DEM's post spacing; the bounds of
+    Orthority's output, which crops to the image footprint). Each tool runs end to end from
+    its input files to a float32 deflate GeoTIFF (reading and writing included for both), with
+    all cores (Orthority: one tile thread per CPU; orthomvp: tiles in a thread pool). The
+    three runs alternate ``repeat`` times after an untimed warm-up; best times are kept, with
+    the steps of orthomvp's best run (see :func:`run_orthomvp`)."""
+    import_orthority()
+    with open_raster(case.dem) as dem:
+        dem_res = abs(dem.transform.a)
+    res = float(res or dem_res)
+    with tempfile.TemporaryDirectory(prefix="orthomvp-bench-") as tmp:
+        theirs, ours, naive = (Path(tmp) / f"{n}.tif" for n in ("oty", "ours", "naive"))
+        run_orthority(case, theirs, res)
+        with open_raster(theirs) as ds:
+            bounds, shape = tuple(ds.bounds), ds.shape
+        runs: dict[str, Callable[[], object]] = {
+            "orthority_s": lambda: run_orthority(case, theirs, res),
+            "orthomvp_s": lambda: run_orthomvp(case, ours, res, bounds, True),
+            "orthomvp_naive_s": lambda: run_orthomvp(case, naive, res, bounds, False),
+        }
+        run_orthomvp(case, ours, res, bounds, True)  # warm-up
+        best, steps = dict.fromkeys(runs, np.inf), {}
+        for _ in range(repeat):
+            for key, fn in runs.items():
+                t0 = time.perf_counter()
+                result = fn()
+                seconds = time.perf_counter() - t0
+                if seconds < best[key]:
+                    best[key] = seconds
+                    if key == "orthomvp_s":
+                        steps = result
+        a, b = read_image(ours), read_image(theirs)
+    if a.shape != b.shape:
+        raise RuntimeError(f"output grids differ: orthomvp {a.shape}, orthority {b.shape}")
+    both = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0)
+    return {
+        "case": case.name,
+        "orthority_version": version("orthority"),
+        "res_m": res,
+        "grid": list(shape),
+        "posts": int(shape[0] * shape[1]),
+        "repeat": repeat,
+        "threads": os.cpu_count() or 1,
+        **best,
+        "orthomvp_steps_s": steps,
+        "ratio": best["orthomvp_s"] / best["orthority_s"],
+        "naive_ratio": best["orthomvp_naive_s"] / best["orthority_s"],
+        "max_abs_diff": float(np.abs(a[:, both] - b[:, both]).max()),
+    }

@@ -1,0 +1,141 @@
+"""A synthetic lunar scene with exact truth: an analytic surface, its DEM and orbital cameras.
+
+Heights and albedo are analytic (:mod:`orthomvp.synthetic.kinds`); the DEM holds the true
+heights at its posts; images are rendered on demand; visibility truth is marched against the
+analytic surface (:mod:`orthomvp.synthetic.truth`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+from pyproj import CRS
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.errors import InputError
+from orthomvp.mesh import terrain_mesh
+from orthomvp.raycast import RayCaster
+from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
+from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
+from orthomvp.synthetic.rendering import fine_terrain, render_image
+from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, local_frame
+from orthomvp.synthetic.truth import visibility_truth
+from orthomvp.synthetic.writer import write_scene
+from orthomvp.terrain import Terrain
+
+SUN_ELEVATION = 40.0
+"""Sun elevation above the horizon at the tile centre, degrees."""
+SUN_AZIMUTH = 120.0
+"""Sun azimuth at the tile centre, degrees clockwise from north."""
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """An analytic scene of ``kind``, complete but not rendered: the ``surface``, the DEM
+    ``terrain`` (geographic, heights above the sphere: the true heights at its posts), the
+    ``views`` and their ``cameras`` (by view name, with image sizes) of ground sample distance
+    ``gsd`` metres, the DEM's post ``spacing`` in metres, the ``seed``, and the ``facts`` of
+    the kind that the summary records (crater radius, plane normal, ...)."""
+
+    kind: str
+    surface: LocalSurface
+    terrain: Terrain
+    views: tuple[ViewSpec, ...]
+    cameras: dict[str, PinholeCamera]
+    spacing: float
+    gsd: float
+    seed: int
+    facts: dict
+
+    def post_local(self) -> tuple[np.ndarray, np.ndarray]:
+        """Local (x, y) metres of every DEM post, each (rows, cols)."""
+        return self.surface.lonlat_to_local(*self.terrain.pixel_to_lonlat(*self.terrain.grid()))
+
+    @cached_property
+    def fine(self) -> Terrain:
+        """The surface sampled finer and wider than the DEM, which the images are rendered on."""
+        return fine_terrain(self.surface, self.terrain)
+
+    @cached_property
+    def max_radius(self) -> float:
+        """Metres from the body centre beyond which no surface point lies: 1 m above the
+        highest point of :attr:`fine`."""
+        return MOON_RADIUS + float(np.max(self.fine.values)) + 1.0
+
+    @cached_property
+    def _caster(self) -> RayCaster:
+        return RayCaster(terrain_mesh(self.fine))
+
+    def visibility_truth(self, camera: PinholeCamera, step: float | None = None) -> np.ndarray:
+        """Truth visibility codes (rows, cols) uint8 of the DEM posts for ``camera``, marched
+        against the analytic surface every ``step`` metres (default a quarter of the post
+        spacing); see :func:`orthomvp.synthetic.truth.visibility_truth`."""
+        x, y = self.post_local()
+        return visibility_truth(
+            camera,
+            self.surface.surface_point(x, y),
+            self.surface.surface_normal(x, y),
+            self.surface.below,
+            self.max_radius,
+            step or min(self.terrain.post_spacing()) / 4,
+        )
+
+    def render(self, camera: PinholeCamera, supersample: int = 3) -> np.ndarray:
+        """One image (rows, cols) float32 of ``camera``: see
+        :func:`orthomvp.synthetic.rendering.render_image`."""
+        return render_image(self.surface, self._caster, camera, supersample)
+
+    def write(self, outdir: str | Path, supersample: int = 3, progress: bool = False) -> dict:
+        """Render and write the scene directory; returns the summary written to scene.json
+        (see :func:`orthomvp.synthetic.writer.write_scene`)."""
+        return write_scene(self, outdir, supersample, progress)
+
+
+def make_scene(
+    kind: str,
+    size: int | None = None,
+    spacing: float | None = None,
+    gsd_ratio: float = 0.8,
+    seed: int = 0,
+    lonlat_deg: tuple[float, float] = (3.6, 26.1),
+) -> Scene:
+    """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
+    ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
+    ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
+    spacings. The same arguments give the same scene."""
+    if kind not in KINDS:
+        raise InputError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
+    d_size, d_spacing = DEFAULTS[kind]
+    size = size or d_size
+    spacing = spacing or d_spacing
+    if size < 8 or spacing <= 0 or gsd_ratio <= 0:
+        raise InputError("scene size must be >= 8 posts, spacing and GSD ratio positive")
+    rng = np.random.default_rng(seed)
+    lon0, lat0 = np.radians(lonlat_deg[0]), np.radians(lonlat_deg[1])
+    height, facts = relief(kind, size * spacing, lon0, lat0, rng)
+    surface = LocalSurface(lon0, lat0, height, texture(rng, spacing), sun_direction(lon0, lat0))
+    # the DEM grid: geographic, centred on (lon0, lat0), posts `spacing` metres apart
+    dlon = np.degrees(spacing / (MOON_RADIUS * np.cos(lat0)))
+    dlat = np.degrees(spacing / MOON_RADIUS)
+    transform = Affine(
+        dlon, 0, lonlat_deg[0] - dlon * size / 2, 0, -dlat, lonlat_deg[1] + dlat * size / 2
+    )
+    grid = Terrain(np.zeros((size, size)), transform, CRS.from_proj4(MOON_CRS), name=kind)
+    x, y = surface.lonlat_to_local(*grid.pixel_to_lonlat(*grid.grid()))
+    terrain = grid.with_values(height(x, y))
+    gsd = gsd_ratio * spacing
+    views = VIEWS[kind]
+    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
+    return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts)
+
+
+def sun_direction(lon0: float, lat0: float) -> np.ndarray:
+    """Body-fixed unit vector towards the sun from the tile centre ``lon0``, ``lat0``
+    (radians), at :data:`SUN_ELEVATION` and :data:`SUN_AZIMUTH`."""
+    up, east, north = local_frame(lon0, lat0)
+    el, az = np.radians(SUN_ELEVATION), np.radians(SUN_AZIMUTH)
+    return np.cos(el) * (np.sin(az) * east + np.cos(az) * north) + np.sin(el) * up

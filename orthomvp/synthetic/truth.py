@@ -1,0 +1,62 @@
+"""Visibility truth by marching: each surface point's segment to the camera is sampled against
+an analytic surface, never against the mesh that the code under test casts rays on."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.codes import Code
+
+Below = Callable[[np.ndarray], np.ndarray]
+"""Whether body-fixed points (n, 3), metres, lie under the analytic surface: (n,) bool."""
+
+
+def march(
+    points: np.ndarray, centre: np.ndarray, step: float, max_radius: float, below: Below
+) -> np.ndarray:
+    """Whether the segment from each surface point (n, 3) to ``centre`` (3,) dips below the
+    surface: (n,) bool. Samples lie ``step`` metres apart from ``step / 2`` on, up to where the
+    segment leaves the sphere of ``max_radius`` (metres from the body centre; no surface point
+    lies beyond it) for good, or reaches ``centre``."""
+    seg = centre - points
+    length = np.linalg.norm(seg, axis=1)
+    unit = seg / length[:, None]
+    b = np.einsum("ij,ij->i", points, unit)
+    pp = np.einsum("ij,ij->i", points, points)
+    leave = -b + np.sqrt(np.maximum(b * b - pp + max_radius**2, 0))
+    reach = np.minimum(leave, length)
+    hidden = np.zeros(len(points), bool)
+    s = step / 2
+    active = np.flatnonzero(reach > s)
+    while active.size:
+        under = below(points[active] + s * unit[active])
+        hidden[active[under]] = True
+        active = active[~under & (reach[active] > s + step)]
+        s += step
+    return hidden
+
+
+def visibility_truth(
+    camera: PinholeCamera,
+    points: np.ndarray,
+    normals: np.ndarray,
+    below: Below,
+    max_radius: float,
+    step: float,
+) -> np.ndarray:
+    """Truth :class:`~orthomvp.codes.Code` (uint8, the shape of ``points`` without its last
+    axis) of surface ``points`` (..., 3) with outward unit ``normals`` (..., 3) for ``camera``
+    (with its image size): NODATA outside the image or behind the camera, FACING_AWAY where
+    the normal points away from the camera, else OCCLUDED or VISIBLE by :func:`march`."""
+    uv, depth = camera.project(points)
+    inside = (depth > 0) & camera.in_image(uv)
+    facing = np.einsum("...i,...i->...", normals, camera.center - points) > 0
+    codes = np.full(inside.shape, Code.NODATA, np.uint8)
+    codes[inside & ~facing] = Code.FACING_AWAY
+    cast = inside & facing
+    hidden = march(points[cast], camera.center, step, max_radius, below)
+    codes[cast] = np.where(hidden, Code.OCCLUDED, Code.VISIBLE)
+    return codes

@@ -1,0 +1,78 @@
+"""Writing a synthetic scene as a directory of files that any tool can read.
+
+``dem.tif`` (heights above the sphere: the analytic truth at the posts), ``truth_radiance.tif``
+(float32 radiance at the posts), for each view ``NAME.tif`` (float32 image), ``NAME.tsai``
+(camera) and ``NAME.visibility.tif`` (uint8 truth :class:`~orthomvp.codes.Code` on the DEM
+grid), and ``scene.json``: the summary that names them, read back by
+:func:`orthomvp.synthetic.loader.load_scene`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from affine import Affine
+from tqdm import tqdm
+
+from orthomvp.camera import write_tsai
+from orthomvp.codes import Code
+from orthomvp.raster import atomic_path, write_geotiff
+from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS
+
+if TYPE_CHECKING:
+    from orthomvp.synthetic.scene import Scene
+
+
+def write_scene(
+    scene: Scene, outdir: str | Path, supersample: int = 3, progress: bool = False
+) -> dict:
+    """Render ``scene`` (``supersample`` x ``supersample`` rays per pixel) and write its
+    directory into ``outdir``, with a progress bar over the views if ``progress`` and on a
+    terminal. Returns the summary written to scene.json."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    t = scene.terrain
+    t.write(outdir / "dem.tif")
+    x, y = scene.post_local()
+    radiance = scene.surface.radiance(x, y).astype(np.float32)
+    write_geotiff(outdir / "truth_radiance.tif", radiance, t.transform, t.crs, nodata=np.nan)
+    views = {}
+    bar = tqdm(
+        scene.views, desc=f"rendering {scene.kind}", unit="view", disable=not progress or None
+    )
+    for view in bar:
+        name, cam = view.name, scene.cameras[view.name]
+        image = scene.render(cam, supersample)
+        write_geotiff(outdir / f"{name}.tif", image, Affine.identity(), None)
+        write_tsai(cam, outdir / f"{name}.tsai")
+        vis = scene.visibility_truth(cam)
+        write_geotiff(outdir / f"{name}.visibility.tif", vis, t.transform, t.crs, nodata=None)
+        views[name] = {
+            "image": f"{name}.tif",
+            "camera": f"{name}.tsai",
+            "visibility": f"{name}.visibility.tif",
+            "emission_deg": view.emission,
+            "gsd_m": scene.gsd,
+            "visibility_counts": {code.label: int((vis == code).sum()) for code in Code},
+        }
+    summary = {
+        "kind": scene.kind,
+        "body_radius_m": MOON_RADIUS,
+        "crs": MOON_CRS,
+        "dem": "dem.tif",
+        "truth_heights": "dem.tif",
+        "truth_radiance": "truth_radiance.tif",
+        "size": list(t.shape),
+        "post_spacing_m": scene.spacing,
+        "centre_lonlat_deg": [np.degrees(scene.surface.lon0), np.degrees(scene.surface.lat0)],
+        "sun": scene.surface.sun.tolist(),
+        "seed": scene.seed,
+        "views": views,
+        **scene.facts,
+    }
+    with atomic_path(outdir / "scene.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=2))
+    return summary
