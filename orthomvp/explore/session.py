@@ -29,8 +29,9 @@ from orthomvp.mvp.fit import (
     fit_planes,
     pyramid_levels,
 )
-from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
+from orthomvp.mvp.patches import Evaluation, ViewStack
 from orthomvp.mvp.plane import angles_from_normal, normal_from_angles, post_lines
+from orthomvp.mvp.window import Window
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import Visibility, compute_visibility
@@ -211,8 +212,8 @@ class Explorer:
         )
 
     # ------------------------------------------------------------------ the objective
-    def _window(self) -> tuple[np.ndarray, np.ndarray]:
-        return gaussian_window(self.hwin, self.window_sigma)
+    def _window(self) -> Window:
+        return Window(self.hwin, self.window_sigma)
 
     def active_views(self, theta: np.ndarray | None = None) -> np.ndarray:
         """(K,) views visible at the post whose patch lies inside the image at the plane."""
@@ -238,9 +239,10 @@ class Explorer:
         thetas = np.atleast_2d(thetas)
         model = self.model.take(np.zeros(len(thetas), int))
         H, _ = model.homographies(thetas, 0, derivatives=False)
-        offsets, g = self._window()
         Wn = np.broadcast_to(W, (len(thetas), len(W)))
-        return self.stack.evaluate(0, H, Wn, offsets, g, extras=extras, keep_patches=keep_patches)
+        return self.stack.evaluate(
+            0, H, Wn, self._window(), extras=extras, keep_patches=keep_patches
+        )
 
     def height_curve(self, half_range: float, steps: int) -> Curve:
         """The objective at ``steps`` heights within +-``half_range`` metres of the current
@@ -327,11 +329,10 @@ class Explorer:
         path (the start and every accepted iterate) and every iteration tried."""
         W = self._views_or_fail()
         opts = FitOptions(hwin=self.hwin, sigma=self.sigma, levels=self.levels)
-        offsets, g = self._window()
         trace: list[Iterate] = []
         start = self.theta.copy()
         theta, _ = fit_planes(
-            self.model, self.stack, start[None].copy(), W[None], offsets, g, opts, trace
+            self.model, self.stack, start[None].copy(), W[None], opts.window, opts, trace
         )
         start_cost = float(self.evaluate(start, W).cost[0])
         path = [PathPoint(self.levels - 1, start, np.nan, start_cost)]

@@ -34,8 +34,9 @@ from orthomvp.codes import Code
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.deconvolve import deconvolve
-from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
+from orthomvp.mvp.patches import Evaluation, ViewStack
 from orthomvp.mvp.plane import PostLines, angles_from_normal, plane_map, post_lines, tangent_basis
+from orthomvp.mvp.window import Window
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import compute_visibility, run_tiles
@@ -70,6 +71,11 @@ class FitOptions:
     @property
     def window_sigma(self) -> float:
         return self.sigma if self.sigma is not None else self.hwin / 2.0
+
+    @property
+    def window(self) -> Window:
+        """The objective's window: ``hwin`` and ``window_sigma`` (validated)."""
+        return Window(self.hwin, self.window_sigma)
 
 
 @dataclass
@@ -217,8 +223,7 @@ def _levenberg_marquardt(
     level: int,
     theta: np.ndarray,
     W: np.ndarray,
-    offsets: np.ndarray,
-    g: np.ndarray,
+    window: Window,
     opts: FitOptions,
     trace: list[Iterate] | None = None,
 ) -> tuple[np.ndarray, Evaluation, np.ndarray]:
@@ -227,7 +232,7 @@ def _levenberg_marquardt(
     every iteration (accepted or not)."""
     B = len(theta)
     H, dH = model.homographies(theta, level)
-    ev = stack.evaluate(level, H, W, offsets, g, dH, extras=False)
+    ev = stack.evaluate(level, H, W, window, dH, extras=False)
     lam = np.full(B, 1e-3)
     converged = np.zeros(B, bool)
     active = np.isfinite(ev.cost)
@@ -251,7 +256,7 @@ def _levenberg_marquardt(
         )
         sub = model.take(idx)
         Ht, dHt = sub.homographies(trial, level)
-        evt = stack.evaluate(level, Ht, W[idx], offsets, g, dHt, extras=False)
+        evt = stack.evaluate(level, Ht, W[idx], window, dHt, extras=False)
         before = ev.cost[idx]
         better = evt.cost <= before * (1 + 1e-7)
         stalled = predicted <= PREDICTED_TOL * np.maximum(before, 1e-3)
@@ -276,8 +281,7 @@ def fit_planes(
     stack: ViewStack,
     theta: np.ndarray,
     W: np.ndarray,
-    offsets: np.ndarray,
-    g: np.ndarray,
+    window: Window,
     opts: FitOptions,
     trace: list[Iterate] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -287,7 +291,7 @@ def fit_planes(
     iteration."""
     conv = np.zeros(len(theta), bool)
     for level in range(opts.levels - 1, -1, -1):
-        Wl = W & model.inside(theta, level, opts.hwin, stack.sizes[level], opts.margin)
+        Wl = W & model.inside(theta, level, window.hwin, stack.sizes[level], opts.margin)
         ok = Wl.sum(axis=1) >= 2
         if level and not ok.any():
             continue
@@ -298,8 +302,7 @@ def fit_planes(
             level,
             theta[sel].copy(),
             Wl[sel] if level else W[sel],
-            offsets,
-            g,
+            window,
             opts,
             trace,
         )
@@ -312,18 +315,18 @@ def _fit_batch(
     stack: ViewStack,
     visible: np.ndarray,
     h0: np.ndarray,
+    window: Window,
     opts: FitOptions,
 ) -> dict[str, np.ndarray]:
-    """Fit B posts from heights ``h0`` and view mask ``visible`` (B, K) coarse to fine,
-    rejecting outlier views. Returns per-post arrays."""
-    offsets, g = gaussian_window(opts.hwin, opts.window_sigma)
+    """Fit B posts from heights ``h0`` and view mask ``visible`` (B, K) coarse to fine on
+    ``window``, rejecting outlier views. Returns per-post arrays."""
     B, K = visible.shape
     start = np.zeros((B, 3))
     start[:, 0] = h0
-    W0 = visible & model.inside(start, 0, opts.hwin, stack.sizes[0], opts.margin)
+    W0 = visible & model.inside(start, 0, window.hwin, stack.sizes[0], opts.margin)
 
     def run(index: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return fit_planes(model.take(index), stack, start[index].copy(), W, offsets, g, opts)
+        return fit_planes(model.take(index), stack, start[index].copy(), W, window, opts)
 
     W = W0.copy()
     theta, conv = run(np.arange(B), W)
@@ -331,7 +334,7 @@ def _fit_batch(
     if opts.reject_below is not None:
         for _ in range(K - 2):
             H, _ = model.take(todo).homographies(theta[todo], 0, derivatives=False)
-            ev = stack.evaluate(0, H, W[todo], offsets, g)
+            ev = stack.evaluate(0, H, W[todo], window)
             loo = np.where(ev.used, ev.loo, np.inf)
             worst = np.argmin(loo, axis=1)
             bad = (loo[np.arange(len(todo)), worst] < opts.reject_below) & (ev.used.sum(1) > 2)
@@ -341,7 +344,7 @@ def _fit_batch(
             W[todo, worst[bad]] = False
             theta[todo], conv[todo] = run(todo, W[todo])
     H, dH = model.homographies(theta, 0)
-    ev = stack.evaluate(0, H, W, offsets, g, dH)
+    ev = stack.evaluate(0, H, W, window, dH)
     return _summarise(model, theta, ev, conv)
 
 
@@ -406,6 +409,7 @@ def fit_dem(
     :func:`orthomvp.visibility.compute_visibility` with ``eps``, on this DEM's mesh).
     """
     opts = options or FitOptions()
+    window = opts.window
     if len(images) != len(cameras) or len(images) < 2:
         raise InputError(f"the fit needs at least 2 images with cameras, got {len(images)}")
     bands, cams = first_bands(images, cameras)
@@ -447,7 +451,7 @@ def fit_dem(
         h0 = terrain.values[rr, cc]
         lines = post_lines(terrain, cc.astype(float), rr.astype(float), h0)
         model = PlaneModel(lines, normals[rr, cc], stack.F, spacing)
-        res = _fit_batch(model, stack, vis[take], h0, opts)
+        res = _fit_batch(model, stack, vis[take], h0, window, opts)
         out.plane_heights[rr, cc] = res["heights"]
         out.normals[rr, cc] = res["normals"]
         out.cost[rr, cc] = res["cost"]
@@ -458,7 +462,7 @@ def fit_dem(
 
     run_tiles(work, terrain.shape, TILE, "fit", progress, threads)
     out.samples = stack.samples
-    out.heights = deconvolve(out.plane_heights, opts.hwin, opts.window_sigma, opts.deconvolve)
+    out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
     if not out.resolved.any():
         raise GeometryError("no post is visible in 2 or more images: nothing to fit")
     return out
