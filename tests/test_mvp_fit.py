@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import FitOptions, fit_dem
-from orthomvp.mvp.fit import PlaneModel
+from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import post_lines
 from orthomvp.mvp.window import Window

@@ -11,7 +11,7 @@ from scipy.ndimage import gaussian_filter
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
 from orthomvp.mvp.deconvolve import deconvolve, window_plane
-from orthomvp.mvp.fit import PlaneModel
+from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import (
     L_matrix,

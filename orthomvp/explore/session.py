@@ -21,14 +21,9 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code, WorldFrame
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
-from orthomvp.mvp.fit import (
-    FitOptions,
-    Iterate,
-    PlaneModel,
-    first_bands,
-    fit_planes,
-    pyramid_levels,
-)
+from orthomvp.mvp.fit import FitOptions, first_bands, pyramid_levels
+from orthomvp.mvp.lm import Iterate, fit_planes
+from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import Evaluation, ViewStack
 from orthomvp.mvp.plane import angles_from_normal, normal_from_angles, post_lines
 from orthomvp.mvp.window import Window
@@ -332,7 +327,14 @@ class Explorer:
         trace: list[Iterate] = []
         start = self.theta.copy()
         theta, _ = fit_planes(
-            self.model, self.stack, start[None].copy(), W[None], opts.window, opts, trace
+            self.model,
+            self.stack,
+            start[None].copy(),
+            W[None],
+            opts.window,
+            opts.lm,
+            opts.margin,
+            trace,
         )
         start_cost = float(self.evaluate(start, W).cost[0])
         path = [PathPoint(self.levels - 1, start, np.nan, start_cost)]
