@@ -119,6 +119,48 @@ class FitResult:
         return np.degrees(angles_from_normal(self.normals)[1])
 
 
+@dataclass
+class BatchFit:
+    """The results of a batch of B posts, NaN / 0 / False where unresolved (fewer than 2 views):
+    ``heights`` (B,) the planes' heights at their posts in the DEM's convention, ``normals``
+    (B, 3) unit world vectors, ``cost`` (B,) eq. (20), ``views`` (B,) the number of views used,
+    ``converged`` (B,), ``sigma_h`` (B,) 1-sigma height uncertainty in the heights' units and
+    ``view_mask`` (B, K) the views used."""
+
+    heights: np.ndarray
+    normals: np.ndarray
+    cost: np.ndarray
+    views: np.ndarray
+    converged: np.ndarray
+    sigma_h: np.ndarray
+    view_mask: np.ndarray
+
+    @classmethod
+    def summarise(
+        cls, model: PlaneModel, theta: np.ndarray, ev: Evaluation, conv: np.ndarray
+    ) -> BatchFit:
+        """From the final parameters ``theta`` (B, 3), the evaluation there (with the normal
+        equations and ``JgJ``) and the converged flags of the optimiser."""
+        n_used = ev.used.sum(axis=1)
+        ok = (n_used >= 2) & np.isfinite(ev.cost)
+        sigma_h = np.full(len(theta), np.nan)
+        pd = ok & (np.linalg.eigvalsh(ev.JTJ)[:, 0] > 0)
+        if pd.any():
+            inv = np.linalg.inv(ev.JTJ[pd])
+            cov = inv @ ev.JgJ[pd] @ inv
+            s2 = ev.cost[pd] / np.maximum(n_used[pd] - 1, 1)
+            sigma_h[pd] = np.sqrt(np.maximum(s2 * cov[:, 0, 0], 0.0))
+        return cls(
+            heights=np.where(ok, theta[:, 0], np.nan),
+            normals=np.where(ok[:, None], model.normal(theta), np.nan),
+            cost=np.where(ok, ev.cost, np.nan),
+            views=np.where(ok, n_used, 0),
+            converged=ok & conv & pd,
+            sigma_h=sigma_h,
+            view_mask=ev.used & ok[:, None],
+        )
+
+
 def _fit_batch(
     model: PlaneModel,
     stack: ViewStack,
@@ -126,9 +168,9 @@ def _fit_batch(
     h0: np.ndarray,
     window: Window,
     opts: FitOptions,
-) -> dict[str, np.ndarray]:
+) -> BatchFit:
     """Fit B posts from heights ``h0`` and view mask ``visible`` (B, K) coarse to fine on
-    ``window``, rejecting outlier views. Returns per-post arrays."""
+    ``window``, rejecting outlier views."""
     B, K = visible.shape
     start = np.zeros((B, 3))
     start[:, 0] = h0
@@ -155,31 +197,7 @@ def _fit_batch(
             theta[todo], conv[todo] = run(todo, W[todo])
     H, dH = model.homographies(theta, 0)
     ev = stack.evaluate(0, H, W, window, dH)
-    return _summarise(model, theta, ev, conv)
-
-
-def _summarise(
-    model: PlaneModel, theta: np.ndarray, ev: Evaluation, conv: np.ndarray
-) -> dict[str, np.ndarray]:
-    """Per-post outputs from the final parameters and the evaluation there."""
-    n_used = ev.used.sum(axis=1)
-    ok = (n_used >= 2) & np.isfinite(ev.cost)
-    sigma_h = np.full(len(theta), np.nan)
-    pd = ok & (np.linalg.eigvalsh(ev.JTJ)[:, 0] > 0)
-    if pd.any():
-        inv = np.linalg.inv(ev.JTJ[pd])
-        cov = inv @ ev.JgJ[pd] @ inv
-        s2 = ev.cost[pd] / np.maximum(n_used[pd] - 1, 1)
-        sigma_h[pd] = np.sqrt(np.maximum(s2 * cov[:, 0, 0], 0.0))
-    return {
-        "heights": np.where(ok, theta[:, 0], np.nan),
-        "normals": np.where(ok[:, None], model.normal(theta), np.nan),
-        "cost": np.where(ok, ev.cost, np.nan),
-        "views": np.where(ok, n_used, 0),
-        "converged": ok & conv & pd,
-        "sigma_h": sigma_h,
-        "view_mask": ev.used & ok[:, None],
-    }
+    return BatchFit.summarise(model, theta, ev, conv)
 
 
 def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
@@ -260,13 +278,13 @@ def fit_dem(
         lines = post_lines(terrain, cc.astype(float), rr.astype(float), h0)
         model = PlaneModel(lines, normals[rr, cc], stack.F, spacing)
         res = _fit_batch(model, stack, vis[take], h0, window, opts)
-        out.plane_heights[rr, cc] = res["heights"]
-        out.normals[rr, cc] = res["normals"]
-        out.cost[rr, cc] = res["cost"]
-        out.views[rr, cc] = res["views"]
-        out.converged[rr, cc] = res["converged"]
-        out.sigma_h[rr, cc] = res["sigma_h"]
-        out.view_mask[:, rr, cc] = res["view_mask"].T
+        out.plane_heights[rr, cc] = res.heights
+        out.normals[rr, cc] = res.normals
+        out.cost[rr, cc] = res.cost
+        out.views[rr, cc] = res.views
+        out.converged[rr, cc] = res.converged
+        out.sigma_h[rr, cc] = res.sigma_h
+        out.view_mask[:, rr, cc] = res.view_mask.T
 
     run_tiles(work, terrain.shape, TILE, "fit", progress, threads)
     out.samples = stack.samples
