@@ -26,19 +26,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, check_image
-from orthomvp.codes import Code
-from orthomvp.errors import GeometryError, InputError
-from orthomvp.mesh import terrain_mesh
+from orthomvp.camera import PinholeCamera
+from orthomvp.errors import GeometryError
 from orthomvp.mvp.deconvolve import deconvolve
 from orthomvp.mvp.lm import LMSettings, fit_planes
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import Evaluation, ViewStack
-from orthomvp.mvp.plane import angles_from_normal, post_lines
+from orthomvp.mvp.plane import angles_from_normal
+from orthomvp.mvp.problem import FitProblem
 from orthomvp.mvp.window import Window
-from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility, run_tiles
+from orthomvp.visibility import run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
 _LM = LMSettings()
@@ -200,26 +198,6 @@ def _fit_batch(
     return BatchFit.summarise(model, theta, ev, conv)
 
 
-def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
-    """At most ``wanted`` levels, and none whose images would be under 16 pixels across."""
-    smallest = min(min(img.shape[-2:]) for img in images)
-    return max(1, min(wanted, int(np.floor(np.log2(max(smallest / 16, 1)))) + 1))
-
-
-def first_bands(
-    images: list[np.ndarray], cameras: list[PinholeCamera], names: list[str] | None = None
-) -> tuple[list[np.ndarray], list[PinholeCamera]]:
-    """Band 1 of each image ((bands, rows, cols) or (rows, cols)) as float32, and each camera
-    checked against its image and given its size; ``names`` label errors."""
-    bands, cams = [], []
-    for k, (image, camera) in enumerate(zip(images, cameras, strict=True)):
-        img = np.asarray(image)
-        img = img[None] if img.ndim == 2 else img
-        cams.append(check_image(img, camera, names[k] if names else f"image {k + 1}"))
-        bands.append(img[0].astype(np.float32))
-    return bands, cams
-
-
 def fit_dem(
     terrain: Terrain,
     images: list[np.ndarray],
@@ -230,29 +208,20 @@ def fit_dem(
     progress: bool = False,
     threads: int | None = None,
 ) -> FitResult:
-    """Refine every post of ``terrain`` from ``images`` (each (bands, rows, cols) or
-    (rows, cols); band 1 is used) seen through ``cameras``.
+    """Refine every post of ``terrain`` from ``images`` (at least 2; each (bands, rows, cols)
+    or (rows, cols); band 1 is used) seen through ``cameras``.
 
     ``visible`` (K, rows, cols) bool overrides the visibility test (codes == 1 of
-    :func:`orthomvp.visibility.compute_visibility` with ``eps``, on this DEM's mesh).
+    :func:`orthomvp.visibility.compute_visibility` with ``eps`` in DEM posts, on this DEM's
+    mesh); see :class:`~orthomvp.mvp.problem.FitProblem`. ``threads``: tiles fitted at once
+    (default: one per core); ``progress``: a progress bar over tiles.
     """
     opts = options or FitOptions()
     window = opts.window
-    if len(images) != len(cameras) or len(images) < 2:
-        raise InputError(f"the fit needs at least 2 images with cameras, got {len(images)}")
-    bands, cams = first_bands(images, cameras)
-    if visible is None:
-        caster = RayCaster(terrain_mesh(terrain))
-        visible = np.stack(
-            [compute_visibility(terrain, cam, eps, caster).codes == Code.VISIBLE for cam in cams]
-        )
-    visible = np.asarray(visible, bool)
-    if visible.shape != (len(cams), *terrain.shape):
-        raise InputError(f"visibility masks must be (K, rows, cols), got {visible.shape}")
-    stack = ViewStack.build(bands, cams, pyramid_levels(bands, opts.levels))
-    normals = terrain.normals()
-    ok_post = terrain.valid & np.isfinite(normals).all(axis=-1)
-    spacing = float(np.mean(terrain.post_spacing()))
+    problem = FitProblem.build(
+        terrain, images, cameras, levels=opts.levels, eps=eps, visible=visible, min_views=2
+    )
+    stack = problem.stack
     rows, cols = terrain.shape
     out = FitResult(
         heights=np.full((rows, cols), np.nan),
@@ -263,21 +232,19 @@ def fit_dem(
         converged=np.zeros((rows, cols), bool),
         sigma_h=np.full((rows, cols), np.nan),
         initial=terrain.values.copy(),
-        view_mask=np.zeros((len(cams), rows, cols), bool),
+        view_mask=np.zeros((len(problem.names), rows, cols), bool),
     )
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
         r, c = np.mgrid[rs, cs]
-        vis = np.moveaxis(visible[:, rs, cs], 0, -1)
-        take = ok_post[rs, cs] & (vis.sum(axis=-1) >= 2)
+        vis = np.moveaxis(problem.visible[:, rs, cs], 0, -1)
+        take = problem.usable[rs, cs] & (vis.sum(axis=-1) >= 2)
         if not take.any():
             return
         rr, cc = r[take], c[take]
-        h0 = terrain.values[rr, cc]
-        lines = post_lines(terrain, cc.astype(float), rr.astype(float), h0)
-        model = PlaneModel(lines, normals[rr, cc], stack.F, spacing)
-        res = _fit_batch(model, stack, vis[take], h0, window, opts)
+        model = problem.model(problem.lines(cc, rr), problem.normals[rr, cc])
+        res = _fit_batch(model, stack, vis[take], terrain.values[rr, cc], window, opts)
         out.plane_heights[rr, cc] = res.heights
         out.normals[rr, cc] = res.normals
         out.cost[rr, cc] = res.cost
@@ -286,7 +253,7 @@ def fit_dem(
         out.sigma_h[rr, cc] = res.sigma_h
         out.view_mask[:, rr, cc] = res.view_mask.T
 
-    run_tiles(work, terrain.shape, TILE, "fit", progress, threads)
+    run_tiles(work, terrain.shape, TILE, "fit", progress=progress, threads=threads)
     out.samples = stack.samples
     out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
     if not out.resolved.any():
