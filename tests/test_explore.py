@@ -18,6 +18,7 @@ import pytest
 
 from orthomvp.cli import main
 from orthomvp.explore import Explorer
+from orthomvp.mvp import FitOptions
 from orthomvp.mvp.plane import normal_from_angles
 from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
@@ -133,6 +134,14 @@ def test_fit_converges_and_its_path_is_plotted(planar_dir: Path, tmp_path: Path,
     assert len(trace) >= len(path) - 1
     assert abs(ex.theta[0] - h) < 2.0
     assert np.degrees(np.arccos(min(ex.normal(ex.theta) @ n, 1.0))) < 1.0
+    # the window starts as the fitter's; a sweep evaluates other windows and leaves it be
+    assert (ex.hwin, ex.window_sigma) == (FitOptions().hwin, FitOptions().window_sigma)
+    own = ex.height_curve(100.0, 21)
+    swept = ex.sweep([4, ex.hwin], 100.0, 21)
+    assert [(hw, s) for hw, s, _ in swept] == [(4, 2.0), (ex.hwin, ex.window_sigma)]
+    np.testing.assert_array_equal(swept[1][2].cost, own.cost)
+    assert not np.array_equal(swept[0][2].cost, own.cost)
+    assert ex.options == FitOptions(levels=ex.problem.levels)
 
 
 def test_views_patches_sweep_and_replot(planar_dir: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001

@@ -8,9 +8,10 @@ from scipy import ndimage
 
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import FitOptions, fit_dem
-from orthomvp.mvp.fit import PlaneModel
-from orthomvp.mvp.patches import ViewStack, gaussian_window
+from orthomvp.mvp.model import PlaneModel
+from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import post_lines
+from orthomvp.mvp.window import Window
 from orthomvp.synthetic import make_scene
 from orthomvp.visibility import compute_visibility
 
@@ -31,13 +32,13 @@ def hills():  # noqa: ANN201
     return scene, cams, [scene.render(cam, 2) for cam in cams], start
 
 
-def _objective_along(model, stack, theta, offsets, g, axis, values):  # noqa: ANN001, ANN202
+def _objective_along(model, stack, theta, window, axis, values):  # noqa: ANN001, ANN202
     """f at copies of ``theta`` (1, 3) with parameter ``axis`` set to each of ``values``."""
     th = np.repeat(theta, len(values), axis=0)
     th[:, axis] = values
     sub = model.take(np.zeros(len(values), int))
     H, _ = sub.homographies(th, 0, derivatives=False)
-    return stack.evaluate(0, H, np.ones((len(values), H.shape[1]), bool), offsets, g).cost
+    return stack.evaluate(0, H, np.ones((len(values), H.shape[1]), bool), window).cost
 
 
 def test_planar_objective_minima_at_the_true_plane(planar) -> None:  # noqa: ANN001
@@ -47,14 +48,14 @@ def test_planar_objective_minima_at_the_true_plane(planar) -> None:  # noqa: ANN
     gsd = scene.gsd
     n_true = np.array(scene.facts["plane_normal"])
     stack = ViewStack.build(images, cams, 1)
-    offsets, g = gaussian_window(10, 5.0)
+    window = Window(10, 5.0)
     for c, r in ((20, 22), (27, 25), (24, 30)):
         h_true = scene.terrain.values[r, c]
         lines = post_lines(scene.terrain, np.array([c], float), np.array([r], float), [h_true])
         model = PlaneModel(lines, n_true[None], stack.F, scene.spacing)
         theta = np.array([[h_true, 0.0, 0.0]])
         hs = h_true + np.linspace(-2, 2, 81) * gsd
-        f = _objective_along(model, stack, theta, offsets, g, 0, hs)
+        f = _objective_along(model, stack, theta, window, 0, hs)
         i = int(np.argmin(f))
         a, b, _ = np.polyfit(hs[i - 3 : i + 4] - h_true, f[i - 3 : i + 4], 2)
         assert abs(-b / (2 * a)) < 0.05 * gsd
@@ -65,7 +66,7 @@ def test_planar_objective_minima_at_the_true_plane(planar) -> None:  # noqa: ANN
         th = np.repeat(theta, aa.size, axis=0)
         th[:, 1], th[:, 2] = aa.ravel(), bb.ravel()
         H, _ = model.take(np.zeros(aa.size, int)).homographies(th, 0, derivatives=False)
-        cost = stack.evaluate(0, H, np.ones((aa.size, 4), bool), offsets, g).cost
+        cost = stack.evaluate(0, H, np.ones((aa.size, 4), bool), window).cost
         j = int(np.argmin(cost))
         n_min = model.take([0]).normal(th[j : j + 1])[0]
         assert np.degrees(np.arccos(min(1.0, n_min @ n_true))) < 0.5

@@ -9,9 +9,10 @@ from pyproj import CRS
 from scipy.ndimage import gaussian_filter
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.errors import InputError
 from orthomvp.mvp.deconvolve import deconvolve, window_plane
-from orthomvp.mvp.fit import PlaneModel
-from orthomvp.mvp.patches import ViewStack, gaussian_window
+from orthomvp.mvp.model import PlaneModel
+from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import (
     L_matrix,
     angles_from_normal,
@@ -21,6 +22,7 @@ from orthomvp.mvp.plane import (
     tangent_basis,
     uses_central_model,
 )
+from orthomvp.mvp.window import Window
 from orthomvp.synthetic import look_at, make_scene
 from orthomvp.terrain import Terrain, unit_vector
 
@@ -144,7 +146,7 @@ def test_homography_matches_exact_plane_projection(name: str) -> None:
     n /= np.linalg.norm(n)
     model = PlaneModel(lines, n[None], camera.F[None], 40.0)
     theta = np.array([[h, 0.0, 0.0]])
-    offsets, _ = gaussian_window(10, 5.0)
+    offsets = Window(10, 5.0).offsets
     worst = []
     for level in (0, 1, 2):
         step = 2.0**level
@@ -190,20 +192,19 @@ def _planar_setup(hwin: int = 10, blur: float = 0.0):  # noqa: ANN202
     ri, ci = r.astype(int), c.astype(int)
     lines = post_lines(terrain, c, r, terrain.values[ri, ci])
     model = PlaneModel(lines, terrain.normals()[ri, ci], stack.F, 40.0)
-    offsets, g = gaussian_window(hwin, hwin / 2)
-    return scene, stack, model, offsets, g, terrain.values[ri, ci]
+    return scene, stack, model, Window(hwin, hwin / 2), terrain.values[ri, ci]
 
 
 def test_normalised_patches_and_eq20_identity() -> None:
     """Eq. 19 patches have zero weighted mean and unit weighted std; eq. 20 equals
     (n - 1) (1 - mean pairwise weighted correlation), computed independently in float64."""
-    _, stack, model, offsets, g, h = _planar_setup()
+    _, stack, model, window, h = _planar_setup()
     theta = np.column_stack([h + 10.0, np.zeros(3), np.zeros(3)])
     H, _ = model.homographies(theta, 0, False)
     W = np.ones((3, 4), bool)
-    ev = stack.evaluate(0, H, W, offsets, g, keep_patches=True)
+    ev = stack.evaluate(0, H, W, window, keep_patches=True)
     I = ev.patches.astype(np.float64)  # noqa: E741
-    gg = g.astype(np.float64)
+    gg = window.weights.astype(np.float64)
     np.testing.assert_allclose(I @ gg, 0.0, atol=1e-5)
     np.testing.assert_allclose((I * I) @ gg, 1.0, atol=1e-4)
     for b in range(3):
@@ -218,18 +219,18 @@ def test_objective_gradient_matches_finite_differences() -> None:
     """2 J^T r (analytic, through image gradients and the normalisation) against central
     differences of f, away from the minimum. The images are smoothed (sigma 1.5 px) so that
     the per-pixel image gradient is accurate and the test checks the algebra."""
-    _, stack, model, offsets, g, h = _planar_setup(blur=1.5)
+    _, stack, model, window, h = _planar_setup(blur=1.5)
     theta = np.column_stack([h + 12.0, np.full(3, 0.03), np.full(3, -0.02)])
     W = np.ones((3, 4), bool)
     H, dH = model.homographies(theta, 0)
-    ev = stack.evaluate(0, H, W, offsets, g, dH)
+    ev = stack.evaluate(0, H, W, window, dH)
     grad = 2 * ev.JTr
     for p, d in enumerate((1.0, 0.003, 0.003)):
         tp, tm = theta.copy(), theta.copy()
         tp[:, p] += d
         tm[:, p] -= d
-        fp = stack.evaluate(0, model.homographies(tp, 0, False)[0], W, offsets, g).cost
-        fm = stack.evaluate(0, model.homographies(tm, 0, False)[0], W, offsets, g).cost
+        fp = stack.evaluate(0, model.homographies(tp, 0, False)[0], W, window).cost
+        fm = stack.evaluate(0, model.homographies(tm, 0, False)[0], W, window).cost
         fd = (fp - fm) / (2 * d)
         np.testing.assert_allclose(
             grad[:, p], fd, err_msg=f"parameter {p}", rtol=0.1, atol=0.01 * np.abs(fd).max()
@@ -255,3 +256,18 @@ def test_window_plane_is_exact_on_planes_and_deconvolution_undoes_the_window() -
     before = np.sqrt(np.mean((smoothed - surface)[inner] ** 2))
     after = np.sqrt(np.mean((deconvolve(smoothed, 10, 5.0, 2) - surface)[inner] ** 2))
     assert before > 5.0 and after < 0.1 * before
+
+
+def test_window_grid_and_weights() -> None:
+    """The patch grid runs c fastest over -hwin..hwin, the weights are the normalised Gaussian
+    of the offsets, and bad sizes are refused."""
+    w = Window(2, 1.5)
+    assert w.side == 5 and w.offsets.shape == (25, 2) and w.weights.dtype == np.float32
+    first = [[-2, -2], [-1, -2], [0, -2], [1, -2], [2, -2], [-2, -1]]
+    np.testing.assert_array_equal(w.offsets[:6], first)
+    d2 = (w.offsets.astype(np.float64) ** 2).sum(axis=1)
+    expected = np.exp(-d2 / (2 * 1.5**2))
+    np.testing.assert_allclose(w.weights, expected / expected.sum(), rtol=1e-6)
+    for hwin, sigma in ((0, 1.0), (3, 0.0), (3, float("nan"))):
+        with pytest.raises(InputError, match="hwin must be >= 1 and sigma > 0"):
+            Window(hwin, sigma)

@@ -12,7 +12,7 @@ the post is visible (visibility code 1) and whose patch lies inside the image at
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.signal import find_peaks
@@ -20,22 +20,17 @@ from scipy.signal import find_peaks
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code, WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
-from orthomvp.mvp.fit import (
-    FitOptions,
-    Iterate,
-    PlaneModel,
-    first_bands,
-    fit_planes,
-    pyramid_levels,
-)
-from orthomvp.mvp.patches import Evaluation, ViewStack, gaussian_window
-from orthomvp.mvp.plane import angles_from_normal, normal_from_angles, post_lines
-from orthomvp.raycast import RayCaster
+from orthomvp.mvp.fit import FitOptions
+from orthomvp.mvp.lm import Iterate, fit_planes
+from orthomvp.mvp.patches import Evaluation
+from orthomvp.mvp.plane import angles_from_normal, normal_from_angles
+from orthomvp.mvp.problem import FitProblem
+from orthomvp.mvp.window import Window
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.visibility import Visibility
 
 PROMINENCE = 0.02  # a local minimum counts when this fraction of the curve's range deep
+DEFAULTS = FitOptions()  # the explorer's window, margin and optimiser settings start as the fit's
 
 
 class ExploreError(InputError):
@@ -96,7 +91,13 @@ class ViewInfo:
 
 
 class Explorer:
-    """The MVP objective at one DEM post, for plots and experiments (the mvpgui successor)."""
+    """The MVP objective at one DEM post, for plots and experiments (the mvpgui successor).
+
+    ``problem``: the DEM and views (:class:`~orthomvp.mvp.problem.FitProblem`, as ``fit_dem``
+    builds it); ``options``: the window, margin and optimiser settings (``FitOptions``'
+    defaults; ``hwin`` and ``sigma`` set them); ``poi`` the point of interest (c, r) and
+    ``theta`` the current plane there.
+    """
 
     def __init__(
         self,
@@ -105,45 +106,77 @@ class Explorer:
         cameras: list[PinholeCamera],
         names: list[str] | None = None,
         eps: float | None = None,
-        levels: int = 3,
+        levels: int = DEFAULTS.levels,
     ) -> None:
-        """``images`` (bands, rows, cols) or (rows, cols), band 1 is used; ``eps`` the visibility
-        tolerance in DEM posts (default rule when None); ``levels`` pyramid levels for ``fit``."""
-        if len(images) != len(cameras) or not images:
-            raise InputError("the explorer needs IMAGE CAMERA pairs")
-        self.terrain = terrain
-        self.names = names or [f"view {k + 1}" for k in range(len(images))]
-        bands, cams = first_bands(images, cameras, self.names)
-        caster = RayCaster(terrain_mesh(terrain))
-        self.visibility: list[Visibility] = [
-            compute_visibility(terrain, cam, eps, caster) for cam in cams
-        ]
-        self.stack = ViewStack.build(bands, cams, pyramid_levels(bands, levels))
-        self.levels = len(self.stack.levels)
-        self.spacing = float(np.mean(terrain.post_spacing()))
-        self.normals = terrain.normals()
-        self.hwin = 10
-        self.sigma: float | None = None
+        """``images`` (bands, rows, cols) or (rows, cols), band 1 is used; ``names`` label the
+        views (default "view 1", ...); ``eps`` the visibility tolerance in DEM posts (default
+        rule when None); ``levels`` pyramid levels for ``fit``."""
+        self.problem = FitProblem.build(
+            terrain,
+            images,
+            cameras,
+            levels=levels,
+            eps=eps,
+            names=names or [f"view {k + 1}" for k in range(len(images))],
+        )
+        self.options = replace(DEFAULTS, levels=self.problem.levels)
         self.path: list[PathPoint] | None = None
         rows, cols = terrain.shape
         self.set_poi((cols - 1) // 2, (rows - 1) // 2)
 
-    # ------------------------------------------------------------------ point and plane
+    # ------------------------------------------------------------------ data and window
+    @property
+    def terrain(self) -> Terrain:
+        return self.problem.terrain
+
+    @property
+    def names(self) -> list[str]:
+        return self.problem.names
+
+    @property
+    def visibility(self) -> list[Visibility]:
+        """Each view's visibility test on the DEM."""
+        assert self.problem.visibility is not None  # the explorer always runs the test
+        return self.problem.visibility
+
+    @property
+    def spacing(self) -> float:
+        """Mean post spacing, metres."""
+        return self.problem.spacing
+
+    @property
+    def hwin(self) -> int:
+        """The window's half-size in posts."""
+        return self.options.hwin
+
+    @hwin.setter
+    def hwin(self, value: int) -> None:
+        self.options = replace(self.options, hwin=value)
+
+    @property
+    def sigma(self) -> float | None:
+        """The Gaussian window's standard deviation in posts as set (None: hwin / 2)."""
+        return self.options.sigma
+
+    @sigma.setter
+    def sigma(self, value: float | None) -> None:
+        self.options = replace(self.options, sigma=value)
+
     @property
     def window_sigma(self) -> float:
         """The Gaussian window's standard deviation in posts (hwin / 2 unless set)."""
-        return self.sigma if self.sigma is not None else self.hwin / 2.0
+        return self.options.window_sigma
 
+    # ------------------------------------------------------------------ point and plane
     def set_poi(self, c: int, r: int) -> None:
         """Move to post (c, r) (column, row) and reset the plane to the DEM's tangent plane."""
         rows, cols = self.terrain.shape
         if not (0 <= c < cols and 0 <= r < rows):
             raise ExploreError(f"post ({c}, {r}) is outside the DEM's {cols} x {rows} posts")
-        if not self.terrain.valid[r, c] or not np.isfinite(self.normals[r, c]).all():
+        if not self.problem.usable[r, c]:
             raise ExploreError(f"post ({c}, {r}) has no valid DEM value or normal")
         self.poi = (int(c), int(r))
-        h0 = float(self.terrain.values[r, c])
-        lines = post_lines(self.terrain, np.array([float(c)]), np.array([float(r)]), np.array([h0]))
+        lines = self.problem.lines(np.array([self.poi[0]]), np.array([self.poi[1]]))
         up = lines.up[0]
         if self.terrain.world == WorldFrame.MAP:
             east = np.array([1.0, 0.0, 0.0])
@@ -155,10 +188,8 @@ class Explorer:
         east /= np.linalg.norm(east)
         north = np.cross(up, east)
         self.up, self.east, self.north = up, east, north
-        self.model = PlaneModel(
-            lines, up[None], self.stack.F, self.spacing, east[None], north[None]
-        )
-        self.visible = np.array([v.codes[r, c] == Code.VISIBLE for v in self.visibility])
+        self.model = self.problem.model(lines, up[None], east[None], north[None])
+        self.visible = self.problem.visible[:, r, c]
         self.reset_plane()
 
     def lonlat_to_post(self, lon: float, lat: float) -> tuple[int, int]:
@@ -176,7 +207,8 @@ class Explorer:
     def reset_plane(self) -> None:
         """The current plane becomes the DEM's tangent plane at the point of interest (cpi)."""
         c, r = self.poi
-        self.theta = np.array([float(self.terrain.values[r, c]), *self._tilt(self.normals[r, c])])
+        normal = self.problem.normals[r, c]
+        self.theta = np.array([float(self.terrain.values[r, c]), *self._tilt(normal)])
         self.path = None
 
     def _tilt(self, n: np.ndarray) -> tuple[float, float]:
@@ -211,17 +243,19 @@ class Explorer:
         )
 
     # ------------------------------------------------------------------ the objective
-    def _window(self) -> tuple[np.ndarray, np.ndarray]:
-        return gaussian_window(self.hwin, self.window_sigma)
-
-    def active_views(self, theta: np.ndarray | None = None) -> np.ndarray:
-        """(K,) views visible at the post whose patch lies inside the image at the plane."""
+    def active_views(
+        self, theta: np.ndarray | None = None, window: Window | None = None
+    ) -> np.ndarray:
+        """(K,) views visible at the post whose patch (the explorer's window unless given) lies
+        inside the image at the plane (the current one unless given)."""
         theta = self.theta if theta is None else theta
-        inside = self.model.inside(theta[None], 0, self.hwin, self.stack.sizes[0], 1.0)[0]
+        hwin = (window or self.options.window).hwin
+        sizes = self.problem.stack.sizes[0]
+        inside = self.model.inside(theta[None], 0, hwin, sizes, self.options.margin)[0]
         return self.visible & inside
 
-    def _views_or_fail(self, theta: np.ndarray | None = None) -> np.ndarray:
-        W = self.active_views(theta)
+    def _views_or_fail(self, window: Window | None = None) -> np.ndarray:
+        W = self.active_views(window=window)
         if W.sum() < 2:
             names = [n for n, v in zip(self.names, self.visible, strict=True) if v]
             raise ExploreError(
@@ -231,27 +265,33 @@ class Explorer:
         return W
 
     def evaluate(
-        self, thetas: np.ndarray, W: np.ndarray, extras: bool = False, keep_patches: bool = False
+        self,
+        thetas: np.ndarray,
+        W: np.ndarray,
+        extras: bool = False,
+        keep_patches: bool = False,
+        window: Window | None = None,
     ) -> Evaluation:
-        """Eq. (20) at level 0 for planes ``thetas`` (N, 3) with views ``W`` (K,); ``extras``
-        adds the leave-one-out correlations."""
+        """Eq. (20) at level 0 for planes ``thetas`` (N, 3) with views ``W`` (K,), on the
+        explorer's window unless given; ``extras`` adds the leave-one-out correlations."""
         thetas = np.atleast_2d(thetas)
         model = self.model.take(np.zeros(len(thetas), int))
         H, _ = model.homographies(thetas, 0, derivatives=False)
-        offsets, g = self._window()
         Wn = np.broadcast_to(W, (len(thetas), len(W)))
-        return self.stack.evaluate(0, H, Wn, offsets, g, extras=extras, keep_patches=keep_patches)
+        return self.problem.stack.evaluate(
+            0, H, Wn, window or self.options.window, extras=extras, keep_patches=keep_patches
+        )
 
-    def height_curve(self, half_range: float, steps: int) -> Curve:
+    def height_curve(self, half_range: float, steps: int, window: Window | None = None) -> Curve:
         """The objective at ``steps`` heights within +-``half_range`` metres of the current
-        plane's, its orientation held."""
+        plane's, its orientation held, on the explorer's window unless given."""
         if not half_range > 0 or steps < 5:
             raise ExploreError("rplot needs a positive range (metres) and at least 5 steps")
-        W = self._views_or_fail()
+        W = self._views_or_fail(window)
         hs = self.theta[0] + np.linspace(-half_range, half_range, steps)
         thetas = np.repeat(self.theta[None], steps, axis=0)
         thetas[:, 0] = hs
-        cost = self.evaluate(thetas, W).cost
+        cost = self.evaluate(thetas, W, window=window).cost
         return _curve(hs, cost)
 
     def tilt_surface(self, half_range: float, steps: int) -> Surface:
@@ -310,7 +350,7 @@ class Explorer:
         columns."""
         W = self._views_or_fail()
         ev = self.evaluate(self.theta, W, extras=True, keep_patches=True)
-        side = 2 * self.hwin + 1
+        side = self.options.window.side
         used = np.nonzero(ev.used[0])[0]
         patches = ev.patches[0, used].reshape(len(used), side, side)
         return (
@@ -326,15 +366,21 @@ class Explorer:
         outlier rejection) from the current plane; the plane becomes the result. Returns the
         path (the start and every accepted iterate) and every iteration tried."""
         W = self._views_or_fail()
-        opts = FitOptions(hwin=self.hwin, sigma=self.sigma, levels=self.levels)
-        offsets, g = self._window()
+        opts = self.options
         trace: list[Iterate] = []
         start = self.theta.copy()
         theta, _ = fit_planes(
-            self.model, self.stack, start[None].copy(), W[None], offsets, g, opts, trace
+            self.model,
+            self.problem.stack,
+            start[None].copy(),
+            W[None],
+            opts.window,
+            opts.lm,
+            opts.margin,
+            trace,
         )
         start_cost = float(self.evaluate(start, W).cost[0])
-        path = [PathPoint(self.levels - 1, start, np.nan, start_cost)]
+        path = [PathPoint(self.problem.levels - 1, start, np.nan, start_cost)]
         for it in trace:
             if it.accepted[0]:
                 t = it.trial[0].copy()
@@ -351,15 +397,12 @@ class Explorer:
         self, hwins: list[int], half_range: float, steps: int
     ) -> list[tuple[int, float, Curve]]:
         """(hwin, sigma, height curve with the orientation held) for each window half-size in
-        ``hwins``, sigma = hwin / 2 unless sigma was set; the explorer's window is kept."""
-        keep = self.hwin
+        ``hwins``, sigma = hwin / 2 unless sigma was set; the explorer's own window is not
+        changed."""
         out = []
-        try:
-            for h in hwins:
-                self.hwin = h
-                out.append((h, self.window_sigma, self.height_curve(half_range, steps)))
-        finally:
-            self.hwin = keep
+        for h in hwins:
+            window = replace(self.options, hwin=h).window
+            out.append((h, window.sigma, self.height_curve(half_range, steps, window)))
         return out
 
 

@@ -13,8 +13,9 @@ respect to the plane parameters come from image gradients (sampled with the imag
 exact derivatives of the homographies, through the normalisation; they give the Gauss-Newton
 normal equations of the residuals sqrt(g) (A - I_k).
 
-The patch grid is (i, j) * step posts around the post, |i|, |j| <= hwin; coarse pyramid levels
-use a larger step on a smaller image (see :class:`ViewStack`).
+The patch grid and its weights g are a :class:`~orthomvp.mvp.window.Window`: (i, j) * step posts
+around the post, |i|, |j| <= hwin; coarse pyramid levels use a larger step on a smaller image
+(see :class:`ViewStack`).
 """
 
 from __future__ import annotations
@@ -27,19 +28,9 @@ import numpy as np
 
 from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.errors import InputError
+from orthomvp.mvp.window import Window
 
 MIN_STD = 1e-6  # relative to the image's own standard deviation: flatter patches carry nothing
-
-
-def gaussian_window(hwin: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Patch offsets ``(S, 2)`` (c, r) in steps, |i|, |j| <= hwin, and the Gaussian window
-    ``g`` (S,) with standard deviation ``sigma`` steps, normalised to sum 1 (float32)."""
-    if hwin < 1 or not sigma > 0:
-        raise InputError(f"hwin must be >= 1 and sigma > 0, got hwin={hwin}, sigma={sigma}")
-    j, i = np.mgrid[-hwin : hwin + 1, -hwin : hwin + 1]
-    offsets = np.stack([i.ravel(), j.ravel()], axis=-1).astype(np.float32)
-    g = np.exp(-(offsets**2).sum(axis=1) / (2.0 * sigma**2))
-    return offsets, (g / g.sum()).astype(np.float32)
 
 
 def undistorted_image(image: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, PinholeCamera]:
@@ -99,8 +90,7 @@ class ViewStack:
         level: int,
         H: np.ndarray,
         W: np.ndarray,
-        offsets: np.ndarray,
-        g: np.ndarray,
+        window: Window,
         dH: np.ndarray | None = None,
         extras: bool = True,
         keep_patches: bool = False,
@@ -108,9 +98,9 @@ class ViewStack:
         """:func:`evaluate` on the images of ``level``, counting the bilinear samples taken
         (positions times channels) in ``samples``."""
         with self._lock:
-            self.samples += H.shape[0] * H.shape[1] * len(g) * (1 if dH is None else 3)
+            self.samples += H.shape[0] * H.shape[1] * len(window.offsets) * (1 if dH is None else 3)
         return evaluate(
-            self.levels[level], self.flat[level], H, W, offsets, g, dH, extras, keep_patches
+            self.levels[level], self.flat[level], H, W, window, dH, extras, keep_patches
         )
 
     @classmethod
@@ -191,13 +181,12 @@ def evaluate(
     flat: np.ndarray,
     H: np.ndarray,
     W: np.ndarray,
-    offsets: np.ndarray,
-    g: np.ndarray,
+    window: Window,
     dH: np.ndarray | None = None,
     extras: bool = True,
     keep_patches: bool = False,
 ) -> Evaluation:
-    """The objective (eq. 20) at B planes seen through K views.
+    """The objective (eq. 20) at B planes seen through K views, sampled on ``window``.
 
     ``flat`` (K,): patch standard deviations at or below which a view's patch carries nothing;
     ``H`` (B, K, 3, 3): homographies from patch offsets to image pixels (any scale, w > 0);
@@ -206,6 +195,7 @@ def evaluate(
     ``extras``: also ``loo`` and (with ``dH``) ``JgJ``, which the iterations do not need.
     """
     jac = dH is not None
+    offsets, g = window.offsets, window.weights
     smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1)
     It = smp[..., 0]
     m = It @ g
