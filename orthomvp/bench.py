@@ -97,7 +97,7 @@ def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
         rows.append(
             {
                 "backend": backend,
-                "triangles": len(tmesh.mesh.faces),
+                "triangles": len(tmesh.faces),
                 "rays": rays,
                 "build_s": build,
                 "raw_rays_per_s": rays / raw,
@@ -439,7 +439,7 @@ def run_orthomvp(
     grid = terrain.regrid((res, res), bounds)
     times.append(time.perf_counter())
     scale = res / float(np.mean(terrain.post_spacing()))
-    ortho = orthorectify(grid, image, camera, occlusion, caster=caster, post_scale=scale)
+    ortho = orthorectify(grid, image, camera, occlusion=occlusion, caster=caster, post_scale=scale)
     times.append(time.perf_counter())
     write_geotiff(out, ortho.data, ortho.transform, ortho.crs, nodata=np.nan)
     times.append(time.perf_counter())

@@ -116,7 +116,7 @@ class Explorer:
         bands, cams = first_bands(images, cameras, self.names)
         caster = RayCaster(terrain_mesh(terrain))
         self.visibility: list[Visibility] = [
-            compute_visibility(terrain, cam, eps, caster) for cam in cams
+            compute_visibility(terrain, cam, eps=eps, caster=caster) for cam in cams
         ]
         self.stack = ViewStack.build(bands, cams, pyramid_levels(bands, levels))
         self.levels = len(self.stack.levels)

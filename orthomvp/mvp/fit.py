@@ -412,7 +412,10 @@ def fit_dem(
     if visible is None:
         caster = RayCaster(terrain_mesh(terrain))
         visible = np.stack(
-            [compute_visibility(terrain, cam, eps, caster).codes == Code.VISIBLE for cam in cams]
+            [
+                compute_visibility(terrain, cam, eps=eps, caster=caster).codes == Code.VISIBLE
+                for cam in cams
+            ]
         )
     visible = np.asarray(visible, bool)
     if visible.shape != (len(cams), *terrain.shape):
