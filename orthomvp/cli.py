@@ -476,7 +476,9 @@ def _cmd_synth(args: argparse.Namespace) -> None:
 
 def _cmd_mesh(args: argparse.Namespace) -> None:
     from orthomvp.errors import InputError
-    from orthomvp.mesh import error_colour_limit, export_mesh, height_error, terrain_mesh
+    from orthomvp.mesh import terrain_mesh
+    from orthomvp.present.colours import error_colour_limit, height_error
+    from orthomvp.present.export import export_mesh
     from orthomvp.raster import read_image
     from orthomvp.terrain import Terrain
 
@@ -510,8 +512,8 @@ def _cmd_mesh(args: argparse.Namespace) -> None:
 def _cmd_render(args: argparse.Namespace) -> None:
     from orthomvp.camera import read_camera
     from orthomvp.errors import InputError
+    from orthomvp.present.snapshot import snapshot
     from orthomvp.raster import read_image
-    from orthomvp.render import snapshot
 
     if (args.heights is None) != (args.truth is None):
         raise InputError("--heights and --truth go together: the error is FITTED - TRUTH")

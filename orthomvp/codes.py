@@ -1,7 +1,7 @@
 """The shared vocabulary: visibility codes with their names and colours, and the string enums
 used as options (and as CLI choices).
 
-This module is the bottom layer: it imports nothing from orthomvp.
+This module is the bottom layer: it imports nothing from orthomvp but the exception family.
 """
 
 from __future__ import annotations
@@ -9,6 +9,8 @@ from __future__ import annotations
 from enum import Enum, IntEnum
 
 import numpy as np
+
+from orthomvp.errors import InputError
 
 
 class Code(IntEnum):
@@ -60,34 +62,43 @@ def classify(miss: np.ndarray, eps: np.ndarray | float) -> np.ndarray:
     return np.where(hidden, Code.OCCLUDED, Code.VISIBLE).astype(np.uint8)
 
 
-class WorldFrame(str, Enum):
+class Choice(str, Enum):
+    """Base of the option enums: members compare equal to their string values, print as them,
+    and converting a bad string (``Interp("linear")``) raises an InputError that lists the
+    choices, so that functions accept plain strings by converting them with the enum."""
+
+    def __str__(self) -> str:
+        return self.value
+
+    @classmethod
+    def _missing_(cls, value: object) -> None:
+        choices = ", ".join(member.value for member in cls)
+        raise InputError(f"unknown {_NOUNS[cls]} {value!r}; choose one of {choices}")
+
+
+class WorldFrame(Choice):
     """The frame in which cameras live: body-fixed Cartesian metres, or the DEM's projected CRS
     taken as Cartesian (easting, northing, height; aerial data, Orthority's convention)."""
 
     BODY = "body"
     MAP = "map"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class Interp(str, Enum):
+class Interp(Choice):
     """Image interpolation when sampling orthophotos."""
 
     NEAREST = "nearest"
     BILINEAR = "bilinear"
     CUBIC = "cubic"
 
-    def __str__(self) -> str:
-        return self.value
 
-
-class View(str, Enum):
+class View(Choice):
     """Viewpoints of 3D snapshots: oblique from an azimuth, straight down, or through a camera."""
 
     OBLIQUE = "oblique"
     TOP = "top"
     FROM_CAMERA = "from-camera"
 
-    def __str__(self) -> str:
-        return self.value
+
+_NOUNS = {WorldFrame: "world frame", Interp: "interpolation", View: "view"}
+"""What each option enum chooses, for error messages."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +19,15 @@ from scipy import ndimage
 
 from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
-from orthomvp.figures import height_error_maps, ortho_comparison, scene_overview
-from orthomvp.mesh import export_mesh, terrain_mesh
+from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.ortho import mosaic, orthorectify
+from orthomvp.present.export import export_mesh
+from orthomvp.present.figures import height_error_maps, ortho_comparison, scene_overview
+from orthomvp.present.snapshot import SnapshotOptions, snapshot
+from orthomvp.present.webpage import write_index
 from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
 from orthomvp.raycast import RayCaster
-from orthomvp.render import snapshot
 from orthomvp.synthetic import (
     SceneData,
     away_from_boundaries,
@@ -33,7 +36,6 @@ from orthomvp.synthetic import (
     make_scene,
 )
 from orthomvp.synthetic.scoring import HIDDEN
-from orthomvp.webpage import write_index
 
 DEMO_SIZE = 120
 DEMO_SPACING = 50.0
@@ -177,18 +179,19 @@ def _snapshots(tmp: Path, scene: SceneData, arrays: dict) -> None:
     oblique, nadir = scene.views["oblique"].camera, scene.views["nadir"].camera
     truth = terrain.values
     limit = float(np.nanpercentile(np.abs(arrays["start"].values - truth), 99))
+    raised = SnapshotOptions(exaggerate=1.5, size=SNAP_SIZE)
+    errors = SnapshotOptions(size=SNAP_SIZE, error_limit=limit)
     shots = {
-        "snap-visibility.png": dict(
-            visibility=arrays["visibility"], cameras=[oblique, nadir], rays=6, exaggerate=1.5
+        "snap-visibility.png": (
+            dict(visibility=arrays["visibility"], cameras=[oblique, nadir]),
+            replace(raised, rays=6),
         ),
-        "snap-mosaic.png": dict(ortho=arrays["mosaic"], exaggerate=1.5),
-        "snap-error-start.png": dict(
-            heights=arrays["start"].values, truth=truth, error_limit=limit
-        ),
-        "snap-error-fitted.png": dict(heights=arrays["fitted"], truth=truth, error_limit=limit),
+        "snap-mosaic.png": (dict(ortho=arrays["mosaic"]), raised),
+        "snap-error-start.png": (dict(heights=arrays["start"].values, truth=truth), errors),
+        "snap-error-fitted.png": (dict(heights=arrays["fitted"], truth=truth), errors),
     }
-    for name, kwargs in shots.items():
-        snap = snapshot(terrain, size=SNAP_SIZE, **kwargs)
+    for name, (rasters, options) in shots.items():
+        snap = snapshot(terrain, **rasters, options=options)
         try:
             snap.save(tmp / name)
         finally:

@@ -20,7 +20,7 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera, check_image
-from orthomvp.codes import Code
+from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
@@ -28,10 +28,11 @@ from orthomvp.terrain import Terrain
 from orthomvp.visibility import Visibility, compute_visibility
 
 INTERPOLATION = {
-    "nearest": cv2.INTER_NEAREST,
-    "bilinear": cv2.INTER_LINEAR,
-    "cubic": cv2.INTER_CUBIC,
+    Interp.NEAREST: cv2.INTER_NEAREST,
+    Interp.BILINEAR: cv2.INTER_LINEAR,
+    Interp.CUBIC: cv2.INTER_CUBIC,
 }
+"""OpenCV interpolation flag of each :class:`~orthomvp.codes.Interp`."""
 
 
 @dataclass
@@ -57,13 +58,15 @@ class Mosaic:
     visibilities: list[Visibility]
 
 
-def sample_image(image: np.ndarray, uv: np.ndarray, interp: str = "bilinear") -> np.ndarray:
+def sample_image(
+    image: np.ndarray, uv: np.ndarray, interp: Interp | str = Interp.BILINEAR
+) -> np.ndarray:
     """Sample ``image`` (bands, rows, cols) at pixel positions ``uv`` (..., 2) -> (bands, ...).
 
-    NaN positions, positions outside the image and NaN image pixels give NaN.
+    ``interp`` is an :class:`~orthomvp.codes.Interp` or its name. NaN positions, positions
+    outside the image and NaN image pixels give NaN.
     """
-    if interp not in INTERPOLATION:
-        raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
+    flag = INTERPOLATION[Interp(interp)]
     shape = uv.shape[:-1]
     flat = uv.reshape(-1, 2).astype(np.float32)
     # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
@@ -78,7 +81,7 @@ def sample_image(image: np.ndarray, uv: np.ndarray, interp: str = "bilinear") ->
             band,
             maps[..., 0],
             maps[..., 1],
-            INTERPOLATION[interp],
+            flag,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=np.nan,
         )
@@ -91,9 +94,10 @@ def orthorectify(
     terrain: Terrain,
     image: np.ndarray,
     camera: PinholeCamera,
+    *,
     occlusion: bool = True,
     eps: float | None = None,
-    interp: str = "bilinear",
+    interp: Interp | str = Interp.BILINEAR,
     visibility: Visibility | None = None,
     caster: RayCaster | None = None,
     progress: bool = False,
@@ -103,10 +107,21 @@ def orthorectify(
 
     With ``occlusion`` only visible posts (code 1) get values; without it, every post that
     projects inside the image does (the naive orthophoto, facing-away and occluded included).
+    ``interp`` is an :class:`~orthomvp.codes.Interp` or its name. ``visibility`` reuses a
+    visibility of this camera on this grid; otherwise it is computed (see
+    :func:`~orthomvp.visibility.compute_visibility` for ``eps``, ``caster``, ``progress`` and
+    ``post_scale``).
     """
+    interp = Interp(interp)
     camera = check_image(image, camera)
     vis = visibility or compute_visibility(
-        terrain, camera, eps, caster, progress, post_scale=post_scale, occlusion=occlusion
+        terrain,
+        camera,
+        eps=eps,
+        caster=caster,
+        progress=progress,
+        post_scale=post_scale,
+        occlusion=occlusion,
     )
     data = sample_image(image, vis.uv, interp)
     keep = vis.codes == Code.VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)
@@ -117,14 +132,17 @@ def orthorectify(
 def mosaic(
     terrain: Terrain,
     views: list[tuple[np.ndarray, PinholeCamera]],
+    *,
     eps: float | None = None,
-    interp: str = "bilinear",
-    progress: bool = False,
+    interp: Interp | str = Interp.BILINEAR,
     caster: RayCaster | None = None,
+    progress: bool = False,
 ) -> Mosaic:
     """One orthophoto from several (image, camera) views: each post from its best visible view
-    (smallest emission angle). All images must have the same number of bands. ``caster``
-    reuses a ray caster built on this terrain's mesh (one is built otherwise)."""
+    (smallest emission angle). All images must have the same number of bands. ``eps`` and
+    ``interp`` as in :func:`orthorectify`; ``caster`` reuses a ray caster built on this
+    terrain's mesh (one is built otherwise)."""
+    interp = Interp(interp)
     if not views:
         raise InputError("a mosaic needs at least one image")
     bands = {img.shape[0] for img, _ in views}
@@ -138,7 +156,7 @@ def mosaic(
     visibilities = []
     for k, (image, camera) in enumerate(views, start=1):
         ortho = orthorectify(
-            terrain, image, camera, True, eps, interp, caster=caster, progress=progress
+            terrain, image, camera, eps=eps, interp=interp, caster=caster, progress=progress
         )
         vis = ortho.visibility
         visibilities.append(vis)

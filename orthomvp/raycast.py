@@ -1,6 +1,7 @@
 """First-hit ray casting against a terrain mesh: Embree (embreex, default) or Open3D.
 
-Both backends work in float32, so the scene is built in the mesh's local frame (see
+The backend's library (embreex or Open3D) is imported when a caster is built. Both backends work
+in float32, so the scene is built in the mesh's local frame (see
 :mod:`orthomvp.mesh`) and each ray origin is first moved, in float64, along its ray to the
 near side of the mesh's bounding sphere. The float32 cast then spans only the scene's own size:
 for a tile of tens of kilometres the hit points keep millimetres, even 100 km and more from the
@@ -17,6 +18,7 @@ import numpy as np
 
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh
+from orthomvp.optional import require
 
 BACKENDS = ("embree", "open3d")
 CHUNK = 1 << 17
@@ -47,21 +49,22 @@ class RayCaster:
         self.tmesh = tmesh
         self.backend = backend
         self.threads = threads or os.cpu_count() or 1
-        self._verts = np.asarray(tmesh.mesh.vertices, dtype=np.float64)
-        self._faces = np.asarray(tmesh.mesh.faces, dtype=np.int64)
+        self._verts = np.asarray(tmesh.vertices, dtype=np.float64)
+        self._faces = np.asarray(tmesh.faces, dtype=np.int64)
         lo, hi = self._verts.min(axis=0), self._verts.max(axis=0)
         self._centre = (lo + hi) / 2
         self._radius = float(np.linalg.norm(hi - lo) / 2) * 1.001 + 1.0
         v32 = self._verts.astype(np.float32)
         f32 = self._faces.astype(np.int32)
         if backend == "embree":
-            from embreex import mesh_construction, rtcore_scene
-
+            rtcore_scene = require("embreex.rtcore_scene", "Embree ray casting", "embreex")
+            mesh_construction = require(
+                "embreex.mesh_construction", "Embree ray casting", "embreex"
+            )
             self._scene = rtcore_scene.EmbreeScene()
             mesh_construction.TriangleMesh(self._scene, v32, f32)
         else:
-            import open3d as o3d
-
+            self._o3d = o3d = require("open3d", "Open3D ray casting")
             self._scene = o3d.t.geometry.RaycastingScene()
             self._scene.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f32.astype(np.uint32)))
         # The first query builds the acceleration structure; do it now, on one thread.
@@ -73,9 +76,7 @@ class RayCaster:
             out = self._scene.run(origins, directions, output=1)
             tri = out["primID"].astype(np.int64)
             return out["tfar"], tri, out["u"], out["v"]
-        import open3d as o3d
-
-        rays = o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
+        rays = self._o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
         out = self._scene.cast_rays(rays, nthreads=self.threads)
         tri = out["primitive_ids"].numpy().astype(np.int64)
         tri[tri == np.iinfo(np.uint32).max] = -1

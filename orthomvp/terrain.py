@@ -106,11 +106,7 @@ class Terrain:
             raise InputError(f"{self.name}: a DEM needs at least 2 x 2 posts, got {vals.shape}")
         object.__setattr__(self, "values", vals)
         object.__setattr__(self, "crs", horizontal_crs(self.crs))
-        try:
-            object.__setattr__(self, "world", WorldFrame(self.world))
-        except ValueError:
-            names = ", ".join(w.value for w in WorldFrame)
-            raise InputError(f"world frame must be one of {names}, not {self.world!r}") from None
+        object.__setattr__(self, "world", WorldFrame(self.world))  # InputError on a bad name
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")
         if self.world == WorldFrame.MAP and not self.crs.is_projected:

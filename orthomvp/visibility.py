@@ -118,6 +118,7 @@ def _tile_normals(terrain: Terrain, rs: slice, cs: slice) -> tuple[np.ndarray, n
 def compute_visibility(
     terrain: Terrain,
     camera: PinholeCamera,
+    *,
     eps: float | None = None,
     caster: RayCaster | None = None,
     progress: bool = False,

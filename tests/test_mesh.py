@@ -15,9 +15,11 @@ from scipy.ndimage import maximum_filter, minimum_filter
 from scipy.spatial import cKDTree
 
 from orthomvp.cli import main
+from orthomvp.codes import CODE_RGB
 from orthomvp.errors import InputError
-from orthomvp.mesh import error_colour_limit, export_mesh, terrain_mesh
-from orthomvp.palette import VIS_RGB
+from orthomvp.mesh import terrain_mesh
+from orthomvp.present.colours import NAN_RGB, error_colour_limit
+from orthomvp.present.export import export_mesh
 from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
@@ -75,25 +77,25 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def test_triangulation_holes_positions_winding(north_up: bool) -> None:
     t = small_terrain(north_up)
     tm = terrain_mesh(t)
-    faces_posts = tm.vertex_post[tm.mesh.faces]
+    faces_posts = tm.vertex_post[tm.faces]
     expected = brute_triangles(np.isfinite(t.values))
     # 20 cells x 2 = 40; each hole removes the 6 triangles that use it (counted by hand)
-    assert len(tm.mesh.faces) == len(expected) == 28
+    assert len(tm.faces) == len(expected) == 28
     assert {tuple(sorted(f)) for f in faces_posts} == expected
     holes = {r * COLS + c for r, c in HOLES}
     assert not holes & set(faces_posts.ravel())
     # every vertex is a distinct used post
     assert len(np.unique(tm.vertex_post)) == len(tm.vertex_post) == len(np.unique(faces_posts))
     r, c = np.divmod(tm.vertex_post, COLS)
-    world = tm.mesh.vertices + tm.origin
+    world = tm.vertices + tm.origin
     np.testing.assert_allclose(world, t.to_world(c, r, t.values[r, c]), rtol=0, atol=1e-6)
     np.testing.assert_allclose(world, hand_world(t, r, c), rtol=0, atol=1e-6)
     np.testing.assert_allclose(tm.world_vertices, world, rtol=0, atol=0)
     # the local frame is small: vertices within a few hundred metres of the origin
-    assert np.abs(tm.mesh.vertices).max() < 200
+    assert np.abs(tm.vertices).max() < 200
     # outward normals: away from the body centre
-    n = face_normals(world, tm.mesh.faces)
-    centroids = world[tm.mesh.faces].mean(axis=1)
+    n = face_normals(world, tm.faces)
+    centroids = world[tm.faces].mean(axis=1)
     assert np.all(np.einsum("ij,ij->i", n, centroids) > 0)
     # uv: u along columns, v up the rows, at pixel centres
     np.testing.assert_allclose(tm.uv[:, 0] * COLS - 0.5, c, atol=1e-12)
@@ -119,8 +121,8 @@ def test_map_frame_normals_point_up(e: float) -> None:
     values[3, 3] = np.nan
     t = Terrain(values, Affine(20.0, 0, 1e5, 0, 20.0 * e, -2e5), MOON_EQC, world="map")
     tm = terrain_mesh(t)
-    assert len(tm.mesh.faces) == len(brute_triangles(np.isfinite(values)))
-    assert np.all(face_normals(tm.mesh.vertices, tm.mesh.faces)[:, 2] > 0)
+    assert len(tm.faces) == len(brute_triangles(np.isfinite(values)))
+    assert np.all(face_normals(tm.vertices, tm.faces)[:, 2] > 0)
     r, c = np.divmod(tm.vertex_post, 9)
     expected = np.column_stack([1e5 + 20 * (c + 0.5), -2e5 + 20 * e * (r + 0.5), values[r, c]])
     np.testing.assert_allclose(tm.world_vertices, expected, rtol=0, atol=1e-9)
@@ -135,7 +137,7 @@ def test_winding_with_a_pole_row(seed: int) -> None:
     t = Terrain(values, Affine(1.0, 0, rng.uniform(-180, 180), 0, e, -90.5 * e), MOON)
     tm = terrain_mesh(t)
     world = tm.world_vertices
-    faces = tm.mesh.faces
+    faces = tm.faces
     r = tm.vertex_post[faces] // 8
     off_pole = ~(r == 0).any(axis=1)
     n = face_normals(world, faces[off_pole])
@@ -163,12 +165,12 @@ def match_vertices(loaded: np.ndarray, expected: np.ndarray, tol: float) -> np.n
 
 def check_shape(loaded_v: np.ndarray, loaded_f: np.ndarray, tm, offset, tol: float) -> None:
     """Same faces (as position triples) and the same set of positions, loaders may split."""
-    expected = tm.mesh.vertices + offset
+    expected = tm.vertices + offset
     idx = match_vertices(loaded_v, expected, tol)
     assert set(idx) == set(range(len(expected)))
-    assert len(loaded_f) == len(tm.mesh.faces)
+    assert len(loaded_f) == len(tm.faces)
     got = {tuple(sorted(f)) for f in idx[loaded_f]}
-    assert got == {tuple(sorted(f)) for f in tm.mesh.faces}
+    assert got == {tuple(sorted(f)) for f in tm.faces}
     # winding survives: normals still up (the tile is small: one up direction)
     up = tm.origin / np.linalg.norm(tm.origin)
     assert np.all(face_normals(loaded_v, loaded_f) @ up > 0)
@@ -195,15 +197,15 @@ def test_export_ply(tmp_path: Path, local: bool) -> None:
     export_mesh(tm, path, texture=tex, local=local)
     r, c = np.divmod(tm.vertex_post, COLS)
     m = trimesh.load(path, process=False)
-    assert len(m.vertices) == len(tm.mesh.vertices) and len(m.faces) == len(tm.mesh.faces)
+    assert len(m.vertices) == len(tm.vertices) and len(m.faces) == len(tm.faces)
     # PLY keeps the vertex order: exact correspondence; body-fixed coordinates in float64
-    err = np.abs(m.vertices - (tm.mesh.vertices + offset)).max()
+    err = np.abs(m.vertices - (tm.vertices + offset)).max()
     assert err < 1e-6, f"PLY vertex error {err:.3g} m"
-    np.testing.assert_array_equal(m.faces, tm.mesh.faces)
+    np.testing.assert_array_equal(m.faces, tm.faces)
     np.testing.assert_array_equal(m.visual.vertex_colors[:, :3], tex[r, c])
     o3 = o3d.io.read_triangle_mesh(str(path))
-    np.testing.assert_allclose(np.asarray(o3.vertices), tm.mesh.vertices + offset, atol=1e-6)
-    np.testing.assert_array_equal(np.asarray(o3.triangles), tm.mesh.faces)
+    np.testing.assert_allclose(np.asarray(o3.vertices), tm.vertices + offset, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(o3.triangles), tm.faces)
     o3_rgb = np.rint(np.asarray(o3.vertex_colors) * 255).astype(np.uint8)
     np.testing.assert_array_equal(o3_rgb, tex[r, c])
 
@@ -218,7 +220,7 @@ def test_export_obj(tmp_path: Path, local: bool) -> None:
     assert (tmp_path / "m.mtl").exists()
     m = trimesh.load(path, process=False)
     check_shape(m.vertices, m.faces, tm, offset, tol=1e-6)
-    idx = match_vertices(m.vertices, tm.mesh.vertices + offset, 1e-6)
+    idx = match_vertices(m.vertices, tm.vertices + offset, 1e-6)
     r, c = np.divmod(tm.vertex_post[idx], COLS)
     np.testing.assert_array_equal(sample_texture(m), tex[r, c])
     # Open3D's OBJ reader (tinyobjloader) parses float32: 0.11 m at lunar radius, the file's 1e-8
@@ -252,7 +254,7 @@ def test_export_glb(tmp_path: Path, local: bool) -> None:
     # glTF vertices are float32; body-fixed positions must not lose the 0.12 m of float32 at
     # lunar radius (the offset travels in the node transform)
     check_shape(m.vertices, m.faces, tm, offset, tol=1e-4)
-    idx = match_vertices(m.vertices, tm.mesh.vertices + offset, 1e-4)
+    idx = match_vertices(m.vertices, tm.vertices + offset, 1e-4)
     r, c = np.divmod(tm.vertex_post[idx], COLS)
     np.testing.assert_array_equal(sample_texture(m), tex[r, c])
 
@@ -260,21 +262,23 @@ def test_export_glb(tmp_path: Path, local: bool) -> None:
 def test_ply_colours_float_raster_and_layouts(tmp_path: Path) -> None:
     # float grey on 20 x 20 posts: stretched between the 1st and 99th percentiles, which are
     # -50 and 150 by construction (3 outliers and 3 plateau values at each end; robust to any
-    # percentile interpolation), clipped outside; NaN becomes mid grey
+    # percentile interpolation), clipped outside; NaN becomes the shared NaN colour
     flat = Terrain(np.zeros((20, 20)), Affine(STEP, 0, LON0, 0, -STEP, LAT0), MOON)
     ftm = terrain_mesh(flat)
     ramp = np.linspace(0, 100, 387)
     grey = np.concatenate([[-1000] * 3, [-50] * 3, ramp, [150] * 3, [1000] * 3, [np.nan]])
     grey = np.random.default_rng(6).permutation(grey).reshape(20, 20)
-    expect = np.clip((grey + 50) / 200, 0, 1) * 255
-    expect[np.isnan(grey)] = 128
+    expect = np.repeat(np.clip((grey + 50) / 200, 0, 1)[..., None] * 255, 3, axis=-1)
+    expect[np.isnan(grey)] = NAN_RGB
     export_mesh(ftm, tmp_path / "g.ply", texture=grey.astype(np.float32))
     got = trimesh.load(tmp_path / "g.ply", process=False).visual.vertex_colors
-    want = expect.ravel()[ftm.vertex_post]
-    assert np.abs(got[:, 0].astype(float) - want).max() < 1.0 + 1e-9  # uint8 truncation
-    assert np.all(got[:, 0] == got[:, 1]) and np.all(got[:, 1] == got[:, 2])
+    want = expect.reshape(-1, 3)[ftm.vertex_post]
+    assert np.abs(got[:, :3].astype(float) - want).max() < 1.0 + 1e-9  # uint8 truncation
+    filled = np.isfinite(grey).ravel()[ftm.vertex_post]
+    assert np.all(got[filled, 0] == got[filled, 1]) and np.all(got[filled, 1] == got[filled, 2])
+    np.testing.assert_array_equal(got[~filled, :3], [NAN_RGB])
     assert got[:, 3].min() == 255
-    assert {0, 128, 255} <= set(got[:, 0].tolist())
+    assert {0, 255} <= set(got[filled, 0].tolist())
     t = small_terrain()
     tm = terrain_mesh(t)
     r, c = np.divmod(tm.vertex_post, COLS)
@@ -331,7 +335,7 @@ def test_decimation_stays_on_the_surface(tmp_path: Path) -> None:
     lon, lat = t0.pixel_to_lonlat(*t0.grid())
     t = t0.with_values(bump(lon, lat))
     tm = terrain_mesh(t)
-    assert len(tm.mesh.faces) == 2 * (n - 1) ** 2
+    assert len(tm.faces) == 2 * (n - 1) ** 2
     ramp = np.broadcast_to(np.linspace(0, 250, n).astype(np.uint8), (n, n))
     target = 800
     for local, ext in ((False, "ply"), (True, "ply"), (False, "obj"), (False, "glb")):
@@ -360,7 +364,7 @@ def test_decimation_stays_on_the_surface(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ colour kinds
-TABLE = np.array([VIS_RGB[k] for k in range(4)], np.uint8)
+TABLE = CODE_RGB
 """The shared visibility colours (codes 0-3)."""
 HOLES_48 = (slice(20, 23), slice(30, 32))
 
@@ -407,7 +411,7 @@ def test_visibility_colours_in_every_format(
     n_vert, n_tri = expected_counts(t.valid)
     # 48 x 48 posts less the 3 x 2 hole; 2 x 47 x 47 triangles less the 22 that touch the hole
     # (the 12 cells around it, but one triangle of the two cells on the cut's corners)
-    assert (len(tm.mesh.vertices), len(tm.mesh.faces)) == (n_vert, n_tri) == (2298, 4396)
+    assert (len(tm.vertices), len(tm.faces)) == (n_vert, n_tri) == (2298, 4396)
     assert set(codes[t.valid].tolist()) == {0, 1, 2, 3}
     offset = np.zeros(3) if local else tm.origin
     # expected positions from the DEM itself, in the frame written
@@ -424,8 +428,8 @@ def test_visibility_colours_in_every_format(
         assert len(m.vertices) == len(np.asarray(o3.vertices)) == n_vert
         np.testing.assert_allclose(m.vertices, expected, rtol=0, atol=1e-6)
         np.testing.assert_allclose(np.asarray(o3.vertices), expected, rtol=0, atol=1e-6)
-        np.testing.assert_array_equal(m.faces, tm.mesh.faces)
-        np.testing.assert_array_equal(np.asarray(o3.triangles), tm.mesh.faces)
+        np.testing.assert_array_equal(m.faces, tm.faces)
+        np.testing.assert_array_equal(np.asarray(o3.triangles), tm.faces)
         np.testing.assert_array_equal(m.visual.vertex_colors[:, :3], want)
         o3_rgb = np.rint(np.asarray(o3.vertex_colors) * 255).astype(np.uint8)
         np.testing.assert_array_equal(o3_rgb, want)
@@ -467,7 +471,7 @@ def test_error_colours(tmp_path: Path, crater48: tuple) -> None:
         pos, neg, nan = e > 0, e < 0, np.isnan(e)
         assert np.all(rgb[pos, 0] > rgb[pos, 2]) and np.all(rgb[neg, 2] > rgb[neg, 0])
         assert np.all(rgb[e == 0] > 240)  # white at zero
-        np.testing.assert_array_equal(rgb[nan], [[128, 128, 128]])
+        np.testing.assert_array_equal(rgb[nan], [NAN_RGB])
         # saturated at +-limit, and the colour map in between (uint8 rounding aside)
         red, blue = cmap(1.0, bytes=True)[:3], cmap(0.0, bytes=True)[:3]
         assert np.all(rgb[e >= a] == red) and np.all(rgb[e <= -a] == blue)

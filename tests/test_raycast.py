@@ -47,7 +47,7 @@ def reference_hits(
     """
     o = np.broadcast_to(o, d.shape)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    v = tm.world_vertices[tm.mesh.faces]
+    v = tm.world_vertices[tm.faces]
     v0, e1, e2 = v[:, 0], v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
     n = len(d)
     t_best, tri, margin = np.full(n, np.inf), np.full(n, -1), np.full(n, np.inf)
@@ -79,9 +79,9 @@ def reference_hits(
 
 def interior_points(tm: TerrainMesh, k: int, rng: np.random.Generator) -> np.ndarray:
     """World points well inside random triangles (barycentrics >= 0.05)."""
-    f = rng.integers(0, len(tm.mesh.faces), k)
+    f = rng.integers(0, len(tm.faces), k)
     b = rng.dirichlet([1, 1, 1], k) * 0.85 + 0.05
-    return np.einsum("ij,ijk->ik", b, tm.world_vertices[tm.mesh.faces[f]])
+    return np.einsum("ij,ijk->ik", b, tm.world_vertices[tm.faces[f]])
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +126,7 @@ def test_precision_at_lunar_radius(backend, small, casters, precision_rays) -> N
     derr = np.abs(h.distance[hit] - t_ref[hit]).max()
     assert derr < CM, f"{backend}: max distance error {derr * 1e3:.3f} mm"
     # barycentrics reproduce the points: p = (1-u-v) v0 + u v1 + v v2 (measured 0.14 mm)
-    v = small.world_vertices[small.mesh.faces[h.triangle[hit]]]
+    v = small.world_vertices[small.faces[h.triangle[hit]]]
     u, w = h.barycentric[hit, 0:1], h.barycentric[hit, 1:2]
     p_bary = (1 - u - w) * v[:, 0] + u * v[:, 1] + w * v[:, 2]
     berr = np.linalg.norm(p_bary - h.points[hit], axis=1).max()
@@ -141,7 +141,7 @@ def test_naive_float32_body_fixed_is_not_enough(small, casters, precision_rays) 
     cam, d, (_, tri_ref, p_ref, margin) = precision_rays
     scene = rtcore_scene.EmbreeScene()
     mesh_construction.TriangleMesh(
-        scene, small.world_vertices.astype(np.float32), small.mesh.faces.astype(np.int32)
+        scene, small.world_vertices.astype(np.float32), small.faces.astype(np.int32)
     )
     unit = d / np.linalg.norm(d, axis=1, keepdims=True)
     o32 = np.broadcast_to(cam, d.shape).astype(np.float32)

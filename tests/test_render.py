@@ -1,4 +1,5 @@
-"""Offscreen snapshots (orthomvp.render) and the ``orthomvp render`` command, without a display."""
+"""Offscreen snapshots (orthomvp.present.snapshot) and the ``orthomvp render`` command, without a
+display."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import pytest
 from PIL import Image
 
 from orthomvp.cli import main
-from orthomvp.codes import Code
+from orthomvp.codes import Code, View
 from orthomvp.errors import InputError
+from orthomvp.present.snapshot import SnapshotOptions, snapshot
 from orthomvp.raster import write_geotiff
-from orthomvp.render import snapshot
 from orthomvp.synthetic import Scene, make_scene
 
 SIZE = (320, 240)
@@ -30,9 +31,11 @@ def crater() -> Scene:
     return make_scene("crater", size=64, spacing=80.0)
 
 
-def render(terrain, **kwargs) -> np.ndarray:  # noqa: ANN001
-    """The image of a snapshot, its plotter closed."""
-    snap = snapshot(terrain, size=kwargs.pop("size", SIZE), **kwargs)
+def render(terrain, options: dict | None = None, **rasters) -> np.ndarray:  # noqa: ANN001
+    """The image of a snapshot of ``SIZE`` (unless ``options`` say otherwise), plotter closed."""
+    snap = snapshot(
+        terrain, **rasters, options=SnapshotOptions(**{"size": SIZE, **(options or {})})
+    )
     snap.close()
     return snap.image
 
@@ -54,7 +57,7 @@ def blue(image: np.ndarray) -> np.ndarray:
 
 
 def test_relief_snapshot_is_not_blank(crater: Scene, tmp_path: Path) -> None:
-    snap = snapshot(crater.terrain, size=SIZE)
+    snap = snapshot(crater.terrain, options=SnapshotOptions(size=SIZE))
     try:
         image = snap.image
         assert image.shape == (240, 320, 3) and image.dtype == np.uint8
@@ -75,11 +78,12 @@ def test_visibility_snapshot_shows_occluded_posts_green(crater: Scene, view: str
     camera = crater.cameras["oblique"]
     vis = crater.visibility_truth(camera)
     assert (vis == Code.OCCLUDED).mean() > 0.03
-    image = render(crater.terrain, visibility=vis, cameras=[camera], view=view, legend=False)
+    options = {"view": view, "legend": False}
+    image = render(crater.terrain, options, visibility=vis, cameras=[camera])
     assert green(image).mean() > 0.005
     # the same scene with every post visible has no green at all
     everywhere = np.ones_like(vis)
-    image = render(crater.terrain, visibility=everywhere, cameras=[camera], view=view, legend=False)
+    image = render(crater.terrain, options, visibility=everywhere, cameras=[camera])
     assert not green(image).any()
 
 
@@ -87,7 +91,8 @@ def test_no_green_where_the_scene_has_no_occlusion(crater: Scene) -> None:
     camera = crater.cameras["nadir"]
     vis = crater.visibility_truth(camera)
     assert not (vis == Code.OCCLUDED).any()
-    snap = snapshot(crater.terrain, visibility=vis, cameras=[camera], rays=8, size=SIZE)
+    options = SnapshotOptions(rays=8, size=SIZE)
+    snap = snapshot(crater.terrain, visibility=vis, cameras=[camera], options=options)
     try:
         assert snap.plotter.legend is not None
         snap.plotter.remove_legend()  # the legend has a green swatch
@@ -102,12 +107,14 @@ def test_height_error_uses_both_ends_of_a_symmetric_colour_map(crater: Scene) ->
     x, y = crater.post_local()
     truth = crater.terrain.values
     wave = 20 * np.sin(x / 600) * np.cos(y / 500)
-    image = render(crater.terrain, heights=truth + wave, truth=truth, legend=False)
+    quiet = {"legend": False}
+    image = render(crater.terrain, quiet, heights=truth + wave, truth=truth)
     assert red(image).mean() > 0.02 and blue(image).mean() > 0.02
     # positive errors only: red, and no blue, since the limits stay symmetric about 0
-    image = render(crater.terrain, heights=truth + np.abs(wave), truth=truth, legend=False)
+    image = render(crater.terrain, quiet, heights=truth + np.abs(wave), truth=truth)
     assert red(image).mean() > 0.02 and not blue(image).any()
-    snap = snapshot(crater.terrain, heights=truth + wave, truth=truth, size=SIZE)
+    options = SnapshotOptions(size=SIZE)
+    snap = snapshot(crater.terrain, heights=truth + wave, truth=truth, options=options)
     try:
         assert list(snap.plotter.scalar_bars.keys()) == ["height error (m)"]
     finally:
@@ -125,9 +132,8 @@ def test_draped_orthophoto(crater: Scene) -> None:
 def test_from_camera_view_matches_the_camera(crater: Scene) -> None:
     camera = crater.cameras["oblique"]
     width, height = 3 * camera.width, 3 * camera.height
-    snap = snapshot(
-        crater.terrain, cameras=[camera], view="from-camera", size=(width, height), rays=4
-    )
+    options = SnapshotOptions(view="from-camera", size=(width, height), rays=4)
+    snap = snapshot(crater.terrain, cameras=[camera], options=options)
     try:
         assert snap.image.shape == (height, width, 3) and snap.image.std() > 20
         pts = crater.terrain.world_points().reshape(-1, 3)[::37]
@@ -149,7 +155,7 @@ def test_vertical_exaggeration_scales_relief(crater: Scene) -> None:
     up = crater.terrain.up_vectors(crater.terrain.world_points()[32, 32])
     ranges = []
     for k in (1.0, 3.0):
-        snap = snapshot(crater.terrain, exaggerate=k, size=SIZE)
+        snap = snapshot(crater.terrain, options=SnapshotOptions(exaggerate=k, size=SIZE))
         heights = np.asarray(snap.plotter.meshes[0].points) @ up
         ranges.append(np.ptp(heights))
         snap.close()
@@ -159,24 +165,34 @@ def test_vertical_exaggeration_scales_relief(crater: Scene) -> None:
 def test_bad_inputs_raise_input_errors(crater: Scene) -> None:
     t = crater.terrain
     vis = np.ones(t.shape, np.uint8)
-    cases = [
-        ({"visibility": vis[:-1]}, "DEM grid"),
-        ({"ortho": np.ones((2, *t.shape))}, "2"),
-        ({"visibility": vis * 7}, "codes"),
-        ({"visibility": vis, "ortho": vis}, "not several"),
-        ({"heights": t.values}, "truth"),
-        ({"view": "sideways"}, "unknown view"),
-        ({"view": "from-camera"}, "camera"),
-        (
-            {"view": "from-camera", "cameras": [crater.cameras["nadir"]], "view_camera": 1},
-            "0-based",
-        ),
-        ({"exaggerate": 0.0}, "exaggeration"),
-        ({"size": (4, 4)}, "size"),
+    nadir = [crater.cameras["nadir"]]
+    cases = [  # (rasters and cameras, options, words in the message)
+        ({"visibility": vis[:-1]}, {}, "DEM grid"),
+        ({"ortho": np.ones((2, *t.shape))}, {}, "2"),
+        ({"visibility": vis * 7}, {}, "codes"),
+        ({"visibility": np.stack([vis, vis])}, {}, "one band"),
+        ({"visibility": vis, "ortho": vis}, {}, "not several"),
+        ({"heights": t.values}, {}, "truth"),
+        ({}, {"view": "sideways"}, "unknown view"),
+        ({}, {"view": "from-camera"}, "camera"),
+        ({"cameras": nadir}, {"view": "from-camera", "view_camera": 1}, "0-based"),
+        ({}, {"exaggerate": 0.0}, "exaggeration"),
+        ({}, {"size": (4, 4)}, "size"),
+        ({}, {"rays": -1}, "rays"),
+        ({}, {"elevation": 0.0}, "elevation"),
+        ({}, {"error_limit": 0.0}, "limit"),
     ]
-    for kwargs, words in cases:
+    for rasters, options, words in cases:
         with pytest.raises(InputError, match=words):
-            snapshot(t, **kwargs)
+            snapshot(t, **rasters, options=SnapshotOptions(**options))
+
+
+def test_options_take_view_names_and_check_themselves() -> None:
+    options = SnapshotOptions(view="top", size=[640.0, 480.0])
+    assert options.view is View.TOP and options.size == (640, 480)
+    assert SnapshotOptions(view=View.FROM_CAMERA).view == "from-camera"
+    with pytest.raises(InputError, match="oblique, top, from-camera"):
+        SnapshotOptions(view="side")
 
 
 def test_cli_renders_end_to_end(crater_dir: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001

@@ -33,7 +33,7 @@ def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
         rows.append(
             {
                 "backend": backend,
-                "triangles": len(tmesh.mesh.faces),
+                "triangles": len(tmesh.faces),
                 "rays": rays,
                 "build_s": build,
                 "raw_rays_per_s": rays / raw,

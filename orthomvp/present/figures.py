@@ -6,10 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.palette import VIS_LABELS, VIS_RGB
+from orthomvp.codes import Code
+from orthomvp.present.colours import ERROR_CMAP, error_colour_limit
 from orthomvp.raster import atomic_path
 
-VIS_COLOURS = [tuple(v / 255 for v in VIS_RGB[k]) for k in range(4)]  # matplotlib RGB
+CODE_COLOURS = [tuple(v / 255 for v in code.rgb) for code in Code]
+"""Matplotlib RGB (0-1) of the visibility codes, indexed by code."""
 
 
 def _pyplot():  # noqa: ANN202
@@ -31,10 +33,12 @@ def _visibility_axes(ax, codes: np.ndarray, title: str) -> None:  # noqa: ANN001
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
-    ax.imshow(codes, cmap=ListedColormap(VIS_COLOURS), vmin=-0.5, vmax=3.5, interpolation="nearest")
+    ax.imshow(
+        codes, cmap=ListedColormap(CODE_COLOURS), vmin=-0.5, vmax=3.5, interpolation="nearest"
+    )
     ax.set_title(title)
-    present = [k for k in range(4) if (codes == k).any()]
-    handles = [Patch(color=VIS_COLOURS[k], label=VIS_LABELS[k]) for k in present]
+    present = [code for code in Code if (codes == code).any()]
+    handles = [Patch(color=CODE_COLOURS[code], label=code.label) for code in present]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2, fontsize=8)
 
 
@@ -94,12 +98,12 @@ def height_error_maps(
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10.5, 4.6), constrained_layout=True)
     finite = np.concatenate([a[np.isfinite(a)] for a in (before, after)])
-    lim = float(np.percentile(np.abs(finite), 99)) or 1.0
+    lim = error_colour_limit(finite)
     for ax, err, name in zip(axes, (before, after), ("start DEM", "fitted DEM"), strict=True):
         ok = np.isfinite(err)
         rmse = float(np.sqrt(np.mean(err[ok] ** 2)))
         ax.set_facecolor("black")
-        im = ax.imshow(np.ma.masked_invalid(err), cmap="RdBu_r", vmin=-lim, vmax=lim)
+        im = ax.imshow(np.ma.masked_invalid(err), cmap=ERROR_CMAP, vmin=-lim, vmax=lim)
         ax.set_title(f"{name}: error against truth, RMSE {rmse:.1f} m", fontsize=10)
         ax.set_xlabel(f"columns ({spacing:g} m posts)")
         ax.set_ylabel("rows")

@@ -1,0 +1,186 @@
+"""Where things stand in a 3D snapshot: the DEM's local up and grid north, camera glyphs
+(frusta), and the viewer's placement for the oblique, top and from-camera views.
+
+Positions are in the snapshot's local frame (world metres minus the mesh origin, see
+:mod:`orthomvp.present.snapshot`); angles in degrees. The functions set a VTK camera (a pyvista
+Plotter's ``camera``) but import no plotting library themselves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.codes import View
+from orthomvp.errors import InputError
+from orthomvp.mesh import TerrainMesh
+from orthomvp.terrain import Terrain
+
+if TYPE_CHECKING:
+    import pyvista as pv
+
+VIEW_ANGLE = 30.0  # vertical field of view of the oblique view, degrees
+GLYPH_DISTANCE = 1.2  # far cameras are drawn this many DEM radii from the DEM centre
+GLYPH_SIZE = 0.25  # depth of a camera glyph, in DEM radii
+GLYPH_OPENING = 0.4  # least half-size of a camera glyph's image rectangle (tangent)
+Rect = tuple[float, float, float, float]
+"""(u0, v0, u1, v1): a camera's pixel rectangle, outer pixel edges."""
+
+
+def grid_frame(terrain: Terrain, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit 'up' at ``origin`` and 'grid north' (towards row 0, made horizontal), world frame."""
+    up = terrain.up_vectors(origin)
+    rows, cols = terrain.shape
+    c, r = (cols - 1) / 2, (rows - 1) / 2
+    h = np.full(2, np.nanmedian(terrain.values))
+    ends = terrain.to_world(np.array([c, c]), np.array([r + 1, r - 1]), h)
+    north = ends[1] - ends[0]
+    north -= (north @ up) * up
+    return up, north / np.linalg.norm(north)
+
+
+def image_rect(camera: PinholeCamera, tmesh: TerrainMesh) -> Rect:
+    """The image's outer pixel edges, or, without an image size, the pixel rectangle that holds
+    the projection of ``tmesh``."""
+    if camera.width is not None and camera.height is not None:
+        return -0.5, -0.5, camera.width - 0.5, camera.height - 0.5
+    verts = tmesh.world_vertices
+    uv, _ = camera.project(verts[:: max(1, len(verts) // 20000)])
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if not len(uv):
+        raise InputError("a camera without an image size does not see the DEM at all")
+    (u0, v0), (u1, v1) = uv.min(axis=0), uv.max(axis=0)
+    return float(u0), float(v0), float(u1), float(v1)
+
+
+def pixel_tangents(camera: PinholeCamera, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Tangents of the angles right of and below the optical axis of pixels (u, v) (no lens
+    distortion)."""
+    return (u * camera.pitch - camera.cu) / camera.fu, (v * camera.pitch - camera.cv) / camera.fv
+
+
+@dataclass
+class Glyph:
+    """A camera's frustum glyph in the local frame: ``points`` (apex, 4 image corners, end of
+    the optical axis) and the true camera centre ``centre``."""
+
+    points: np.ndarray
+    centre: np.ndarray
+
+    @property
+    def far(self) -> bool:
+        """True when the glyph stands in for a camera elsewhere."""
+        return not np.array_equal(self.points[0], self.centre)
+
+
+def camera_glyph(
+    camera: PinholeCamera,
+    rect: Rect,
+    origin: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+) -> Glyph:
+    """The frustum glyph of a camera: apex at the camera, or, for a camera farther than
+    ``GLYPH_DISTANCE`` DEM radii from the DEM centre, at that distance on its line of sight to
+    the centre; image rectangle ``GLYPH_SIZE`` radii deep, widened to at least ``GLYPH_OPENING``
+    (a tangent) a side. ``origin`` is the local frame's origin (world); ``centre`` and
+    ``radius`` describe the DEM's bounding sphere in the local frame."""
+    c = camera.center - origin
+    offset = c - centre
+    dist = float(np.linalg.norm(offset))
+    apex = (
+        c if dist <= GLYPH_DISTANCE * radius else centre + offset * (GLYPH_DISTANCE * radius / dist)
+    )
+    a = camera.world_to_image_axes  # rows: image u, v, w axes in the world frame
+    u0, v0, u1, v1 = rect
+    tu, tv = pixel_tangents(camera, np.array([u0, u1, u1, u0]), np.array([v0, v0, v1, v1]))
+    # A far camera's true frustum is a needle: widen the rectangle about its centre until its
+    # half-size is at least GLYPH_OPENING.
+    cu, cv = (tu[0] + tu[1]) / 2, (tv[0] + tv[2]) / 2
+    scale = max(1.0, GLYPH_OPENING / max(abs(tu[1] - cu), abs(tv[2] - cv)))
+    tu, tv = cu + scale * (tu - cu), cv + scale * (tv - cv)
+    depth = GLYPH_SIZE * radius
+    corners = apex + depth * (tu[:, None] * a[0] + tv[:, None] * a[1] + a[2])
+    return Glyph(np.vstack([apex, corners, apex + 1.6 * depth * a[2]]), c)
+
+
+def default_azimuth(
+    glyphs: list[Glyph], centre: np.ndarray, up: np.ndarray, north: np.ndarray
+) -> float:
+    """Viewer azimuth, degrees clockwise from grid north: opposite the first camera (210 when
+    there is none or it looks straight down)."""
+    if glyphs:
+        to_cam = glyphs[0].centre - centre
+        e, n = to_cam @ np.cross(north, up), to_cam @ north
+        if np.hypot(e, n) > 1e-3 * np.linalg.norm(to_cam):
+            return float(np.degrees(np.arctan2(e, n)) + 180.0)
+    return 210.0
+
+
+def view_dem(
+    plotter: pv.Plotter,
+    view: View,
+    points: np.ndarray,
+    centre: np.ndarray,
+    up: np.ndarray,
+    north: np.ndarray,
+    azimuth: float,
+    elevation: float,
+) -> None:
+    """Look at ``centre`` in an oblique view (from ``azimuth`` degrees clockwise from grid
+    north, ``elevation`` degrees up) or a top view (grid north up, orthographic) that just holds
+    ``points`` (the DEM and the camera glyphs, not far cameras themselves)."""
+    east = np.cross(north, up)
+    width, height = plotter.window_size
+    aspect = width / height
+    if view == View.TOP:
+        fwd, screen_up = -up, north
+    else:
+        az, el = np.radians(azimuth), np.radians(elevation)
+        fwd = -(np.cos(el) * (np.sin(az) * east + np.cos(az) * north) + np.sin(el) * up)
+        screen_up = up
+    right = np.cross(fwd, screen_up)
+    right /= np.linalg.norm(right)
+    screen_up = np.cross(right, fwd)
+    p = points - centre
+    x, y, z = p @ right, p @ screen_up, p @ fwd
+    cam = plotter.camera
+    margin = 1.08
+    if view == View.TOP:
+        cam.enable_parallel_projection()
+        cam.parallel_scale = margin * max(np.abs(y).max(), np.abs(x).max() / aspect)
+        dist = 2.0 * float(np.abs(p).max()) + 1.0
+    else:
+        tan_v = np.tan(np.radians(VIEW_ANGLE) / 2) / margin
+        cam.view_angle = VIEW_ANGLE
+        dist = float(np.max(np.maximum(np.abs(x) / (tan_v * aspect), np.abs(y) / tan_v) - z))
+    cam.focal_point = centre
+    cam.position = centre - dist * fwd
+    cam.up = screen_up
+
+
+def view_from_camera(
+    plotter: pv.Plotter,
+    camera: PinholeCamera,
+    rect: Rect,
+    origin: np.ndarray,
+) -> None:
+    """Look through ``camera``: its centre, axis, image 'up' (-v) and the field of view of
+    ``rect``, whose centre is put at the middle of the snapshot."""
+    a = camera.world_to_image_axes
+    u0, v0, u1, v1 = rect
+    (tl, tr), (tt, tb) = pixel_tangents(camera, np.array([u0, u1]), np.array([v0, v1]))
+    half = (tb - tt) / 2  # tangent of half the vertical field of view
+    width, height = plotter.window_size
+    cam = plotter.camera
+    c = camera.center - origin
+    cam.position = c
+    cam.focal_point = c + a[2]
+    cam.up = -a[1]
+    cam.view_angle = float(np.degrees(2 * np.arctan(half)))
+    # Shift the projection so that the rectangle's centre (off the optical axis when the
+    # principal point is off-centre) lands in the middle of the snapshot.
+    cam.SetWindowCenter((tl + tr) / 2 / (half * width / height), -(tt + tb) / 2 / half)
