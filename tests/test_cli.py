@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import rasterio
 import trimesh
 from affine import Affine
@@ -47,14 +46,12 @@ def test_help_lists_subcommands() -> None:
     for cmd in COMMANDS:
         assert cmd in proc.stdout
     for cmd in COMMANDS:
-        with pytest.raises(SystemExit) as exc:
-            main([cmd, "--help"])
-        assert exc.value.code == 0
+        assert main([cmd, "--help"]) == 0
 
 
 def test_usage_errors_are_one_line() -> None:
-    assert_one_line_error(run("synth", "volcano", "x"), "invalid choice")
-    assert_one_line_error(run("mesh", "dem.tif"), "-o/--output")
+    assert_one_line_error(run("synth", "volcano", "x"), "synth: ", "'volcano' is not one of")
+    assert_one_line_error(run("mesh", "dem.tif"), "mesh: ", "'--output'")
 
 
 def test_synth_then_mesh(tmp_path: Path) -> None:
