@@ -1,37 +1,50 @@
-"""The command line: subcommands, one-line errors with exit status 2, no half-written output."""
+"""The command line: subcommands, documented options, one-line errors with exit status 2 (130
+on Ctrl-C), no half-written output. Commands run in this process through ``main``; one test
+runs the real entry point, ``python -m orthomvp``, in a subprocess."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass
+from io import StringIO
 from pathlib import Path
 
+import click
 import numpy as np
 import pytest
 import rasterio
 import trimesh
 from affine import Affine
 
-from orthomvp.cli import main
+from orthomvp.cli import cli, main
+from orthomvp.cli.command import spell_out
 
 COMMANDS = (
-    "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "fit", "explore",
+    "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
     "eps-study", "bench",
 )  # fmt: skip
 
 
-def run(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``python -m orthomvp ARGS`` in a subprocess, as a user would."""
-    return subprocess.run(
-        [sys.executable, "-m", "orthomvp", *args],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=600,
-    )
+@dataclass
+class Result:
+    """Exit status and output of one command line."""
+
+    returncode: int
+    stdout: str
+    stderr: str
 
 
-def assert_one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
+def run(*args: str) -> Result:
+    """Run ``orthomvp ARGS`` in this process, as the entry point does."""
+    out, err = StringIO(), StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        status = main(list(args))
+    return Result(status, out.getvalue(), err.getvalue())
+
+
+def assert_one_line_error(proc: Result | subprocess.CompletedProcess, *words: str) -> None:
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
@@ -41,26 +54,99 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *words: str) -> Non
         assert word in lines[0], lines[0]
 
 
-def test_help_lists_subcommands() -> None:
-    proc = run("--help")
-    assert proc.returncode == 0
+def test_entry_point_in_a_subprocess() -> None:
+    def entry(*args: str) -> subprocess.CompletedProcess:
+        cmd = [sys.executable, "-m", "orthomvp", *args]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+    proc = entry("--help")
+    assert proc.returncode == 0, proc.stderr
     for cmd in COMMANDS:
-        assert cmd in proc.stdout
-    for cmd in COMMANDS:
-        with pytest.raises(SystemExit) as exc:
-            main([cmd, "--help"])
-        assert exc.value.code == 0
+        assert f"\n  {cmd} " in proc.stdout
+    assert_one_line_error(entry("synth", "volcano", "x"), "synth: ", "'volcano'", "crater")
 
 
-def test_usage_errors_are_one_line() -> None:
-    assert_one_line_error(run("synth", "volcano", "x"), "invalid choice")
-    assert_one_line_error(run("mesh", "dem.tif"), "-o/--output")
+def test_help_documents_every_argument_and_option() -> None:
+    assert tuple(cli.commands) == COMMANDS
+    assert run("--version").stdout.startswith("orthomvp ")
+    root = cli.make_context("orthomvp", [], resilient_parsing=True)
+    for name, command in cli.commands.items():
+        proc = run(name, "--help")
+        assert proc.returncode == 0 and proc.stdout.startswith(f"Usage: orthomvp {name} ")
+        text = "".join(proc.stdout.split())  # as wrapped: compare without spaces
+        ctx = command.make_context(name, [], parent=root, resilient_parsing=True)
+        for param in command.params:
+            assert param.help, f"{name}: {param.name} has no help"
+            record = "".join(param.get_help_record(ctx)[1].split())
+            assert record in text
+            if isinstance(param, click.Option) and (
+                isinstance(param.show_default, str)
+                or ctx.params[param.name] not in (None, False, ())
+            ):
+                assert "[default:" in record, f"{name}: {param.name} does not show its default"
+
+
+def test_choices_match_the_library() -> None:
+    from orthomvp import synthetic
+    from orthomvp.cli import mesh as mesh_cli
+    from orthomvp.cli import synth as synth_cli
+    from orthomvp.present import colours
+
+    assert synth_cli.KINDS == synthetic.KINDS and mesh_cli.COLOUR_KINDS == colours.COLOUR_KINDS
+
+
+def test_usage_errors_are_one_line(tmp_path: Path) -> None:
+    assert_one_line_error(run("synth", "volcano", "x"), "synth: ", "'volcano' is not one of")
+    assert_one_line_error(run("mesh", "dem.tif"), "mesh: ", "'--output'")
+    assert_one_line_error(run("mesh", "dem.tif", "-o", "x.ply", "--bogus"), "--bogus")
+    assert_one_line_error(run("synth", "crater", "x", "--size", "4"), "--size", "x>=8")
+    assert_one_line_error(run("synth", "crater", "x", "--spacing", "nan"), "not positive")
+    assert_one_line_error(run("render", "dem.tif", "-o", "x.png", "--size", "9", "9"), "16<=x")
+    assert_one_line_error(run("eps-study", "s", "--dem-noise", "1", "-2"), "--dem-noise")
+    assert_one_line_error(run("explore", "d", "i", "c", "-c", "x", "--script", "f"), "not allowed")
+    assert_one_line_error(run("nonsense"), "No such command 'nonsense'")
+    proc = run("-q")  # no command: the overview, and the status of a usage error
+    assert proc.returncode == 2 and "Commands:" in proc.stdout and proc.stderr == ""
+    assert not list(tmp_path.iterdir())
+
+
+def test_options_with_several_values() -> None:
+    words = ["s", "--eps", "1", "2", "-3", "--dem-noise", "0", "5", "-o", "p", "--eps", "7"]
+    assert spell_out(words, {"--eps", "--dem-noise"}) == [
+        "s", "--eps", "1", "--eps", "2", "--eps", "-3", "--dem-noise", "0", "--dem-noise", "5",
+        "-o", "p", "--eps", "7",
+    ]  # fmt: skip
+    after_end = ["s", "--", "--eps", "1", "2"]
+    assert spell_out(after_end, {"--eps"}) == after_end
+
+
+def test_interrupts_and_internal_errors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import orthomvp.synthetic
+
+    def stop(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(orthomvp.synthetic, "make_scene", stop)
+    proc = run("synth", "crater", str(tmp_path / "scene"))
+    assert proc.returncode == 130 and proc.stderr.count("\n") == 1 and "interrupted" in proc.stderr
+
+    def bug(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(orthomvp.synthetic, "make_scene", bug)
+    monkeypatch.delenv("ORTHOMVP_DEBUG", raising=False)
+    assert_one_line_error(run("synth", "crater", str(tmp_path / "s")), "internal error", "a bug")
+    monkeypatch.setenv("ORTHOMVP_DEBUG", "1")
+    with pytest.raises(RuntimeError, match="a bug"):
+        run("synth", "crater", str(tmp_path / "s"))
+    assert not list(tmp_path.iterdir())
 
 
 def test_synth_then_mesh(tmp_path: Path) -> None:
     out = tmp_path / "scene"
     proc = run("synth", "hills", str(out), "--size", "24", "--supersample", "1")
     assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == f"wrote hills scene with 4 views to {out}\n"
     for name in ("dem.tif", "scene.json", "truth_radiance.tif", "fore1.tif", "fore1.tsai"):
         assert (out / name).is_file()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
@@ -143,3 +229,26 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
     assert "occlusion-aware orthophoto" in proc.stdout
     assert "MVP fit" in proc.stdout
     assert (tmp_path / "b.json").is_file()
+
+
+def test_bench_peer_data_default(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--peer-data defaults to $ORTHOMVP_DATA/ngi-aerial, else to the synthetic scene (the
+    peer run itself is replaced here: tests/test_bench_peer.py runs it)."""
+    from orthomvp import bench
+
+    used = []
+    monkeypatch.setattr(bench, "import_orthority", lambda: None)
+    monkeypatch.setattr(bench, "ngi_case", lambda data, work: used.append(data) or "ngi")
+    monkeypatch.setattr(bench, "synthetic_case", lambda work: used.append(None) or "synthetic")
+    monkeypatch.setattr(bench, "bench_orthority", lambda case, res, repeat: {"case": case})
+    monkeypatch.setattr(bench, "format_orthority", lambda row: f"ran {row['case']}")
+    monkeypatch.delenv("ORTHOMVP_DATA", raising=False)
+    proc = run("bench", "--peer", "orthority")
+    assert proc.returncode == 0, proc.stderr
+    assert "using a synthetic aerial scene" in proc.stdout and "ran synthetic" in proc.stdout
+    monkeypatch.setenv("ORTHOMVP_DATA", str(tmp_path))
+    (tmp_path / "ngi-aerial").mkdir()
+    (tmp_path / "ngi-aerial" / "dem.tif").touch()
+    assert run("bench", "--peer", "orthority").stdout == "ran ngi\n"
+    assert used == [None, tmp_path / "ngi-aerial"]
+    assert "$ORTHOMVP_DATA/ngi-aerial" in "".join(run("bench", "--help").stdout.split())

@@ -1,4 +1,5 @@
-"""``orthomvp fit`` end to end: outputs on the DEM grid, one-line errors, nothing half-written."""
+"""``orthomvp fit`` end to end (in this process, see tests/test_cli.py): outputs on the DEM grid,
+one-line errors, nothing half-written."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The visibility, ortho, mosaic and eps-study commands, and their handling of bad input."""
+"""The visibility, ortho, mosaic and eps-study commands, and their handling of bad input (run in
+this process, see tests/test_cli.py)."""
 
 from __future__ import annotations
 

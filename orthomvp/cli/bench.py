@@ -1,0 +1,138 @@
+"""``orthomvp bench``: benchmarks, each a ratio to a baseline measured in the same run."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import click
+
+from orthomvp.cli.command import Command
+from orthomvp.cli.options import PATH, POSITIVE
+
+PEER_DATA_ENV = "ORTHOMVP_DATA"
+"""The environment variable naming the data folder that holds ``ngi-aerial/``."""
+
+
+def peer_data_default() -> Path | None:
+    """$ORTHOMVP_DATA/ngi-aerial when ORTHOMVP_DATA is set, else None (a synthetic scene)."""
+    root = os.environ.get(PEER_DATA_ENV)
+    return Path(root) / "ngi-aerial" if root else None
+
+
+@click.command(
+    cls=Command,
+    short_help="benchmarks, each reported as a ratio to a baseline measured in the same run",
+)
+@click.option(
+    "--size",
+    type=click.IntRange(min=2),
+    default=1000,
+    metavar="N",
+    help="ray-casting DEM posts per side",
+)
+@click.option(
+    "--rays", type=click.IntRange(min=1), default=1_000_000, metavar="N", help="number of rays"
+)
+@click.option(
+    "--ortho-size",
+    type=click.IntRange(min=0),
+    default=2000,
+    metavar="N",
+    help="orthophoto DEM posts per side (0 skips)",
+)
+@click.option(
+    "--mvp-size",
+    type=click.IntRange(min=0),
+    default=96,
+    metavar="N",
+    help="MVP fit DEM posts per side (0 skips)",
+)
+@click.option(
+    "--peer",
+    type=click.Choice(("orthority",)),
+    help="only compare orthomvp (occlusion on and off) with this tool on the same grid",
+)
+@click.option(
+    "--peer-data",
+    type=PATH,
+    default=peer_data_default,
+    metavar="DIR",
+    show_default=f"${PEER_DATA_ENV}/ngi-aerial when {PEER_DATA_ENV} is set, else a synthetic "
+    "aerial scene",
+    help="the ngi-aerial data for --peer (a synthetic scene when it holds no dem.tif)",
+)
+@click.option(
+    "--peer-res",
+    type=POSITIVE,
+    metavar="M",
+    show_default="the DEM's, 24 m for ngi-aerial",
+    help="output post spacing for --peer in metres",
+)
+@click.option(
+    "--peer-repeat",
+    type=click.IntRange(min=1),
+    default=3,
+    metavar="N",
+    help="--peer keeps the best of N",
+)
+@click.option(
+    "--json", "json_path", type=PATH, metavar="FILE", help="also write the figures as JSON"
+)
+def bench(
+    size: int,
+    rays: int,
+    ortho_size: int,
+    mvp_size: int,
+    peer: str | None,
+    peer_data: Path | None,
+    peer_res: float | None,
+    peer_repeat: int,
+    json_path: Path | None,
+) -> None:
+    """Ray casting: rays per second through orthomvp's first_hit and through the bare backend
+    call on the same rays, for Embree and Open3D. Orthophoto: the occlusion-aware orthophoto
+    of one image against the bare Embree cast of one ray per post, in the same run. MVP: the
+    plane fit of a synthetic hills DEM from its 4 views against bare cv2.remap of as many
+    bilinear samples from the same images, in the same run. --peer orthority runs instead the
+    side-by-side comparison with Orthority (when installed): one ngi-aerial frame (or, without
+    the data, a synthetic aerial scene) onto the same grid with both tools, end to end from
+    files to GeoTIFF, best of --peer-repeat alternating runs; ratio = orthomvp time /
+    Orthority time."""
+    from orthomvp import bench as b
+    from orthomvp.raster import atomic_path
+
+    if peer:
+        results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
+    else:
+        results = {"raycast": b.bench_raycast(size=size, rays=rays)}
+        print(b.format_raycast(results["raycast"]))
+        if ortho_size:
+            results["ortho"] = b.bench_ortho(size=ortho_size)
+            print(b.format_ortho(results["ortho"]))
+        if mvp_size:
+            results["mvp"] = b.bench_mvp(size=mvp_size)
+            print(b.format_mvp(results["mvp"]))
+    if json_path:
+        with atomic_path(json_path) as tmp:
+            tmp.write_text(json.dumps(results, indent=2))
+
+
+def bench_peer(data: Path | None, res: float | None, repeat: int) -> dict:
+    """``bench --peer orthority``: the side-by-side run on the ngi-aerial frame in ``data``
+    (a synthetic aerial scene without it), printed; returns its figures."""
+    from orthomvp import bench as b
+
+    b.import_orthority()
+    with tempfile.TemporaryDirectory(prefix="orthomvp-peer-") as tmp:
+        if data is not None and (data / "dem.tif").is_file():
+            case = b.ngi_case(data, Path(tmp))
+        else:
+            where = f"in {data}" if data else f"given (--peer-data, or ${PEER_DATA_ENV})"
+            print(f"no ngi-aerial data {where}: using a synthetic aerial scene")
+            case = b.synthetic_case(Path(tmp))
+        row = b.bench_orthority(case, res=res, repeat=repeat)
+    print(b.format_orthority(row))
+    return row

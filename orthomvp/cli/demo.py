@@ -1,0 +1,28 @@
+"""``orthomvp demo``: the whole pipeline on a built-in synthetic scene."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from orthomvp.cli.command import Command
+from orthomvp.cli.options import PATH, quiet
+
+
+@click.command(cls=Command, short_help="run the pipeline end to end on a built-in synthetic scene")
+@click.argument(
+    "outdir",
+    type=PATH,
+    default=Path("orthomvp-demo"),
+    required=False,
+    metavar="[OUTDIR]",
+    help="the directory for every output (created if absent; nothing is written on "
+    "failure; default ./orthomvp-demo)",
+)
+def demo(outdir: Path) -> None:
+    """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
+    print a summary."""
+    from orthomvp.demo import run_demo
+
+    run_demo(outdir, quiet=quiet())

@@ -1,0 +1,114 @@
+"""``orthomvp mesh``: the DEM as a body-fixed Cartesian mesh (PLY, OBJ, GLB)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import click
+
+from orthomvp.cli.command import Command
+from orthomvp.cli.options import (
+    PATH,
+    DemInput,
+    dem_argument,
+    dem_options,
+    error_limit_option,
+    output_option,
+    usage_error,
+)
+
+COLOUR_KINDS = ("image", "visibility", "error")
+"""what a texture raster holds, as :data:`orthomvp.present.colours.COLOUR_KINDS` (not
+imported: --help stays fast)"""
+
+
+@click.command(
+    cls=Command,
+    exclusive=[("texture", "error_against")],
+    short_help="export the DEM as a Cartesian mesh (PLY, OBJ, GLB)",
+)
+@dem_argument
+@output_option("OUT", "OUT.ply, OUT.obj or OUT.glb")
+@click.option(
+    "--texture",
+    type=PATH,
+    metavar="RASTER",
+    help="a raster on the DEM grid to colour the mesh (see --colour-by)",
+)
+@click.option(
+    "--error-against",
+    type=PATH,
+    metavar="TRUTH.tif",
+    help="colour by the height error DEM - TRUTH in metres (TRUTH on the DEM grid)",
+)
+@click.option(
+    "--colour-by",
+    type=click.Choice(COLOUR_KINDS),
+    show_default="image; error with --error-against",
+    help="what --texture holds: image (grey or RGB, stretched), visibility (codes 0-3 of "
+    "`orthomvp visibility`, in the figures' colours) or error (metres: blue below zero, red "
+    "above)",
+)
+@error_limit_option("error colours saturate at +-M metres")
+@click.option(
+    "--local-origin",
+    is_flag=True,
+    help="write vertices relative to the mesh's local origin (printed) instead of "
+    "body-fixed coordinates",
+)
+@click.option(
+    "--decimate",
+    type=click.IntRange(min=4),
+    metavar="TRIANGLES",
+    help="simplify to about this many triangles (Open3D quadric decimation)",
+)
+@dem_options
+def mesh(
+    dem: DemInput,
+    output: Path,
+    texture: Path | None,
+    error_against: Path | None,
+    colour_by: str | None,
+    error_limit: float | None,
+    local_origin: bool,
+    decimate: int | None,
+) -> None:
+    """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
+    skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
+    and GLB an image texture, from --texture or --error-against."""
+    from orthomvp.mesh import terrain_mesh
+    from orthomvp.present.colours import error_colour_limit, height_error
+    from orthomvp.present.export import export_mesh
+    from orthomvp.raster import read_image
+
+    kind = colour_by or ("error" if error_against else "image")
+    if error_against and kind != "error":
+        raise usage_error(f"--error-against colours by height error, not by {kind}")
+    if colour_by and not (texture or error_against):
+        raise usage_error("--colour-by needs a raster: give --texture (or --error-against)")
+    if error_limit is not None and kind != "error":
+        raise usage_error("--error-limit applies to error colours only (--colour-by error)")
+    terrain = dem.read()
+    tmesh = terrain_mesh(terrain)
+    if error_against:
+        truth = replace(dem, path=error_against, world=terrain.world).read()
+        colours = height_error(terrain, truth)
+    else:
+        colours = read_image(texture) if texture else None
+    export_mesh(
+        tmesh,
+        output,
+        texture=colours,
+        local=local_origin,
+        target_triangles=decimate,
+        colour_kind=kind,
+        error_limit=error_limit,
+    )
+    note = f", decimated to about {decimate:,} triangles" if decimate else ""
+    print(f"wrote {output}: {len(tmesh.vertices):,} vertices, {len(tmesh.faces):,} triangles{note}")
+    if kind == "error":
+        limit = error_colour_limit(colours, limit=error_limit)
+        print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
+    if local_origin:
+        print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*tmesh.origin))

@@ -1,0 +1,150 @@
+"""``orthomvp render``: an offscreen 3D snapshot of the DEM, its cameras and a result on its
+grid."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from orthomvp.cli.command import Command, Variadic
+from orthomvp.cli.options import (
+    PATH,
+    POSITIVE,
+    DemInput,
+    dem_argument,
+    dem_options,
+    enum_choice,
+    error_limit_option,
+    output_option,
+    usage_error,
+)
+from orthomvp.codes import View
+
+
+@click.command(
+    cls=Command,
+    exclusive=[("ortho", "visibility", "heights")],
+    short_help="offscreen 3D snapshot of the DEM, its cameras and a result on its grid",
+)
+@dem_argument
+@output_option("SNAP", "SNAP.png (or .jpg)")
+@click.option("--ortho", type=PATH, metavar="ORTHO.tif", help="drape an orthophoto")
+@click.option("--visibility", type=PATH, metavar="VIS.tif", help="colour by visibility codes")
+@click.option(
+    "--heights", type=PATH, metavar="FITTED.tif", help="colour by height error (with --truth)"
+)
+@click.option("--truth", type=PATH, metavar="TRUTH.tif", help="the truth for --heights")
+@click.option(
+    "--camera",
+    "cameras",
+    cls=Variadic,
+    type=PATH,
+    metavar="CAM ...",
+    help="cameras to draw (.tsai, .pinhole or .json), numbered from 1",
+)
+@click.option(
+    "--rays", type=click.IntRange(min=0), default=0, metavar="N", help="rays drawn per camera"
+)
+@click.option(
+    "--view",
+    default=View.OBLIQUE.value,
+    **enum_choice(View),
+    help="oblique from --azimuth and --elevation, straight down, or through a camera",
+)
+@click.option(
+    "--camera-index",
+    type=click.IntRange(min=1),
+    default=1,
+    metavar="N",
+    help="the camera that --view from-camera looks through (1-based)",
+)
+@click.option(
+    "--azimuth",
+    type=float,
+    metavar="DEG",
+    show_default="opposite the first camera, else 210",
+    help="oblique view from this azimuth, degrees clockwise from grid north",
+)
+@click.option(
+    "--elevation",
+    type=click.FloatRange(min=0, max=90, min_open=True),
+    default=45.0,
+    metavar="DEG",
+    help="oblique view elevation, degrees",
+)
+@click.option("--exaggerate", type=POSITIVE, default=1.0, metavar="K", help="vertical exaggeration")
+@error_limit_option("height error colours saturate at +-M metres")
+@click.option(
+    "--size",
+    type=click.IntRange(min=16, max=8192),
+    nargs=2,
+    metavar="W H",
+    show_default="1024 768",
+    help="image size in pixels",
+)
+@click.option("--title", help="a caption in the upper left corner")
+@click.option("--no-legend", is_flag=True, help="no legend or colour bar")
+@dem_options
+def render(
+    dem: DemInput,
+    output: Path,
+    ortho: Path | None,
+    visibility: Path | None,
+    heights: Path | None,
+    truth: Path | None,
+    cameras: tuple[Path, ...],
+    rays: int,
+    view: View,
+    camera_index: int,
+    azimuth: float | None,
+    elevation: float,
+    exaggerate: float,
+    error_limit: float | None,
+    size: tuple[int, int] | None,
+    title: str | None,
+    no_legend: bool,
+) -> None:
+    """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
+    orthophoto, or coloured by visibility codes (occluded posts green) or by the height error
+    FITTED - TRUTH (metres); cameras drawn as numbered frusta, optionally with rays to their
+    first hits."""
+    from orthomvp.camera import read_camera
+    from orthomvp.present.snapshot import SnapshotOptions, snapshot
+    from orthomvp.raster import read_image
+
+    if (heights is None) != (truth is None):
+        raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")
+    models = [read_camera(path) for path in cameras]
+    if view == View.FROM_CAMERA and not camera_index <= len(models):
+        raise usage_error(
+            f"--view from-camera needs --camera-index between 1 and the number of --camera "
+            f"files ({len(models)}), got {camera_index}"
+        )
+    terrain = dem.read(models)
+    given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
+    rasters = {key: read_image(path) for key, path in given.items() if path is not None}
+    snap = snapshot(
+        terrain,
+        **rasters,
+        cameras=models,
+        options=SnapshotOptions(
+            rays=rays,
+            view=view,
+            view_camera=camera_index - 1,
+            azimuth=azimuth,
+            elevation=elevation,
+            exaggerate=exaggerate,
+            size=size,
+            legend=not no_legend,
+            title=title,
+            error_limit=error_limit,
+        ),
+    )
+    try:
+        snap.save(output)
+    finally:
+        snap.close()
+    height, width = snap.image.shape[:2]
+    shown = next((k for k in ("ortho", "visibility", "heights") if k in rasters), "relief")
+    print(f"wrote {output}: {width} x {height} {view} view, {shown}, {len(models)} camera(s)")
