@@ -1,0 +1,113 @@
+"""The package's import graph: no cycle, and every import goes down the layers of
+ARCHITECTURE.md (peers such as ``ortho`` and ``mvp`` never import each other)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "orthomvp"
+
+LAYERS = [
+    ("orthomvp", "orthomvp.errors"),
+    ("orthomvp.codes", "orthomvp.optional"),
+    ("orthomvp.isis",),
+    ("orthomvp.raster",),
+    ("orthomvp.terrain",),
+    ("orthomvp.world", "orthomvp.camera"),
+    ("orthomvp.mesh",),
+    ("orthomvp.raycast",),
+    ("orthomvp.visibility",),
+    ("orthomvp.ortho", "orthomvp.mvp"),
+    ("orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
+    ("orthomvp.epsstudy",),
+    ("orthomvp.bench", "orthomvp.demo"),
+    ("orthomvp.cli",),
+    ("orthomvp.__main__",),
+]
+"""Bottom to top; a module may import from lower layers and from its own unit only."""
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _group(module: str) -> tuple[int, str]:
+    """(layer, top-level unit) of a module: the longest prefix listed in LAYERS."""
+    best = None
+    for layer, names in enumerate(LAYERS):
+        for name in names:
+            if (module == name or module.startswith(name + ".")) and (
+                best is None or len(name) > len(best[1])
+            ):
+                best = (layer, name)
+    assert best is not None, f"{module} is in no layer of this test"
+    return best
+
+
+def _runtime_nodes(tree: ast.AST) -> list[ast.AST]:
+    """All nodes of ``tree`` outside ``if TYPE_CHECKING:`` blocks (annotations only)."""
+    out, todo = [], [tree]
+    while todo:
+        node = todo.pop()
+        out.append(node)
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            todo.extend(node.orelse)
+            continue
+        todo.extend(ast.iter_child_nodes(node))
+    return out
+
+
+def _imports() -> dict[str, set[str]]:
+    """Every orthomvp module and the orthomvp modules it imports (anywhere in the file)."""
+    graph: dict[str, set[str]] = {}
+    for path in PACKAGE.rglob("*.py"):
+        name = _module(path)
+        base = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        deps = set()
+        for node in _runtime_nodes(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names if a.name.startswith("orthomvp")}
+            elif isinstance(node, ast.ImportFrom):
+                mod = node.module or ""
+                if node.level:
+                    anchor = base.split(".")[: len(base.split(".")) - node.level + 1]
+                    mod = ".".join([*anchor, mod] if mod else anchor)
+                if mod.startswith("orthomvp"):
+                    deps.add(mod)
+                    deps |= {f"{mod}.{a.name}" for a in node.names}
+        graph[name] = deps
+    return {k: {d for d in v if d in graph and d != k} for k, v in graph.items()}
+
+
+def test_no_import_cycle() -> None:
+    graph = _imports()
+    state: dict[str, int] = {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        for dep in sorted(graph[node]):
+            if state.get(dep) == 1:
+                cycle = stack[stack.index(dep) :] + [dep] if dep in stack else [node, dep]
+                pytest.fail("import cycle: " + " -> ".join(cycle))
+            if dep not in state:
+                visit(dep, [*stack, dep])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+
+
+def test_imports_go_down_the_layers() -> None:
+    bad = []
+    for module, deps in _imports().items():
+        layer, unit = _group(module)
+        for dep in deps:
+            dep_layer, dep_unit = _group(dep)
+            if dep_layer > layer or (dep_layer == layer and dep_unit != unit):
+                bad.append(f"{module} imports {dep}")
+    assert not bad, "upward or sideways imports: " + "; ".join(sorted(bad))
