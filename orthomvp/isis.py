@@ -107,6 +107,8 @@ def parse_label(path: str | Path, text: str) -> PVLModule:
         raise FormatError(path, f"not a PVL statement: {_one_line(exc.args[-1])}") from exc
     except StopIteration:  # pvl ran out of text inside a statement
         raise FormatError(path, "not a PVL statement: the label ends inside one") from None
+    except (TypeError, ValueError, ArithmeticError) as exc:  # pvl's decoder, e.g. on 1971-08-0
+        raise FormatError(path, f"a value pvl cannot decode ({_one_line(exc)})") from exc
 
 
 def _one_line(message: object, limit: int = 100) -> str:

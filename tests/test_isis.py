@@ -206,6 +206,7 @@ BAD_LABELS = {
     "detached": (corrupt(GOOD, "StartByte   = 1025", "^Core = data.cub"), "detached cube data"),
     "empty Lines": (corrupt(GOOD, "Lines   = 3", "Lines   ="), "Lines = '' is not an integer"),
     "stray =": (corrupt(GOOD, "      Multiplier", "  =    Multiplier"), "not a PVL statement"),
+    "bad date": (corrupt(GOOD, "1971-08-01T", "1971-08-0 T"), "a value pvl cannot decode"),
 }
 
 
