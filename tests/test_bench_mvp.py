@@ -10,6 +10,7 @@ from orthomvp import bench
 from orthomvp.mvp.fit import FitResult
 
 
+@pytest.mark.slow
 def test_bench_mvp_is_consistent(monkeypatch: pytest.MonkeyPatch) -> None:
     fits: list[FitResult] = []
     fit_dem = bench.fit_dem

@@ -17,6 +17,7 @@ from PIL import Image
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
+pytestmark = pytest.mark.slow  # every test runs the whole demo
 
 
 @pytest.fixture(scope="module")

@@ -142,6 +142,7 @@ def test_upper_case_suffix_and_label_tree(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_cube(path), read_image(path))
 
 
+@pytest.mark.realdata
 def test_real_hadley_cube_matches_its_geotiff() -> None:
     cube = read_image(shared("as15-hadley", "AS15-M-1134-hadley.cub"))
     with warnings.catch_warnings():

@@ -204,6 +204,7 @@ def test_bad_dems(tmp_path) -> None:
         Terrain.read(tmp_path / "allnan.tif")
 
 
+@pytest.mark.realdata
 def test_apollo15_dem() -> None:
     t = Terrain.read(shared("apollo15-mvp", "ground-dem.tif"))
     assert t.shape == (64, 64) and t.is_sphere and t.radii[0] == 1737400.0
