@@ -1,4 +1,4 @@
-"""ISIS3 cubes (``.cub``): the PVL label and the raw pixels, read with numpy, without ISIS.
+"""ISIS3 cubes (``.cub``): the PVL label, parsed with pvl, and the raw pixels, read with numpy.
 
 A cube starts with its label, PVL text that ends with a line ``End``. Its
 ``Object = IsisCube > Object = Core`` says where and how the pixels are stored:
@@ -20,18 +20,24 @@ special floats lie just below it).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+import sys
+from collections.abc import Generator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pvl
+from pvl.collections import PVLAggregation, PVLGroup, PVLModule, PVLObject
+from pvl.exceptions import LexerError, ParseError
+from pvl.parser import OmniParser
 
 from orthomvp.errors import FormatError, InputError
 
 _LABEL_CHUNK = 1 << 16  # bytes read at a time while looking for the label's End line
 _LABEL_LIMIT = 1 << 26  # give up looking for the End line after this many bytes
 _END = re.compile(rb"^[ \t]*End[ \t]*\r?$", re.MULTILINE)
-_STATEMENT = re.compile(r"\^?([^\s=]+)\s*=\s*(.*)")
-_COMMENT = re.compile(r"/\*.*?\*/", re.DOTALL)
+_CONTINUATION = re.compile(r"-[\n\r\f]\s*")  # what OmniParser joins before it parses
 
 _VALID_MIN4 = float(np.frombuffer(bytes.fromhex("ff7ffffa"), ">f4")[0])
 _TYPES: dict[str, tuple[str, float, float]] = {  # ISIS type -> numpy dtype, valid min, valid max
@@ -40,85 +46,103 @@ _TYPES: dict[str, tuple[str, float, float]] = {  # ISIS type -> numpy dtype, val
     "unsignedword": ("u2", 3, 65522),
     "real": ("f4", _VALID_MIN4, float(np.finfo(np.float32).max)),
 }
+_MISSING = object()
 
 
-@dataclass
-class PvlNode:
-    """A PVL object or group: its keywords (name -> (text value, line)) and child nodes."""
-
-    kind: str
-    name: str
-    keywords: dict[str, tuple[str, int]] = field(default_factory=dict)
-    children: list[PvlNode] = field(default_factory=list)
-
-    def child(self, kind: str, name: str) -> PvlNode | None:
-        """The first child ``kind`` (object or group) called ``name`` (case-insensitive)."""
-        for node in self.children:
-            if node.kind == kind and node.name.lower() == name.lower():
-                return node
-        return None
+class _BlockError(LexerError):
+    """A group or object that does not close with its own end statement."""
 
 
-def parse_label(path: str | Path, text: str) -> PvlNode:
-    """Parse PVL label ``text`` (up to its ``End`` line) into a tree of objects and groups.
+class _LabelParser(OmniParser):
+    """pvl's permissive parser, except that a group or object must close with its own end
+    statement (OmniParser drops such a block, and what follows it up to that end, silently),
+    and that a stray ``=`` is an error (OmniParser 1.3 loops forever on ``a = 1 = b = 2``)."""
 
-    Keyword values are kept as text (units in ``<...>`` and enclosing quotes removed); a value
-    continues on the next lines while its quotes or brackets are open or it ends with ``-``
-    (PVL's word continuation). Comments ``/* ... */`` are ignored. FormatError on unbalanced
-    objects or groups and on lines that are not statements.
+    _repair_at: int | None = None  # where the last repair of an empty value started
+
+    def parse_module_post_hook(self, module: PVLModule, tokens: Generator) -> tuple:
+        """OmniParser's repair of empty values, unless it is stuck at the same token."""
+        token = next(tokens, None)
+        if token is not None:
+            tokens.send(token)
+            if token.pos == self._repair_at:
+                raise ValueError("no progress")  # pvl's callers report the token they stop at
+            self._repair_at = token.pos
+        return super().parse_module_post_hook(module, tokens)
+
+    def parse_end_aggregation(self, begin_agg: str, block_name: str, tokens: Generator) -> None:
+        """Parse a block's end statement; _BlockError for an End or another block's end."""
+        try:
+            return super().parse_end_aggregation(begin_agg, block_name, tokens)
+        except LexerError:
+            raise
+        except ValueError:
+            token = next(tokens)  # the token that did not close the block, put back by pvl
+            tokens.send(token)
+            kind = "object" if "object" in begin_agg.casefold() else "group"
+            ends = {end.casefold() for end in self.grammar.aggregation_keywords.values()}
+            if token.is_end_statement():
+                message = f"label ends inside {kind} {block_name}"
+            elif token.casefold() in ends:
+                message = f"{token} does not close {kind} {block_name}"
+            else:
+                raise
+            raise _BlockError(message, self.doc, token.pos + len(token) - 1, token) from None
+
+
+def parse_label(path: str | Path, text: str) -> PVLModule:
+    """Parse PVL label ``text`` (ISIS3, PDS3 and the other PVL dialects) with pvl.
+
+    FormatError naming the line for text that is not PVL and for groups or objects that do not
+    close with their own End_Group or End_Object.
     """
-    root = PvlNode("root", "")
-    stack = [root]
-    lines = _COMMENT.sub(lambda m: "\n" * m.group().count("\n"), text).splitlines()
-    number = 0
-    while number < len(lines):
-        line = lines[number].strip()
-        number += 1
-        if not line:
-            continue
-        lowered = line.lower()
-        if lowered == "end":
-            if len(stack) > 1:
-                raise FormatError(path, f"label ends inside {stack[-1].kind} {stack[-1].name}")
-            return root
-        if lowered in ("end_object", "end_group", "endobject", "endgroup"):
-            kind = "object" if "object" in lowered else "group"
-            if stack[-1].kind != kind:
-                raise FormatError(path, f"{line} does not close a {kind}", number)
-            stack.pop()
-            continue
-        match = _STATEMENT.fullmatch(line)
-        if match is None:
-            raise FormatError(path, f"not a PVL statement: {line[:60]!r}", number)
-        key, value, start = match[1], match[2], number
-        while number < len(lines) and _continues(value):
-            value = (value[:-1] if value.endswith("-") else value + " ") + lines[number].strip()
-            number += 1
-        if key.lower() in ("object", "group"):
-            node = PvlNode(key.lower(), _plain(value))
-            stack[-1].children.append(node)
-            stack.append(node)
-        else:
-            stack[-1].keywords.setdefault(key, (_plain(value), start))
-    raise FormatError(path, "the label has no End line")
+    try:
+        return pvl.loads(text, parser=_LabelParser())
+    except _BlockError as exc:
+        raise FormatError(path, str(exc.msg), _line(text, exc.pos)) from exc
+    except LexerError as exc:
+        message = f"not a PVL statement: {_one_line(exc.msg)}"
+        raise FormatError(path, message, _line(text, exc.pos)) from exc
+    except ParseError as exc:
+        raise FormatError(path, f"not a PVL statement: {_one_line(exc.args[-1])}") from exc
+    except StopIteration:  # pvl ran out of text inside a statement
+        raise FormatError(path, "not a PVL statement: the label ends inside one") from None
+    except (TypeError, ValueError, ArithmeticError) as exc:  # pvl's decoder, e.g. on 1971-08-0
+        raise FormatError(path, f"a value pvl cannot decode ({_one_line(exc)})") from exc
 
 
-def _continues(value: str) -> bool:
-    """Whether a PVL value goes on to the next line."""
-    unquoted = re.sub(r'"[^"]*"', "", value)
-    if unquoted.count('"') % 2:
-        return True
-    return unquoted.count("(") > unquoted.count(")") or unquoted.count("{") > unquoted.count(
-        "}"
-    ) or value.endswith("-")  # fmt: skip
+def _one_line(message: object, limit: int = 100) -> str:
+    """pvl's error ``message`` on one line, cut to ``limit`` characters."""
+    text = " ".join(str(message).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _plain(value: str) -> str:
-    """A value without its units and enclosing quotes."""
-    value = re.sub(r"\s*<[^<>]*>\s*$", "", value.strip())
-    if len(value) >= 2 and value[0] == value[-1] and value[0] in "\"'":
-        return value[1:-1]
-    return value
+def _line(text: str, pos: int) -> int:
+    """The line of ``text`` that holds position ``pos`` of what OmniParser parses: ``text`` with
+    its continuations (``-`` at the end of a line) joined."""
+    for match in _CONTINUATION.finditer(text):
+        if match.start() > pos:
+            break
+        pos += match.end() - match.start()
+    return text.count("\n", 0, pos) + 1
+
+
+def _block(
+    node: PVLModule | PVLAggregation, kind: type[PVLAggregation], name: str
+) -> PVLAggregation | None:
+    """The first group or object (``kind``) called ``name`` in ``node`` (case-insensitive)."""
+    for key, value in node.items():
+        if isinstance(value, kind) and key.casefold() == name.casefold():
+            return value
+    return None
+
+
+def _keyword(node: PVLAggregation, key: str) -> Any:
+    """The value of ``node``'s first keyword ``key`` (case-insensitive, units dropped)."""
+    for name, value in node.items():
+        if not isinstance(value, PVLAggregation) and name.casefold() == key.casefold():
+            return value.value if isinstance(value, pvl.Quantity) else value
+    return _MISSING
 
 
 @dataclass(frozen=True)
@@ -146,7 +170,7 @@ class CubeLayout:
         return self.bands * count * self.dtype.itemsize
 
 
-def read_label(path: str | Path) -> PvlNode:
+def read_label(path: str | Path) -> PVLModule:
     """The parsed label of the ISIS3 cube at ``path``."""
     path = Path(path)
     try:
@@ -172,66 +196,66 @@ def read_label(path: str | Path) -> PvlNode:
     return parse_label(path, label.decode("latin-1"))
 
 
-def cube_layout(path: str | Path, label: PvlNode) -> CubeLayout:
+def cube_layout(path: str | Path, label: PVLModule) -> CubeLayout:
     """The pixel layout that ``label`` describes; FormatError for anything missing or bad."""
-    cube = label.child("object", "IsisCube")
-    core = cube.child("object", "Core") if cube else None
+    cube = _block(label, PVLObject, "IsisCube")
+    core = _block(cube, PVLObject, "Core") if cube is not None else None
     if core is None:
         raise FormatError(path, "the label has no Object = IsisCube > Object = Core")
-    if "^Core" in core.keywords or "^core" in core.keywords:
+    if _keyword(core, "^Core") is not _MISSING:
         raise FormatError(path, "detached cube data (^Core) is not supported")
-    dims = core.child("group", "Dimensions")
-    pixels = core.child("group", "Pixels")
-    if dims is None or pixels is None:
+    nodes = {
+        "Core": core,
+        "Dimensions": _block(core, PVLGroup, "Dimensions"),
+        "Pixels": _block(core, PVLGroup, "Pixels"),
+    }
+    if nodes["Dimensions"] is None or nodes["Pixels"] is None:
         raise FormatError(path, "the Core object lacks its Dimensions or Pixels group")
 
-    def get(node: PvlNode, key: str) -> tuple[str, int]:
-        for name, value in node.keywords.items():
-            if name.lower() == key.lower():
-                return value
-        raise FormatError(path, f"the cube label lacks {node.name} {key}")
-
-    def integer(node: PvlNode, key: str, minimum: int = 1) -> int:
-        text, line = get(node, key)
-        if not re.fullmatch(r"[+-]?\d+", text) or int(text) < minimum:
-            raise FormatError(path, f"{key} = {text!r} is not an integer >= {minimum}", line)
-        return int(text)
-
-    def number(node: PvlNode, key: str) -> float:
-        text, line = get(node, key)
-        try:
-            value = float(text)
-        except ValueError:
-            value = np.nan
-        if not np.isfinite(value):
-            raise FormatError(path, f"{key} = {text!r} is not a finite number", line)
+    def get(node: str, key: str) -> Any:
+        value = _keyword(nodes[node], key)
+        if value is _MISSING:
+            raise FormatError(path, f"the cube label lacks {node} {key}")
         return value
 
-    kind, line = get(pixels, "Type")
+    def integer(node: str, key: str) -> int:
+        value = get(node, key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise FormatError(path, f"{key} = {str(value)!r} is not an integer >= 1")
+        return value
+
+    def number(node: str, key: str) -> float:
+        value = get(node, key)
+        real = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (real and abs(value) <= sys.float_info.max):  # not NaN, infinite or huge
+            raise FormatError(path, f"{key} = {str(value)!r} is not a finite number")
+        return float(value)
+
+    kind = str(get("Pixels", "Type"))
     if kind.lower() not in _TYPES:
         known = ", ".join(("UnsignedByte", "SignedWord", "UnsignedWord", "Real"))
-        raise FormatError(path, f"pixel type {kind!r} is not supported (supported: {known})", line)
+        raise FormatError(path, f"pixel type {kind!r} is not supported (supported: {known})")
     code, low, high = _TYPES[kind.lower()]
-    order, line = get(pixels, "ByteOrder")
+    order = str(get("Pixels", "ByteOrder"))
     if order.lower() not in ("lsb", "msb"):
-        raise FormatError(path, f"ByteOrder = {order!r} is neither Lsb nor Msb", line)
-    fmt, line = get(core, "Format")
+        raise FormatError(path, f"ByteOrder = {order!r} is neither Lsb nor Msb")
+    fmt = str(get("Core", "Format"))
     if fmt.lower() not in ("tile", "bandsequential"):
-        raise FormatError(path, f"Format = {fmt!r} is neither Tile nor BandSequential", line)
+        raise FormatError(path, f"Format = {fmt!r} is neither Tile nor BandSequential")
     tiled = fmt.lower() == "tile"
-    samples, lines = integer(dims, "Samples"), integer(dims, "Lines")
+    samples, lines = integer("Dimensions", "Samples"), integer("Dimensions", "Lines")
     return CubeLayout(
-        start=integer(core, "StartByte") - 1,
+        start=integer("Core", "StartByte") - 1,
         tiled=tiled,
-        tile_samples=integer(core, "TileSamples") if tiled else samples,
-        tile_lines=integer(core, "TileLines") if tiled else lines,
+        tile_samples=integer("Core", "TileSamples") if tiled else samples,
+        tile_lines=integer("Core", "TileLines") if tiled else lines,
         samples=samples,
         lines=lines,
-        bands=integer(dims, "Bands"),
+        bands=integer("Dimensions", "Bands"),
         dtype=np.dtype(("<" if order.lower() == "lsb" else ">") + code),
         valid=(low, high),
-        base=number(pixels, "Base"),
-        multiplier=number(pixels, "Multiplier"),
+        base=number("Pixels", "Base"),
+        multiplier=number("Pixels", "Multiplier"),
     )
 
 

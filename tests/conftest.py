@@ -1,19 +1,30 @@
-"""Shared test fixtures: paths to ../shared/data and small synthetic scenes made once."""
+"""Shared test fixtures: the real-data directory and small synthetic scenes made once.
+
+The real data lives in the directory named by the ORTHOMVP_DATA environment variable, by
+default ``../shared/data`` beside the repository; tests that need it are marked ``realdata``
+and skip when it is absent.
+"""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = Path(
+    os.environ.get("ORTHOMVP_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data"
+).absolute()
 
 
 def shared(*parts: str) -> Path:
-    """A path under ../shared/data; skips the test when it is absent."""
+    """A path under the real-data directory; skips the test when it is absent."""
     path = SHARED_DATA.joinpath(*parts)
     if not path.exists():
-        pytest.skip(f"real data not available: {path} is absent (needs ../shared/data)")
+        pytest.skip(
+            f"real data not available: {path} is absent "
+            "(set ORTHOMVP_DATA to the data directory; default ../shared/data)"
+        )
     return path
 
 

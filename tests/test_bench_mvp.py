@@ -11,6 +11,7 @@ from orthomvp.bench import mvp as mvp_bench
 from orthomvp.mvp.fit import FitResult
 
 
+@pytest.mark.slow
 def test_bench_mvp_is_consistent(monkeypatch: pytest.MonkeyPatch) -> None:
     fits: list[FitResult] = []
     fit_dem = mvp_bench.fit_dem

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA as DATA
 from scipy.spatial.transform import Rotation
 
 import orthomvp.camera
@@ -31,7 +32,6 @@ from orthomvp.camera import (
 )
 from orthomvp.errors import FormatError, InputError
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 APOLLO = DATA / "apollo15-mvp"
 APOLLO_SIZES = [(281, 118), (202, 120), (116, 121), (196, 121)]  # width x height, data README
 MOON_RADIUS = 1737400.0
@@ -503,6 +503,7 @@ def test_pinhole_protobuf_packed_and_unpacked(tmp_path: Path, lens: str, packed:
     assert_same_camera(read_camera(path), cam, with_size=False)
 
 
+@pytest.mark.realdata
 @needs_data
 @pytest.mark.parametrize("index", range(4))
 def test_apollo_pinhole_matches_converted_tsai(index: int) -> None:
@@ -530,6 +531,7 @@ def test_apollo_pinhole_matches_converted_tsai(index: int) -> None:
     assert ((depth > 110e3) & (depth < 125e3)).all()  # about 117 km above the surface
 
 
+@pytest.mark.realdata
 @needs_data
 def test_every_shared_tsai_file_reads_and_round_trips(tmp_path: Path) -> None:
     paths = sorted(DATA.glob("*/*.tsai"))

@@ -142,6 +142,7 @@ def test_interrupts_and_internal_errors(tmp_path: Path, monkeypatch: pytest.Monk
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_synth_then_mesh(tmp_path: Path) -> None:
     out = tmp_path / "scene"
     proc = run("synth", "hills", str(out), "--size", "24", "--supersample", "1")
@@ -162,6 +163,7 @@ def test_synth_then_mesh(tmp_path: Path) -> None:
     assert np.all(np.abs(radii - 1737400) < 5000)
 
 
+@pytest.mark.slow
 def test_mesh_bad_inputs_leave_nothing(tmp_path: Path) -> None:
     out = tmp_path / "out.ply"
     assert_one_line_error(
@@ -210,6 +212,7 @@ def test_mesh_bad_inputs_leave_nothing(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["corrupt.tif", "nocrs.tif"]
 
 
+@pytest.mark.slow
 def test_bench_prints_ratios(tmp_path: Path) -> None:
     proc = run(
         "bench",

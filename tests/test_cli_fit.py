@@ -31,6 +31,7 @@ def pairs(scene: Path) -> list[str]:
     ]
 
 
+@pytest.mark.slow
 def test_fit_writes_every_output(scene: Path, tmp_path: Path) -> None:
     outs = {k: tmp_path / f"{k}.tif" for k in ("fit", "n", "c", "v", "u")}
     proc = run(
@@ -60,6 +61,7 @@ def test_fit_writes_every_output(scene: Path, tmp_path: Path) -> None:
         assert np.nanmax(src.read(1)) < 3.0  # eq. 20 with 4 views lies in [0, 6]
 
 
+@pytest.mark.slow
 def test_fit_errors_are_one_line_and_leave_nothing(scene: Path, tmp_path: Path) -> None:
     out = tmp_path / "fit.tif"
     p = pairs(scene)

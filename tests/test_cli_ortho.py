@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import rasterio
 
 from orthomvp.raster import read_image
@@ -13,6 +14,7 @@ from orthomvp.synthetic import away_from_boundaries
 from tests.test_cli import assert_one_line_error, run
 
 
+@pytest.mark.slow
 def test_ortho_visibility_and_naive(crater_dir: Path, tmp_path: Path) -> None:
     d = crater_dir
     out, vis = tmp_path / "ortho.tif", tmp_path / "vis.tif"
@@ -67,6 +69,7 @@ def test_ortho_visibility_and_naive(crater_dir: Path, tmp_path: Path) -> None:
     assert read_image(coarse).shape == (1, 32, 32)
 
 
+@pytest.mark.slow
 def test_visibility_and_mosaic_commands(crater_dir: Path, tmp_path: Path) -> None:
     d = crater_dir
     proc = run(
@@ -104,6 +107,7 @@ def test_visibility_and_mosaic_commands(crater_dir: Path, tmp_path: Path) -> Non
     )
 
 
+@pytest.mark.slow
 def test_eps_study_command(crater_dir: Path, tmp_path: Path) -> None:
     prefix = tmp_path / "study"
     proc = run("eps-study", str(crater_dir), "-o", str(prefix), "--eps", "0.5", "4", "40")
@@ -114,6 +118,7 @@ def test_eps_study_command(crater_dir: Path, tmp_path: Path) -> None:
     assert_one_line_error(run("eps-study", str(tmp_path)), "scene.json")
 
 
+@pytest.mark.slow
 def test_bad_inputs_leave_nothing(crater_dir: Path, tmp_path: Path) -> None:
     d = crater_dir
     out = tmp_path / "o.tif"

@@ -267,6 +267,7 @@ def test_interactive_prompt_through_a_pty(planar_dir: Path, tmp_path: Path) -> N
     assert (tmp_path / "r.png").exists() and (tmp_path / "r.csv").exists()
 
 
+@pytest.mark.realdata
 def test_apollo_small_windows_give_local_minima(tmp_path: Path, capsys) -> None:  # noqa: ANN001
     """The mvpgui paper's figure 12 on the real Apollo 15 views: at the tile centre, windows
     of sigma 1-2 posts have several local minima in +-200 m, sigma 6-8 posts have one."""

@@ -597,6 +597,7 @@ NGI_STEMS = [
 ]
 
 
+@pytest.mark.realdata
 @pytest.mark.parametrize("stem", NGI_STEMS)
 def test_ngi_orthority_cameras_match_converted_tsai(stem: str) -> None:
     formats = shared("ngi-aerial", "orthority-format")
@@ -617,6 +618,7 @@ def test_ngi_orthority_cameras_match_converted_tsai(stem: str) -> None:
     np.testing.assert_allclose(geo.center, cam.center, atol=0.005)
 
 
+@pytest.mark.realdata
 def test_hadley_converted_tsai_reads() -> None:
     cam = read_camera(shared("as15-hadley", "AS15-M-1134-hadley.converted.tsai"))
     assert (cam.fu, cam.fv, cam.cu, cam.cv, cam.pitch) == (3802.7, 3802.7, 1763.0, 863.0, 1.0)

@@ -10,6 +10,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pvl
 import pytest
 import rasterio
 from conftest import shared
@@ -132,16 +133,16 @@ def test_upper_case_suffix_and_label_tree(tmp_path: Path) -> None:
     write_cube(path, raw, "SignedWord", "Lsb", (2, 2), base=1.0, multiplier=2.0)
     np.testing.assert_array_equal(read_image(path)[0], 1.0 + 2.0 * raw[0])
     tree = read_label(path)
-    instrument = tree.child("object", "IsisCube").child("group", "Instrument")
-    assert instrument.keywords["SpacecraftName"][0] == "APOLLO 15"
-    assert instrument.keywords["Kernel"][0] == "$apollo15/kernels/ik/apollo15_metric_v2.0001.ti"
-    assert instrument.keywords["Focal"][0] == "76.054"
-    assert instrument.keywords["List"][0] == "(1.0, 2.0, 3.0)"
-    line = label(4, 3, 1, "SignedWord", "Lsb", (2, 2)).splitlines().index("  Bytes = 1024") + 1
-    assert tree.child("object", "Label").keywords["Bytes"] == ("1024", line)
+    instrument = tree["IsisCube"]["Instrument"]
+    assert instrument["SpacecraftName"] == "APOLLO 15"
+    assert instrument["Kernel"] == "$apollo15/kernels/ik/apollo15_metric_v2.0001.ti"
+    assert instrument["Focal"] == pvl.Quantity(76.054, "millimeters")
+    assert instrument["List"] == [1.0, 2.0, 3.0]
+    assert tree["Label"]["Bytes"] == 1024
     np.testing.assert_array_equal(read_cube(path), read_image(path))
 
 
+@pytest.mark.realdata
 def test_real_hadley_cube_matches_its_geotiff() -> None:
     cube = read_image(shared("as15-hadley", "AS15-M-1134-hadley.cub"))
     with warnings.catch_warnings():
@@ -198,6 +199,15 @@ BAD_LABELS = {
     "unbalanced": (corrupt(GOOD, "    End_Group\n\n", "    End_Object\n\n"), "does not close"),
     "junk line": (corrupt(GOOD, "/* dimensions */", "dimensions here"), "not a PVL statement"),
     "open object": (corrupt(GOOD, "End_Object\nEnd\n", "End\n"), "label ends inside object"),
+    "open quote": (corrupt(GOOD, '"APOLLO 15"', '"APOLLO 15'), "not a PVL statement"),
+    "open unit": (
+        corrupt(GOOD, "    End_Group\n  End_Object\n\n  Group = Instrument", " <  End_Group"),
+        "not a PVL statement: the label ends inside one",
+    ),
+    "detached": (corrupt(GOOD, "StartByte   = 1025", "^Core = data.cub"), "detached cube data"),
+    "empty Lines": (corrupt(GOOD, "Lines   = 3", "Lines   ="), "Lines = '' is not an integer"),
+    "stray =": (corrupt(GOOD, "      Multiplier", "  =    Multiplier"), "not a PVL statement"),
+    "bad date": (corrupt(GOOD, "1971-08-01T", "1971-08-0 T"), "a value pvl cannot decode"),
 }
 
 
@@ -231,3 +241,10 @@ def test_parse_label_errors_name_the_line(tmp_path: Path) -> None:
     with pytest.raises(FormatError) as info:
         parse_label(tmp_path / "x.cub", "Object = IsisCube\n  Group = A\n  End_Object\nEnd\n")
     assert info.value.line == 3
+    # lines of the file as written, although pvl joins the Kernel value's two lines first
+    for case, line in (("unbalanced", 10), ("open object", 33)):
+        text = BAD_LABELS[case][0]
+        assert text.splitlines()[line - 1].strip() in ("End_Object", "End")
+        with pytest.raises(FormatError) as info:
+            parse_label(tmp_path / "x.cub", text)
+        assert info.value.line == line

@@ -91,6 +91,7 @@ def test_planar_fit_converges_to_the_true_plane(planar) -> None:  # noqa: ANN001
     assert np.isnan(res.heights[0, 0]) and res.views[0, 0] == 0
 
 
+@pytest.mark.slow
 def test_uncertainty_follows_image_noise(planar) -> None:  # noqa: ANN001
     """On the exact plane model, sigma_h grows with image noise and is within a factor of 3 of
     the actual height error (it assumes independent samples; bilinear samples at one post
@@ -112,6 +113,7 @@ def test_uncertainty_follows_image_noise(planar) -> None:  # noqa: ANN001
     assert 2.0 < rows[1] / rows[0] < 4.0  # about linear in the noise
 
 
+@pytest.mark.slow
 def test_hills_from_a_smoothed_offset_dem(hills) -> None:  # noqa: ANN001
     """RMSE against the analytic truth, posts with >= 2 views, 12 posts from the border:
     at most 0.3 of the initial RMSE and at most 0.5 ground pixels."""
@@ -131,6 +133,7 @@ def test_hills_from_a_smoothed_offset_dem(hills) -> None:  # noqa: ANN001
     assert rmse < plane  # the window deconvolution helps on curved terrain
 
 
+@pytest.mark.slow
 def test_outlier_view_is_dropped(hills) -> None:  # noqa: ANN001
     """A bright blob with its own texture in one of four images: with rejection the heights
     under it are as good as around it; without, measurably worse."""
@@ -162,6 +165,7 @@ def test_outlier_view_is_dropped(hills) -> None:  # noqa: ANN001
     assert out[None][0] > 1.3 * out[0.5][0]
 
 
+@pytest.mark.slow
 def test_crater_hidden_views_stay_out(crater_dir) -> None:  # noqa: ANN001
     """Posts hidden in one view and visible in >= 2 others are fitted without the hidden
     view; feeding the hidden views in as well biases them badly."""

@@ -160,29 +160,6 @@ def test_partial_coverage_and_holes() -> None:
     assert ortho.data.shape == (3, 40, 40)
 
 
-def test_interpolate_and_regrid() -> None:
-    t = _flat_terrain()
-    c, r = t.grid()
-    linear = t.with_values(3.0 * c - 2.0 * r + 7.0)
-    rng = np.random.default_rng(2)
-    cc, rr = rng.uniform(0, 39, 300), rng.uniform(0, 39, 300)
-    np.testing.assert_allclose(linear.interpolate(cc, rr), 3.0 * cc - 2.0 * rr + 7.0)
-    assert np.isnan(linear.interpolate(np.array([-0.1, 39.2]), np.array([3.0, 3.0]))).all()
-    # on a curved surface, integer positions give the posts back
-    curved = t.with_values(np.sin(c / 3.0) * np.cos(r / 5.0) * 100)
-    np.testing.assert_allclose(curved.interpolate(c, r), curved.values)
-    # regridding at half the pixel size: new posts sit between the old ones
-    half = linear.regrid(res=(abs(t.transform.a) / 2, abs(t.transform.e) / 2))
-    assert half.shape == (80, 80)
-    oc, orow = t.crs_to_pixel(*half.pixel_to_crs(*half.grid()))
-    np.testing.assert_allclose(oc[0, :3], [-0.25, 0.25, 0.75])
-    inside = np.isfinite(half.values)
-    np.testing.assert_allclose(half.values[inside], (3.0 * oc - 2.0 * orow + 7.0)[inside])
-    assert inside.sum() == 78 * 78
-    with pytest.raises(InputError, match="overlap"):
-        t.regrid(bounds=(50.0, 10.0, 51.0, 11.0))
-
-
 def test_lens_distortion_is_followed(scene) -> None:
     """A distorted camera with the same pose sees the same posts: the test back-projects the
     distorted pixel with the camera's own (distortion-aware) ray, so the round trip holds."""

@@ -42,6 +42,7 @@ def pairwise(orthos: list[np.ndarray]) -> list[float]:
     return out
 
 
+@pytest.mark.realdata
 def test_apollo15_orthophotos_agree() -> None:
     """Measured: pairwise r = 0.75..0.84, mean 0.80 (the data README says about 0.8)."""
     orthos = apollo_orthos()
@@ -63,6 +64,8 @@ def _apollo_fit(shift: float, **options: object):  # noqa: ANN202
     return ground, fit_dem(start, images, cams, FitOptions(**options))
 
 
+@pytest.mark.slow
+@pytest.mark.realdata
 def test_apollo15_fit_recovers_a_100_m_shift() -> None:
     """From the ground DEM raised by 100 m, the fit comes back: measured median residual
     +3.1 m (of 100 m). Mean pairwise patch correlation (1 - f / (n - 1), all four views,
@@ -95,6 +98,7 @@ NGI_FRAMES = (
 )
 
 
+@pytest.mark.realdata
 def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> None:
     """Orthority's own camera files, world frame detected (map). Measured: 41,947..43,524
     posts filled per frame; 42,029..43,636 visible, 0..8 occluded, 0..32 facing away (gentle
@@ -174,6 +178,7 @@ def test_phase_shift_measures_known_shifts() -> None:
         np.testing.assert_allclose(phase_shift(a, b, mask), [dx, dy], atol=0.02)
 
 
+@pytest.mark.realdata
 def test_ngi_aerial_agrees_with_orthority(tmp_path: Path) -> None:
     """The same frame onto the same grid (the DEM's CRS, 24 m posts, Orthority's bounds) with
     both tools, bilinear both. Where orthomvp calls a post visible and both have data, they agree
@@ -220,6 +225,7 @@ def test_ngi_aerial_agrees_with_orthority(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ as15-hadley
+@pytest.mark.realdata
 def test_as15_hadley_orthophoto_from_the_isis_cube() -> None:
     """The real Apollo 15 Metric frame (ISIS cube) onto the LOLA DEM (189 x 204 posts of
     about 110 m). Measured: 31,826 posts in the frame (89% of the DEM's 35,613 valid posts),

@@ -44,6 +44,7 @@ def ambiguous() -> tuple[Terrain, np.ndarray]:
     return Terrain(values, grid, CRS.from_proj4(MOON_EQC)), np.array([[1_837_400.0, 0.0, 0.0]])
 
 
+@pytest.mark.realdata
 def test_ngi_aerial_cameras_are_in_the_map_frame() -> None:
     terrain, centres = ngi()
     assert not body_plausible(terrain, centres).any()
@@ -51,6 +52,7 @@ def test_ngi_aerial_cameras_are_in_the_map_frame() -> None:
     assert detect_world(terrain, centres) == "map"
 
 
+@pytest.mark.realdata
 def test_ngi_aerial_cameras_in_earth_centred_metres_are_body() -> None:
     terrain, centres = ngi()
     to_ecef = Transformer.from_crs(terrain.crs.to_3d(), "EPSG:4978", always_xy=True)
@@ -60,6 +62,7 @@ def test_ngi_aerial_cameras_in_earth_centred_metres_are_body() -> None:
         detect_world(terrain, np.vstack([centres[:1], ecef[1:]]))  # the cameras disagree
 
 
+@pytest.mark.realdata
 def test_apollo15_cameras_are_body_fixed() -> None:
     d = shared("apollo15-mvp")
     terrain = Terrain.read(d / "ground-dem.tif")
@@ -120,6 +123,7 @@ def test_cli_asks_for_world_when_ambiguous_and_obeys_it(
     assert "wrote" in out and " 0 visible" not in out
 
 
+@pytest.mark.realdata
 def test_cli_world_auto_on_ngi_aerial(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     d = shared("ngi-aerial")
     image = d / "3324c_2015_1004_05_0182_RGB.tif"
