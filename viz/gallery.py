@@ -1,12 +1,13 @@
 """Regenerate every picture used in the README into viz/.
 
 Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``, ``eps``
-and ``explore`` (default: all). Pictures from the real data in ``../shared/data`` are made when
-it is present.
+and ``explore`` (default: all). Pictures from the real data are made when it is present: the
+directory named by ORTHOMVP_DATA, by default ``../shared/data`` beside the repository.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import tempfile
@@ -24,7 +25,7 @@ from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parents[1] / "shared" / "data"
+DATA = Path(os.environ.get("ORTHOMVP_DATA") or HERE.parents[1] / "shared" / "data")
 
 
 def demo_pictures(tmp: Path) -> None:
