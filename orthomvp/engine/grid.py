@@ -71,7 +71,7 @@ class DemSource:
         r0, _, c0, _ = window
         return Terrain(
             values,
-            self.transform * Affine.translation(c0, r0),
+            self.transform @ Affine.translation(c0, r0),
             self.crs,
             self.radius_values,
             self.world,
@@ -147,7 +147,7 @@ def scan_dem(
     if not np.isfinite(lo):
         raise InputError(f"{path}: the DEM holds no valid heights")
     shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
-    preview_transform = transform * Affine.translation(shift, shift) * Affine.scale(stride)
+    preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)
     values = np.concatenate(parts)
     if values.shape[0] < 2 or values.shape[1] < 2:  # a long thin DEM: keep two posts a side
         pad = ((0, max(0, 2 - values.shape[0])), (0, max(0, 2 - values.shape[1])))
@@ -191,7 +191,7 @@ class OutputGrid:
         return replace(
             like,
             values=np.zeros((r1 - r0, c1 - c0)),
-            transform=self.transform * Affine.translation(c0, r0),
+            transform=self.transform @ Affine.translation(c0, r0),
             crs=self.crs,
         )
 
@@ -252,7 +252,7 @@ def output_grid(
         x0, y0, x1, y1 = (t.c, t.f + rows * t.e, t.c + cols * t.a, t.f)
         left, bottom, right, top = to_out.transform_bounds(x0, y0, x1, y1, densify_pts=21)
         c, r = (cols - 1) / 2, (rows - 1) / 2
-        x, y = (t * Affine.translation(0.5, 0.5)) * (
+        x, y = (t @ Affine.translation(0.5, 0.5)) @ (
             np.array([c, c + 1, c]),
             np.array([r, r, r + 1]),
         )
@@ -280,13 +280,13 @@ def grid_to_dem(
     to_dem = (
         None if grid.crs == dem.crs else Transformer.from_crs(grid.crs, dem.crs, always_xy=True)
     )
-    g = grid.transform * Affine.translation(0.5, 0.5)
-    d = ~(dem.transform * Affine.translation(0.5, 0.5))
+    g = grid.transform @ Affine.translation(0.5, 0.5)
+    d = ~(dem.transform @ Affine.translation(0.5, 0.5))
 
     def convert(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x, y = g * (np.asarray(c, dtype=np.float64), np.asarray(r, dtype=np.float64))
+        x, y = g @ (np.asarray(c, dtype=np.float64), np.asarray(r, dtype=np.float64))
         if to_dem is not None:
             x, y = to_dem.transform(x, y)
-        return d * (np.asarray(x), np.asarray(y))
+        return d @ (np.asarray(x), np.asarray(y))
 
     return convert

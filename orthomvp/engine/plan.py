@@ -108,14 +108,16 @@ class Plan:
         views = VIEW_BYTES * ext * len(job.views)
         return WINDOW_BYTES * job.dem_posts + mesh + TILE_BYTES * ext + views + image
 
-    def peak_memory(self, workers: int, images: bool = True) -> int:
-        """Expected peak memory of a run with ``workers`` tiles in flight at once, bytes: one
-        interpreter per worker process is not counted here (see :mod:`orthomvp.engine.run`)."""
+    def peak_memory(self, workers: int, processes: int = 0, images: bool = True) -> int:
+        """Expected peak memory of a run with ``workers`` tiles in flight at once and
+        ``processes`` worker processes besides this one (each an interpreter of
+        :data:`BASE_BYTES`), reading images or not, bytes."""
         sizes = sorted((self.tile_bytes(job, images) for job in self.tiles), reverse=True)
-        return BASE_BYTES + sum(sizes[:workers])
+        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
 
-    def summary(self, workers: int = 1) -> str:
-        """One line: grid size, tiles, images, the largest DEM window, expected peak memory."""
+    def summary(self, peak: int, workers: int) -> str:
+        """One line: grid size, tiles, images, the largest DEM window, and the expected
+        ``peak`` memory (bytes) with ``workers`` tiles at a time."""
         rows, cols = self.grid.shape
         run = [job for job in self.tiles if job.views]
         biggest = max(run, key=lambda job: job.dem_posts, default=None)
@@ -127,8 +129,8 @@ class Plan:
         return (
             f"plan: {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
             f"{self.tile} x {self.tile} to run, {len(self.views)} image(s), occluder halo up to "
-            f"{reach:.0f} DEM posts{window}; expected peak memory "
-            f"{self.peak_memory(workers) / 2**30:.2f} GiB with {workers} tile(s) at a time"
+            f"{reach:.0f} DEM posts{window}; expected peak memory {peak / 2**30:.2f} GiB with "
+            f"{workers} tile(s) at a time"
         )
 
 

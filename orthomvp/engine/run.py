@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import rasterio
 
-from orthomvp.engine.plan import BASE_BYTES, Plan
+from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
@@ -64,10 +64,9 @@ def available_memory() -> int:
 
 
 def preflight(plan: Plan, workers: int, processes: int, images: bool) -> int:
-    """Expected peak memory of the run, bytes; InputError (one line, saying what to change)
-    when it exceeds :func:`available_memory`. ``processes`` interpreters beyond this one each
-    add :data:`~orthomvp.engine.plan.BASE_BYTES`."""
-    need = plan.peak_memory(workers, images) + processes * BASE_BYTES
+    """Expected peak memory of the run (:meth:`Plan.peak_memory`), bytes; InputError (one
+    line, saying what to change) when it exceeds :func:`available_memory`."""
+    need = plan.peak_memory(workers, processes, images)
     have = available_memory()
     if need > have:
         raise InputError(
@@ -198,7 +197,7 @@ def run_plan(
     else:
         workers = processes or threads or os.cpu_count() or 1
     at_once = min(workers, max(len(jobs), 1))
-    preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
+    peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
     report = RunReport(inside=[0] * len(plan.views), taken=[0] * len(plan.views))
     executor = (
@@ -207,7 +206,7 @@ def run_plan(
         else _local_executor(plan, workers, processes)
     )
     with Progress("tiles", progress, len(plan.tiles)) as bar, executor as (submit, wait):
-        bar.note(plan.summary(at_once))
+        bar.note(plan.summary(peak, at_once))
         inner = 1 if client is not None or processes else max(1, workers // max(len(jobs), 1))
         limit = inflight or 2 * workers
         seen = [0] * len(plan.views)

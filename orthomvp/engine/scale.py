@@ -114,8 +114,10 @@ def write_scale_scene(folder: str | Path, posts: int) -> tuple[Path, Path, Pinho
             dst.write(hills(c, r).astype(np.float32)[None], window=Window(c0, r0, c1 - c0, r1 - r0))
     grid = Terrain(np.zeros((2, 2)), transform, CRS.from_user_input(LUNAR), name="scale")
     camera = scale_camera(grid, posts)
-    with warnings.catch_warnings(), rasterio.open(image, "w", **_profile(posts, "uint8")) as dst:
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        dst = rasterio.open(image, "w", **_profile(posts, "uint8"))
+    with dst:
         for r0, r1, c0, c1 in _blocks(posts):
             r, c = np.mgrid[r0:r1, c0:c1]
             dst.write(texture(c, r)[None], window=Window(c0, r0, c1 - c0, r1 - r0))

@@ -26,6 +26,9 @@ from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import compute_visibility
 
+GC_POSTS = 1 << 15
+"""DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
+
 KINDS = ("ortho", "visibility", "source")
 """What a tile can produce: image values, visibility codes per view, the mosaic's source."""
 
@@ -126,12 +129,16 @@ def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) ->
     """Run tile ``index`` of ``plan`` for the outputs ``kinds`` (of :data:`KINDS`), with
     ``threads`` threads for ray casting and visibility.
 
-    The garbage collector runs after every tile: the mesh library's objects hold reference
-    cycles, and without it the meshes of many tiles pile up before Python collects them."""
+    The garbage collector runs after every tile whose DEM window has at least
+    :data:`GC_POSTS` posts: the mesh library's objects hold reference cycles, and without it
+    the meshes of many tiles pile up before Python collects them. (A full collection takes
+    milliseconds to tens of milliseconds; smaller tiles leave their few megabytes to Python's
+    own schedule.)"""
     try:
         return _run_tile(plan, index, kinds, threads)
     finally:
-        gc.collect()
+        if plan.tiles[index].dem_posts >= GC_POSTS:
+            gc.collect()
 
 
 def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> TileResult:
