@@ -26,7 +26,7 @@ from orthomvp.engine import (
     plan_ortho,
     run_plan,
 )
-from orthomvp.engine.images import image_source
+from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.scale import write_scale_scene
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
@@ -159,6 +159,24 @@ def test_uncovered_tiles_are_skipped(crater: dict, tmp_path: Path, monkeypatch) 
     expected = orthorectify(crater["terrain"], part, camera)
     np.testing.assert_array_equal(got["visibility"][0], expected.visibility.codes)
     same(got["ortho"], expected.data)
+
+
+def test_huge_image_windows_are_sampled_in_pieces(
+    crater: dict,
+    tmp_path: Path,
+    monkeypatch,  # noqa: ANN001
+) -> None:
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    whole = run(plan, tmp_path, "whole", kinds=("ortho",))
+    reads = []
+    original = ImageSource.read
+    monkeypatch.setattr(ImageSource, "read", lambda self, w: reads.append(w) or original(self, w))
+    monkeypatch.setattr("orthomvp.engine.tile.SAMPLE_BUDGET_PIXELS", 200)
+    pieces = run(plan, tmp_path, "pieces", kinds=("ortho",))
+    np.testing.assert_array_equal(whole["ortho"], pieces["ortho"])
+    assert len(reads) > 4 * len(plan.tiles)
+    assert max((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in reads) <= 200
 
 
 def grazing_view(terrain: Terrain, tmp_path: Path) -> tuple[Path, PinholeCamera]:
@@ -310,7 +328,6 @@ def test_bad_options(crater: dict) -> None:
 def test_cube_windows_match_the_whole_cube(tmp_path: Path) -> None:
     from test_isis import synthetic_raw, write_cube
 
-    from orthomvp.engine.images import ImageSource
     from orthomvp.isis import read_cube
 
     raw, _ = synthetic_raw("SignedWord", np.random.default_rng(0))

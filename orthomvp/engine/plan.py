@@ -150,12 +150,12 @@ def _views(
     return sources
 
 
-def _world(dem: DemSource, world: WorldFrame | str, views: Sequence[ImageSource]) -> DemSource:
+def _frame(world: WorldFrame | str) -> WorldFrame | None:
+    """The world frame asked for, None for "auto"."""
     if world == "auto":
-        centres = np.array([v.camera.center for v in views])
-        return dem_with_world(dem, detect_world(dem.preview, centres))
+        return None
     try:
-        return dem_with_world(dem, WorldFrame(world))
+        return WorldFrame(world)
     except ValueError:
         names = ", ".join(["auto", *(w.value for w in WorldFrame)])
         raise InputError(f"world frame must be one of {names}, not {world!r}") from None
@@ -268,10 +268,13 @@ def plan_ortho(
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
     if interp not in INTERPOLATION:
         raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
+    frame = _frame(world)
     sources = _views(views)
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
         source = scan_dem(dem, dem_crs, radius_values, progress=bar)
-    source = _world(source, world, sources)
+    if frame is None:
+        frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
+    source = dem_with_world(source, frame)
     grid = output_grid(source, res, bounds, crs)
     to_dem = grid_to_dem(grid, source)
     windows = grid.tiles(int(tile))

@@ -10,7 +10,7 @@ import contextlib
 import os
 import tempfile
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,11 +74,8 @@ class Outputs:
 
     def paths(self) -> dict[str, Path]:
         """The outputs asked for, by kind ("ortho", "visibility", "source")."""
-        return {
-            f.name: Path(getattr(self, f.name))
-            for f in fields(self)[:3]
-            if getattr(self, f.name) is not None
-        }
+        paths = {"ortho": self.ortho, "visibility": self.visibility, "source": self.source}
+        return {kind: Path(path) for kind, path in paths.items() if path is not None}
 
     @property
     def fill(self) -> float:
