@@ -13,7 +13,7 @@ from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from orthomvp.camera import PinholeCamera, check_image, read_camera
-from orthomvp.errors import FormatError, InputError
+from orthomvp.errors import InputError
 from orthomvp.isis import cube_layout, read_label
 from orthomvp.raster import open_raster
 
@@ -70,8 +70,8 @@ def _read_cube_window(path: Path, window: tuple[int, int, int, int]) -> np.ndarr
             path, layout.dtype, "r", layout.start, (layout.nbytes // layout.dtype.itemsize,)
         )
     except ValueError:
-        raise FormatError(
-            path, f"truncated cube: {layout.nbytes} bytes of pixels expected"
+        raise InputError(
+            f"{path}: truncated cube: {layout.nbytes} bytes of pixels expected"
         ) from None
     tiles = raw.reshape(layout.bands, down, across, tl, ts)
     tr0, tr1, tc0, tc1 = r0 // tl, -(-r1 // tl), c0 // ts, -(-c1 // ts)

@@ -18,15 +18,21 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
-from orthomvp.engine.halo import ToDem, footprint, image_box, tile_halo
+from orthomvp.engine.halo import Halo, ToDem, footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.ortho import INTERPOLATION
 from orthomvp.world import detect_world
 
+Box = tuple[float, float, float, float]
+"""Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
+
 IMAGE_MARGIN = 2
 """Image pixels read beyond the outermost sampled positions (cubic interpolation needs 2)."""
+
+SAMPLE_BUDGET_PIXELS = 1 << 24
+"""Pixels of an image window (per band) above which a tile samples its image in pieces."""
 
 # Bytes of memory per post, from the peak resident set size of runs of the scale benchmark's
 # scene (orthomvp.engine.scale, 2048 x 2048 posts, tiles of 128 to 1024 posts, one thread),
@@ -134,10 +140,6 @@ class Plan:
         )
 
 
-SAMPLE_BUDGET_PIXELS = 1 << 24
-"""Pixels of an image window (per band) above which a tile samples its image in pieces."""
-
-
 def _views(
     views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
 ) -> tuple[ImageSource, ...]:
@@ -161,7 +163,7 @@ def _frame(world: WorldFrame | str) -> WorldFrame | None:
         raise InputError(f"world frame must be one of {names}, not {world!r}") from None
 
 
-def _no_overlap(view: ImageSource, boxes: list) -> str:
+def _no_overlap(view: ImageSource, boxes: list[Box | None]) -> str:
     """Why no tile of the grid can be seen in ``view``, in one line."""
     seen = [b for b in boxes if b is not None]
     if not seen:
@@ -174,7 +176,7 @@ def _no_overlap(view: ImageSource, boxes: list) -> str:
     )
 
 
-def _pixels(box: tuple[float, float, float, float], view: ImageSource) -> int:
+def _pixels(box: Box, view: ImageSource) -> int:
     """Image pixels of the window of ``box`` (clipped to the image)."""
     c0, c1 = max(box[0] - IMAGE_MARGIN, 0), min(box[1] + IMAGE_MARGIN + 1, view.width)
     r0, r1 = max(box[2] - IMAGE_MARGIN, 0), min(box[3] + IMAGE_MARGIN + 1, view.height)
@@ -185,7 +187,7 @@ def _union(a: WindowT, b: WindowT) -> WindowT:
     return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
 
-def _sees(box: tuple[float, float, float, float] | None, view: ImageSource) -> bool:
+def _sees(box: Box | None, view: ImageSource) -> bool:
     """Whether a tile's image box (see :func:`~orthomvp.engine.halo.image_box`) meets the
     image (half a pixel beyond its outer pixel centres, plus the interpolation margin)."""
     m = 0.5 + IMAGE_MARGIN
@@ -205,31 +207,27 @@ def _job(
     index: int,
     window: WindowT,
     occlusion: bool,
-    boxes: list[list],
-    reach: list[float],
-    elevation: list[float],
-) -> TileJob:
-    """Plan one tile: the views that see it, its DEM window; ``boxes``, ``reach`` and
-    ``elevation`` (per view) are updated in place."""
+) -> tuple[TileJob, list[Box | None], list[Halo | None]]:
+    """Plan one tile: the job (the views that see it, its DEM window), and per view the
+    tile's image box and its occluder halo (None where not computed)."""
+    boxes: list[Box | None] = [None] * len(views)
+    halos: list[Halo | None] = [None] * len(views)
     need = footprint(dem, to_dem, window, grid.on_dem)
     if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
-        return TileJob(index, window, (), None, ())
+        return TileJob(index, window, (), None, ()), boxes, halos
     seen, pixels = [], []
     for k, view in enumerate(views):
-        box = image_box(dem, to_dem, window, view.camera)
-        boxes[k].append(box)
-        if not _sees(box, view):
+        boxes[k] = image_box(dem, to_dem, window, view.camera)
+        if not _sees(boxes[k], view):
             continue
         seen.append(k)
-        pixels.append(_pixels(box, view))
+        pixels.append(_pixels(boxes[k], view))
         if occlusion:
-            halo = tile_halo(dem, to_dem, window, view.camera)
-            need = _union(need, halo.window)
-            reach[k] = max(reach[k], halo.reach)
-            elevation[k] = min(elevation[k], halo.elevation)
+            halos[k] = tile_halo(dem, to_dem, window, view.camera)
+            need = _union(need, halos[k].window)
     if not seen:
-        return TileJob(index, window, (), None, ())
-    return TileJob(index, window, tuple(seen), need, tuple(pixels))
+        return TileJob(index, window, (), None, ()), boxes, halos
+    return TileJob(index, window, tuple(seen), need, tuple(pixels)), boxes, halos
 
 
 def plan_ortho(
@@ -282,11 +280,13 @@ def plan_ortho(
     reach, elevation = [0.0] * len(sources), [90.0] * len(sources)
     with Progress("planning tiles", progress, len(windows)) as bar:
         for index, window in enumerate(windows):
-            jobs.append(
-                _job(
-                    source, to_dem, grid, sources, index, window, occlusion, boxes, reach, elevation
-                )
-            )
+            job, tile_boxes, halos = _job(source, to_dem, grid, sources, index, window, occlusion)
+            jobs.append(job)
+            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
+                boxes[k].append(box)
+                if halo is not None:
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
             bar.update()
     for k, view in enumerate(sources):
         if not any(k in job.views for job in jobs):

@@ -8,6 +8,7 @@ normals are the same central differences as on the whole grid; the border is cut
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import time
 from collections.abc import Iterator
@@ -130,15 +131,35 @@ def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) ->
     ``threads`` threads for ray casting and visibility.
 
     The garbage collector runs after every tile whose DEM window has at least
-    :data:`GC_POSTS` posts: the mesh library's objects hold reference cycles, and without it
-    the meshes of many tiles pile up before Python collects them. (A full collection takes
-    milliseconds to tens of milliseconds; smaller tiles leave their few megabytes to Python's
-    own schedule.)"""
+    :data:`GC_POSTS` posts, and freed memory goes back to the system: the mesh library's
+    objects hold reference cycles, and without it the meshes of many tiles pile up before
+    Python collects them. (A full collection takes milliseconds to tens of milliseconds;
+    smaller tiles leave their few megabytes to Python's own schedule.)"""
     try:
         return _run_tile(plan, index, kinds, threads)
     finally:
         if plan.tiles[index].dem_posts >= GC_POSTS:
             gc.collect()
+            _release()
+
+
+def _release() -> None:
+    """Hand freed memory back to the system (glibc's malloc_trim; nothing elsewhere). Without
+    it, the heap keeps the high-water mark of every thread's arena, and tiles that free and
+    reallocate the same large arrays let the resident set creep up over a long run."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
+
+
+def _libc() -> ctypes.CDLL | None:
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
+_LIBC = _libc()
 
 
 def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> TileResult:
