@@ -141,6 +141,18 @@ def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None
     same(got["ortho"], orthorectify(crater["terrain"], image, camera, occlusion=False).data)
 
 
+def test_visibility_alone_reads_no_image(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    def refuse(*args: object) -> None:
+        raise AssertionError("an image was read")
+
+    monkeypatch.setattr(ImageSource, "read", refuse)
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    got = run(plan, tmp_path, "vis", kinds=("visibility",))
+    expected = compute_visibility(crater["terrain"], load_view(*view)[1])
+    np.testing.assert_array_equal(got["visibility"][0], expected.codes)
+
+
 def test_uncovered_tiles_are_skipped(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
     """An image that covers part of the DEM: tiles it cannot see are not read at all."""
     image, camera = load_view(*crater["views"]["nadir"])
