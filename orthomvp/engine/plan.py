@@ -66,12 +66,8 @@ class TileJob:
     image_pixels: tuple[int, ...]
 
     @property
-    def posts(self) -> int:
-        r0, r1, c0, c1 = self.window
-        return (r1 - r0) * (c1 - c0)
-
-    @property
     def dem_posts(self) -> int:
+        """Posts of the DEM window (0 without one)."""
         if self.dem is None:
             return 0
         r0, r1, c0, c1 = self.dem

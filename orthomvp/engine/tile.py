@@ -30,9 +30,6 @@ from orthomvp.visibility import compute_visibility
 GC_POSTS = 1 << 15
 """DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
 
-KINDS = ("ortho", "visibility", "source")
-"""What a tile can produce: image values, visibility codes per view, the mosaic's source."""
-
 
 @dataclass
 class TileResult:
@@ -127,7 +124,8 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
 
 
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
-    """Run tile ``index`` of ``plan`` for the outputs ``kinds`` (of :data:`KINDS`), with
+    """Run tile ``index`` of ``plan`` for the outputs ``kinds`` ("ortho": image values,
+    "visibility": codes per view, "source": the mosaic's view per post), with
     ``threads`` threads for ray casting and visibility.
 
     The garbage collector runs after every tile whose DEM window has at least
