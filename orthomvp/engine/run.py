@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import importlib
 import multiprocessing
 import os
 import time
@@ -130,9 +131,12 @@ def dask_client(
 ) -> Iterator[Any]:
     """A ``dask.distributed.Client``: connected to the scheduler at ``address``, or to a
     LocalCluster of ``workers`` processes (one thread each, default one per core) started
-    here and stopped on exit. InputError (one line) when the scheduler does not answer within
-    ``timeout`` seconds. Workers of a remote cluster need orthomvp installed and the plan's
-    files at the same paths."""
+    here and stopped on exit. Every worker imports the engine before the client is handed
+    out (the import costs a second or two per worker, outside any run).
+
+    InputError (one line) when the scheduler does not answer within ``timeout`` seconds, or
+    when its workers cannot import orthomvp (a remote cluster needs orthomvp installed, and
+    the plan's files at the same paths)."""
     import logging
 
     from distributed import Client, LocalCluster
@@ -144,6 +148,7 @@ def dask_client(
             reason = " ".join(str(exc).split()) or type(exc).__name__
             raise InputError(f"no Dask scheduler answers at {address} ({reason})") from None
         with client:
+            _warm_up(client, address)
             yield client
         return
     cluster = LocalCluster(
@@ -154,7 +159,16 @@ def dask_client(
         silence_logs=logging.ERROR,
     )
     with cluster, Client(cluster) as client:
+        _warm_up(client, "the local cluster")
         yield client
+
+
+def _warm_up(client: Any, where: str) -> None:
+    """Import the engine in every worker of ``client``; InputError when a worker cannot."""
+    try:
+        client.run(importlib.import_module, run_tile.__module__)
+    except ImportError as exc:
+        raise InputError(f"the Dask workers at {where} cannot import orthomvp ({exc})") from None
 
 
 def _died(exc: BaseException) -> bool:
