@@ -125,6 +125,8 @@ def compute_visibility(
     threads: int | None = None,
     post_scale: float = 1.0,
     occlusion: bool = True,
+    spacing: float | None = None,
+    strict: bool = True,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -133,13 +135,18 @@ def compute_visibility(
     ``caster`` holds the original DEM, ``post_scale`` is the size of one grid post in DEM
     posts, so that eps and the reported misses stay in DEM posts. Work is done in tiles of
     posts, in parallel. With ``occlusion=False`` no ray is cast: posts inside the image and
-    facing the camera are all called visible (what a naive orthophoto assumes).
+    facing the camera are all called visible (what a naive orthophoto assumes), and no mesh is
+    built. ``spacing`` is one DEM post in metres for the GSD term of the default eps (default:
+    this grid's post spacing at its centre over ``post_scale``; the tiled engine passes the
+    whole DEM's, so that tiles agree). ``strict=False`` returns the codes instead of raising
+    GeometryError when no post is seen (a tile of a larger grid).
     """
     if camera.width is None or camera.height is None:
         raise InputError("the camera needs its image size (width, height) for visibility")
     if eps is not None and not eps > 0:
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
-    caster = caster or RayCaster(terrain_mesh(terrain))
+    if caster is None and occlusion:
+        caster = RayCaster(terrain_mesh(terrain))
     rows, cols = terrain.shape
     codes = np.zeros((rows, cols), np.uint8)
     uv = np.full((rows, cols, 2), np.nan)
@@ -148,7 +155,7 @@ def compute_visibility(
     gsd = np.full((rows, cols), np.nan)
     eps_out = np.full((rows, cols), np.nan)
     focal = 0.5 * (camera.fu + camera.fv) / camera.pitch
-    spacing = np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
+    spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -173,12 +180,16 @@ def compute_visibility(
             else:
                 _, d = camera.ray(t_uv[cast])
             hits = caster.first_hit(camera.center, d)
+            # A first hit more than one post beyond the post means that the ray slipped past
+            # the post's own vertex (a crest it grazes) with nothing in front of it: no hit.
+            along = np.einsum("ij,ij->i", p[cast] - camera.center, d) / np.linalg.norm(d, axis=1)
+            front = hits.mask & (hits.distance <= along + spacing)
             dist = np.full(len(d), np.inf)
-            if hits.mask.any():
-                hc, hr, _ = terrain.from_world(hits.points[hits.mask])
+            if front.any():
+                hc, hr, _ = terrain.from_world(hits.points[front])
                 r, c = np.nonzero(cast)
-                pc, pr = c[hits.mask] + cs.start, r[hits.mask] + rs.start
-                dist[hits.mask] = np.hypot(hc - pc, hr - pr) * post_scale
+                pc, pr = c[front] + cs.start, r[front] + rs.start
+                dist[front] = np.hypot(hc - pc, hr - pr) * post_scale
             t_miss[cast] = dist
             # a ray that hits nothing has nothing in its way: the post is visible
             t_codes[cast] = classify(dist, t_eps[cast])
@@ -190,9 +201,9 @@ def compute_visibility(
         eps_out[rs, cs] = np.where(cast, t_eps, np.nan)
 
     run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
-    if not (codes != Code.NODATA).any():
+    if strict and not (codes != Code.NODATA).any():
         raise GeometryError(_no_overlap_reason(terrain, camera))
-    if not np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).any():
+    if strict and not np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).any():
         raise GeometryError(
             "every post in the image faces away from the camera: it looks at the surface "
             "from below (is the camera inside the body, or the DEM upside down?)"

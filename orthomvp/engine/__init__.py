@@ -1,0 +1,26 @@
+"""The engine: every DEM command as a plan of output tiles run in bounded memory.
+
+:func:`plan_ortho` cuts the output grid into tiles and finds, for each tile and image, the DEM
+window it needs (its posts plus the occluder halo, see :mod:`orthomvp.engine.halo`);
+:func:`run_plan` runs the tiles in threads, processes or on a Dask cluster
+(:func:`dask_client`) and writes Cloud-Optimized or tiled GeoTIFFs (:class:`Outputs`).
+
+    plan = plan_ortho("dem.tif", [("image.tif", "image.tsai")], tile=1024)
+    report = run_plan(plan, Outputs(ortho="ortho.tif", visibility="vis.tif"), threads=2)
+"""
+
+from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
+from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
+from orthomvp.engine.writer import Outputs
+
+__all__ = [
+    "HaloWarning",
+    "Outputs",
+    "Plan",
+    "RunReport",
+    "TileJob",
+    "WorkerError",
+    "dask_client",
+    "plan_ortho",
+    "run_plan",
+]

@@ -1,0 +1,292 @@
+"""The engine's two grids: the DEM on disk (read window by window) and the output grid.
+
+Pixel coordinates are ``(c, r)`` with integer values at post centres, as everywhere in
+orthomvp; windows are ``(row0, row1, col0, col1)``, half-open, in posts. Nothing here holds a
+whole DEM in memory: :func:`scan_dem` reads it once in blocks of bounded size for its height
+range and a decimated preview (at most :data:`PREVIEW` posts a side), and the preview stands in
+for the DEM wherever a whole-grid view is needed (frame detection, longitude wrapping).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from affine import Affine
+from pyproj import CRS, Transformer
+from rasterio.errors import RasterioError
+from rasterio.windows import Window
+
+from orthomvp.codes import WorldFrame
+from orthomvp.engine.progress import Progress
+from orthomvp.errors import InputError
+from orthomvp.raster import open_raster
+from orthomvp.terrain import Terrain, parse_crs
+
+PREVIEW = 256
+"""Posts a side (at most) of the decimated DEM that :func:`scan_dem` keeps."""
+
+SCAN_POSTS = 1 << 24
+"""Posts (at most) read at a time by :func:`scan_dem`: 128 MiB of float64."""
+
+WindowT = tuple[int, int, int, int]
+"""(row0, row1, col0, col1), half-open, in posts."""
+
+
+@dataclass(frozen=True)
+class DemSource:
+    """A DEM file and its conventions, without its values.
+
+    ``preview`` is the DEM decimated by ``stride`` (post ``(i, j)`` of the preview is post
+    ``(i * stride, j * stride)`` of the DEM); ``h_min``, ``h_max`` are its lowest and highest
+    values over every post (metres of height, or of radius with ``radius_values``).
+    """
+
+    path: Path
+    shape: tuple[int, int]
+    transform: Affine
+    crs: CRS
+    radius_values: bool
+    world: WorldFrame
+    h_min: float
+    h_max: float
+    preview: Terrain
+    stride: int
+
+    def read(self, window: WindowT) -> np.ndarray:
+        """The DEM values in ``window`` as float64 (rows, cols), NaN at nodata."""
+        r0, r1, c0, c1 = window
+        with open_raster(self.path) as src:
+            try:
+                band = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
+            except RasterioError as exc:
+                raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
+        return np.ma.filled(band.astype(np.float64), np.nan)
+
+    def window_terrain(self, window: WindowT, values: np.ndarray) -> Terrain:
+        """A :class:`Terrain` of ``values`` read from ``window`` (its own pixel (0, 0) is the
+        window's first post)."""
+        r0, _, c0, _ = window
+        return Terrain(
+            values,
+            self.transform @ Affine.translation(c0, r0),
+            self.crs,
+            self.radius_values,
+            self.world,
+            name=str(self.path),
+        )
+
+    def to_world(self, c: np.ndarray, r: np.ndarray, value: np.ndarray) -> np.ndarray:
+        """World xyz (..., 3) of DEM pixel positions ``(c, r)`` with DEM ``value``."""
+        s = self.stride
+        return self.preview.to_world(np.asarray(c) / s, np.asarray(r) / s, value)
+
+    def from_world(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """DEM pixel position ``(c, r)`` and value of world points (..., 3)."""
+        c, r, v = self.preview.from_world(xyz)
+        return c * self.stride, r * self.stride, v
+
+    def post_spacing(self) -> float:
+        """Metres between neighbouring posts at the DEM centre (mean of both directions),
+        at the median height: what :meth:`Terrain.post_spacing` gives for the whole DEM."""
+        rows, cols = self.shape
+        c0, r0 = (cols - 1) / 2, (rows - 1) / 2
+        h = np.full(3, np.nanmedian(self.preview.values))
+        p = self.to_world(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]), h)
+        return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
+
+
+def _blocks(rows: int, cols: int) -> Iterator[tuple[int, int]]:
+    """Row ranges of full-width blocks of at most :data:`SCAN_POSTS` posts."""
+    step = max(1, SCAN_POSTS // max(cols, 1))
+    for r0 in range(0, rows, step):
+        yield r0, min(r0 + step, rows)
+
+
+def scan_dem(
+    path: str | Path,
+    crs: object | None = None,
+    radius_values: bool = False,
+    world: WorldFrame | str = WorldFrame.BODY,
+    progress: Progress | None = None,
+) -> DemSource:
+    """Read a DEM once, block by block (peak memory :data:`SCAN_POSTS` float64 posts), for its
+    height range and a preview; ``crs`` overrides the file's CRS. ``progress`` counts rows.
+    InputError for a DEM without CRS, georeference or valid heights."""
+    path = Path(path)
+    with open_raster(path) as src:
+        rows, cols = src.height, src.width
+        transform, file_crs = src.transform, src.crs
+        if crs is not None:
+            the_crs = parse_crs(crs, str(path))
+        elif file_crs is None:
+            raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
+        else:
+            the_crs = parse_crs(file_crs.to_wkt(), str(path))
+        if transform == Affine.identity():
+            raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+        if min(rows, cols) < 2:
+            raise InputError(f"{path}: a DEM needs at least 2 x 2 posts, got {(rows, cols)}")
+        stride = max(1, -(-max(rows, cols) // PREVIEW))
+        if progress:
+            progress.set_total(rows)
+        lo, hi, parts = np.inf, -np.inf, []
+        for r0, r1 in _blocks(rows, cols):
+            try:
+                band = src.read(1, window=Window(0, r0, cols, r1 - r0), masked=True)
+            except RasterioError as exc:
+                raise InputError(f"{path}: corrupt raster data ({exc})") from exc
+            block = np.ma.filled(band.astype(np.float64), np.nan)
+            if np.isfinite(block).any():
+                lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
+            parts.append(block[(-r0) % stride :: stride, ::stride])
+            if progress:
+                progress.update(r1 - r0)
+    if not np.isfinite(lo):
+        raise InputError(f"{path}: the DEM holds no valid heights")
+    shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
+    preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)
+    values = np.concatenate(parts)
+    if values.shape[0] < 2 or values.shape[1] < 2:  # a long thin DEM: keep two posts a side
+        pad = ((0, max(0, 2 - values.shape[0])), (0, max(0, 2 - values.shape[1])))
+        values = np.pad(values, pad, constant_values=np.nan)
+    if not np.isfinite(values).any():  # valid posts exist, but none on the preview lattice
+        values = np.full_like(values, (lo + hi) / 2)
+    preview = Terrain(values, preview_transform, the_crs, radius_values, world, name=str(path))
+    return DemSource(
+        path,
+        (rows, cols),
+        transform,
+        the_crs,
+        radius_values,
+        preview.world,
+        float(lo),
+        float(hi),
+        preview,
+        stride,
+    )
+
+
+def with_world(dem: DemSource, world: WorldFrame) -> DemSource:
+    """The same DEM with cameras in another world frame."""
+    return replace(dem, world=world, preview=replace(dem.preview, world=world))
+
+
+@dataclass(frozen=True)
+class OutputGrid:
+    """The output grid: ``transform`` (pixel corners, as GDAL), ``shape`` (rows, cols) and
+    ``crs``. ``on_dem`` when its posts are the DEM's posts (no interpolation needed)."""
+
+    transform: Affine
+    shape: tuple[int, int]
+    crs: CRS
+    on_dem: bool
+
+    def georef(self, window: WindowT, like: Terrain) -> Terrain:
+        """A :class:`Terrain` of the grid posts in ``window`` (values zero, to be filled), with
+        the conventions of ``like``."""
+        r0, r1, c0, c1 = window
+        return replace(
+            like,
+            values=np.zeros((r1 - r0, c1 - c0)),
+            transform=self.transform @ Affine.translation(c0, r0),
+            crs=self.crs,
+        )
+
+    def tiles(self, size: int) -> list[WindowT]:
+        """Windows of ``size`` x ``size`` posts covering the grid, row by row."""
+        rows, cols = self.shape
+        return [
+            (r, min(r + size, rows), c, min(c + size, cols))
+            for r in range(0, rows, size)
+            for c in range(0, cols, size)
+        ]
+
+
+def _same_body(dem: DemSource, crs: CRS) -> None:
+    """InputError unless ``crs`` lies on the DEM's body (same ellipsoid): heights carry over."""
+    ours, theirs = dem.preview.geodetic_crs, crs if crs.is_geographic else crs.geodetic_crs
+    a = (ours.ellipsoid.semi_major_metre, ours.ellipsoid.semi_minor_metre)
+    b = (theirs.ellipsoid.semi_major_metre, theirs.ellipsoid.semi_minor_metre)
+    pm = (ours.prime_meridian.longitude, theirs.prime_meridian.longitude)
+    if not np.allclose(a, b, rtol=1e-12, atol=1e-6) or pm[0] != pm[1]:
+        raise InputError(
+            f"the output CRS lies on another body than the DEM's (semi-axes {b[0]:.0f} / "
+            f"{b[1]:.0f} m against {a[0]:.0f} / {a[1]:.0f} m): give a CRS on the DEM's body"
+        )
+
+
+def output_grid(
+    dem: DemSource,
+    res: tuple[float, float] | None = None,
+    bounds: tuple[float, float, float, float] | None = None,
+    crs: object | None = None,
+) -> OutputGrid:
+    """The output grid: the DEM's own, or pixel size ``res`` (x, y) and ``bounds`` (left,
+    bottom, right, top) in the units of ``crs`` (default: the DEM's CRS; degrees or metres).
+
+    Defaults in another CRS: the DEM's extent transformed into it (21 points a side), and the
+    DEM's post spacing at its centre measured in it. Posts are placed as by
+    :meth:`Terrain.regrid`: ``round(extent / res)`` (at least 2) from the top-left corner.
+    """
+    out_crs = dem.crs if crs is None else parse_crs(crs, "output CRS")
+    same_crs = out_crs == dem.crs
+    if not same_crs:
+        if dem.world == WorldFrame.MAP:
+            raise InputError(
+                "the cameras live in the DEM's projected CRS (world frame 'map'): the output "
+                "must stay in that CRS"
+            )
+        _same_body(dem, out_crs)
+    if same_crs and res is None and bounds is None:
+        return OutputGrid(dem.transform, dem.shape, dem.crs, True)
+    t, (rows, cols) = dem.transform, dem.shape
+    if same_crs:
+        left, top = t.c, t.f
+        right, bottom = left + cols * t.a, top + rows * t.e
+        dx, dy = abs(t.a), abs(t.e)
+    else:
+        to_out = Transformer.from_crs(dem.crs, out_crs, always_xy=True)
+        x0, y0, x1, y1 = (t.c, t.f + rows * t.e, t.c + cols * t.a, t.f)
+        left, bottom, right, top = to_out.transform_bounds(x0, y0, x1, y1, densify_pts=21)
+        c, r = (cols - 1) / 2, (rows - 1) / 2
+        x, y = (t @ Affine.translation(0.5, 0.5)) @ (
+            np.array([c, c + 1, c]),
+            np.array([r, r, r + 1]),
+        )
+        ox, oy = to_out.transform(x, y)
+        dx = float(np.hypot(ox[1] - ox[0], oy[1] - oy[0]))
+        dy = float(np.hypot(ox[2] - ox[0], oy[2] - oy[0]))
+    if bounds is not None:
+        left, bottom, right, top = (float(v) for v in bounds)
+        if not (right > left and top > bottom):
+            raise InputError(f"bounds must be left bottom right top, got {bounds}")
+    if res is not None:
+        dx, dy = float(res[0]), float(res[1])
+    if not (dx > 0 and dy > 0):
+        raise InputError(f"resolution must be positive, got {res}")
+    n_c = max(int(round((right - left) / dx)), 2)
+    n_r = max(int(round((top - bottom) / dy)), 2)
+    grid = Affine(dx, 0, left, 0, -dy, top)
+    return OutputGrid(grid, (n_r, n_c), out_crs, same_crs and grid == t and (n_r, n_c) == dem.shape)
+
+
+def grid_to_dem(
+    grid: OutputGrid, dem: DemSource
+) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """A function from output-grid pixel positions ``(c, r)`` to DEM pixel positions."""
+    to_dem = (
+        None if grid.crs == dem.crs else Transformer.from_crs(grid.crs, dem.crs, always_xy=True)
+    )
+    g = grid.transform @ Affine.translation(0.5, 0.5)
+    d = ~(dem.transform @ Affine.translation(0.5, 0.5))
+
+    def convert(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, y = g @ (np.asarray(c, dtype=np.float64), np.asarray(r, dtype=np.float64))
+        if to_dem is not None:
+            x, y = to_dem.transform(x, y)
+        return d @ (np.asarray(x), np.asarray(y))
+
+    return convert

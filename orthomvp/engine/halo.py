@@ -1,0 +1,157 @@
+"""The occluder halo: the DEM posts that can hide a tile's posts from a camera.
+
+The bound. An occluder is a point of the DEM surface, so its height is at most ``h_max``, the
+DEM's highest value. The set O of points no higher than ``h_max`` is convex: the half-space
+``z <= h_max`` in the map frame, the ball of radius ``R + h_max`` on a sphere (``h_max`` itself
+with radius values), and the ellipsoid grown by ``h_max`` (a parallel body of a convex body) on
+an ellipsoid. A post p can only be hidden by surface on its line of sight towards the camera C
+while that line is inside O: the segment from p to where the line leaves O (or to C, when C is
+inside O). Posts are taken at the DEM's lowest value ``h_min``: a lower start at the same map
+position has a line of sight below the true one in the same vertical plane (both end at C), so
+it leaves O later along the same ground track, and its track contains the true one.
+
+On a sphere of radius R the exit is exact; as a distance: a line of sight at elevation e above
+the local horizontal rises above the surface by about ``s tan(e) + s^2 / (2R)`` over the arc
+distance s, so occluders lie within ``s* = R (sqrt(tan(e)^2 + 2 (h_max - h_post) / R) - tan(e))``,
+finite even for grazing lines (e <= 0). In the map frame ``s* = (h_max - h_post) / tan(e)``,
+bounded only by the camera itself as e goes to 0.
+
+A tile's window is the bounding box, in DEM posts, of the ground tracks of its perimeter posts
+(each sampled at :data:`TRACK_SAMPLES` points from the post to its exit and mapped back to the
+grid), widened by :data:`HALO_MARGIN` posts for the triangles around a hit and the slight bend
+of a track between samples. The tracks of the tile's interior posts lie between those of its
+perimeter (the exit moves smoothly with the post).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.codes import WorldFrame
+from orthomvp.engine.grid import DemSource, WindowT
+
+TRACK_SAMPLES = 9
+"""Points per ground track (from the post to where its line of sight leaves O)."""
+
+HALO_MARGIN = 2
+"""Posts added around every window."""
+
+BISECTIONS = 40
+"""Bisection steps for the exit from O on an ellipsoid (the exit to 2^-40 of its bracket)."""
+
+ToDem = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Halo:
+    """The occluder window of one tile for one camera: ``window`` in DEM posts (clipped to the
+    DEM), ``reach`` the farthest ground track in posts (unclipped), ``elevation`` the lowest
+    line of sight over the tile's perimeter in degrees above the local horizontal."""
+
+    window: WindowT
+    reach: float
+    elevation: float
+
+
+def _ball_exit(p: np.ndarray, d: np.ndarray, radius: float) -> np.ndarray:
+    """Distance along unit directions ``d`` from points ``p`` inside a ball about the origin
+    to its surface."""
+    b = np.einsum("ij,ij->i", p, d)
+    c = np.einsum("ij,ij->i", p, p) - radius * radius
+    return -b + np.sqrt(np.maximum(b * b - c, 0.0))
+
+
+def exit_distance(dem: DemSource, p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Metres along unit directions ``d`` (n, 3) from world points ``p`` (n, 3), at most
+    ``h_max`` high, to where the line leaves O (see the module docstring)."""
+    if dem.world == WorldFrame.MAP:
+        with np.errstate(divide="ignore"):
+            return np.where(d[:, 2] > 0, (dem.h_max - p[:, 2]) / d[:, 2], np.inf)
+    a, _ = dem.preview.radii
+    if dem.radius_values:
+        return _ball_exit(p, d, dem.h_max)
+    if dem.preview.is_sphere:
+        return _ball_exit(p, d, a + dem.h_max)
+    # ellipsoid: O lies inside the ball of radius a + max(h_max, 0); bisect its convex extent
+    lo = np.zeros(len(p))
+    hi = _ball_exit(p, d, a + max(dem.h_max, 0.0))
+    for _ in range(BISECTIONS):
+        mid = (lo + hi) / 2
+        inside = dem.from_world(p + mid[:, None] * d)[2] <= dem.h_max
+        lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
+    return hi
+
+
+def perimeter(window: WindowT) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions ``(c, r)`` of every post on the border of a window."""
+    r0, r1, c0, c1 = window
+    cols, rows = np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64)
+    c = np.concatenate([cols, cols, np.full(len(rows), c0), np.full(len(rows), c1 - 1)])
+    r = np.concatenate([np.full(len(cols), r0), np.full(len(cols), r1 - 1), rows, rows])
+    return c, r
+
+
+def tile_halo(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: PinholeCamera) -> Halo:
+    """The occluder window of the output-grid ``tile`` for ``camera`` (module docstring)."""
+    c, r = to_dem(*perimeter(tile))
+    p = dem.to_world(c, r, np.full(c.shape, dem.h_min))
+    to_cam = camera.center - p
+    dist = np.linalg.norm(to_cam, axis=-1)
+    d = to_cam / dist[:, None]
+    t_end = np.minimum(exit_distance(dem, p, d), dist)
+    k = np.linspace(0.0, 1.0, TRACK_SAMPLES)
+    track = p[:, None, :] + (t_end[:, None] * k)[..., None] * d[:, None, :]
+    tc, tr, _ = dem.from_world(track)
+    reach = float(np.nanmax(np.hypot(tc - c[:, None], tr - r[:, None])))
+    sin_e = np.einsum("ij,ij->i", d, dem.preview.up_vectors(p))
+    rows, cols = dem.shape
+    box = (
+        max(int(np.floor(np.nanmin(tr))) - HALO_MARGIN, 0),
+        min(int(np.ceil(np.nanmax(tr))) + HALO_MARGIN + 1, rows),
+        max(int(np.floor(np.nanmin(tc))) - HALO_MARGIN, 0),
+        min(int(np.ceil(np.nanmax(tc))) + HALO_MARGIN + 1, cols),
+    )
+    return Halo(box, reach, float(np.degrees(np.arcsin(np.clip(sin_e.min(), -1, 1)))))
+
+
+def footprint(dem: DemSource, to_dem: ToDem, tile: WindowT, on_dem: bool) -> WindowT:
+    """The DEM window that holds an output-grid window's posts and what they are computed
+    from: on the DEM's own grid the posts plus one around (normals are central differences),
+    else every DEM post that the interpolation of the posts, one around, touches."""
+    r0, r1, c0, c1 = tile
+    rows, cols = dem.shape
+    if on_dem:
+        return max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols)
+    c, r = to_dem(*perimeter((r0 - 1, r1 + 1, c0 - 1, c1 + 1)))
+    return (
+        max(int(np.floor(np.nanmin(r))) - 1, 0),
+        min(int(np.floor(np.nanmax(r))) + 3, rows),
+        max(int(np.floor(np.nanmin(c))) - 1, 0),
+        min(int(np.floor(np.nanmax(c))) + 3, cols),
+    )
+
+
+def image_box(
+    dem: DemSource, to_dem: ToDem, tile: WindowT, camera: PinholeCamera
+) -> tuple[float, float, float, float] | None:
+    """Where the tile can appear in the image: the bounding box (c0, c1, r0, r1) in pixels of
+    the projections of its perimeter and a 9 x 9 lattice of its posts at the DEM's lowest and
+    highest values, or None when the camera sees none of them in front of it.
+
+    Points behind the camera make the box the whole image plane (conservative)."""
+    r0, r1, c0, c1 = tile
+    pc, pr = perimeter(tile)
+    lc, lr = np.meshgrid(np.linspace(c0, c1 - 1, 9), np.linspace(r0, r1 - 1, 9))
+    c, r = to_dem(np.concatenate([pc, lc.ravel()]), np.concatenate([pr, lr.ravel()]))
+    c, r = np.concatenate([c, c]), np.concatenate([r, r])
+    h = np.concatenate([np.full(len(c) // 2, dem.h_min), np.full(len(c) // 2, dem.h_max)])
+    uv, depth = camera.project(dem.to_world(c, r, h))
+    if not (depth > 0).any():
+        return None
+    if not ((depth > 0) & np.isfinite(uv).all(axis=-1)).all():
+        return (-np.inf, np.inf, -np.inf, np.inf)
+    return (uv[:, 0].min(), uv[:, 0].max(), uv[:, 1].min(), uv[:, 1].max())

@@ -1,0 +1,88 @@
+"""Images read window by window: their size from the header, pixels only where a tile needs
+them. Windows are ``(row0, row1, col0, col1)``, half-open, in image pixels; pixels come back
+float32 ``(bands, rows, cols)`` with NaN at nodata (ISIS special pixels), as
+:func:`orthomvp.raster.read_image` gives them for the whole image."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rasterio.errors import RasterioError
+from rasterio.windows import Window
+
+from orthomvp.camera import PinholeCamera, check_image, read_camera
+from orthomvp.errors import InputError
+from orthomvp.isis import cube_layout, read_label
+from orthomvp.raster import open_raster
+
+
+@dataclass(frozen=True)
+class ImageSource:
+    """One view: the image file, its size and band count, and its camera (carrying the size)."""
+
+    path: Path
+    width: int
+    height: int
+    bands: int
+    camera: PinholeCamera
+
+    def read(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """Pixels of ``window`` (clipped to the image by the caller)."""
+        if self.path.suffix.lower() == ".cub":
+            return _read_cube_window(self.path, window)
+        r0, r1, c0, c1 = window
+        with open_raster(self.path) as src:
+            try:
+                data = src.read(window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
+            except RasterioError as exc:
+                raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
+        return np.ma.filled(data.astype(np.float32), np.nan)
+
+
+def image_source(image: str | Path, camera: str | Path | PinholeCamera) -> ImageSource:
+    """An image and its camera (a path, read with :func:`read_camera`, the image's name picking
+    its row in multi-camera files; or a camera), checked against each other from the image's
+    header alone: no pixel is read."""
+    path = Path(image)
+    if path.suffix.lower() == ".cub":
+        layout = cube_layout(path, read_label(path))
+        bands, rows, cols = layout.bands, layout.lines, layout.samples
+    else:
+        with open_raster(path) as src:
+            bands, rows, cols = src.count, src.height, src.width
+    if not isinstance(camera, PinholeCamera):
+        camera = read_camera(camera, path)
+    shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
+    return ImageSource(path, cols, rows, bands, check_image(shape_only, camera, str(path)))
+
+
+def _read_cube_window(path: Path, window: tuple[int, int, int, int]) -> np.ndarray:
+    """A window of an ISIS3 cube, through a memory map of its pixels (see
+    :func:`orthomvp.isis.read_cube` for the layout and the special pixels)."""
+    layout = cube_layout(path, read_label(path))
+    r0, r1, c0, c1 = window
+    ts, tl = layout.tile_samples, layout.tile_lines
+    across, down = -(-layout.samples // ts), -(-layout.lines // tl)
+    try:
+        raw = np.memmap(
+            path, layout.dtype, "r", layout.start, (layout.nbytes // layout.dtype.itemsize,)
+        )
+    except ValueError:
+        raise InputError(
+            f"{path}: truncated cube: {layout.nbytes} bytes of pixels expected"
+        ) from None
+    tiles = raw.reshape(layout.bands, down, across, tl, ts)
+    tr0, tr1, tc0, tc1 = r0 // tl, -(-r1 // tl), c0 // ts, -(-c1 // ts)
+    part = tiles[:, tr0:tr1, tc0:tc1].transpose(0, 1, 3, 2, 4)
+    part = part.reshape(layout.bands, (tr1 - tr0) * tl, (tc1 - tc0) * ts)
+    values = part[:, r0 - tr0 * tl : r1 - tr0 * tl, c0 - tc0 * ts : c1 - tc0 * ts].astype(
+        np.float32
+    )
+    low, high = layout.valid
+    with np.errstate(invalid="ignore"):
+        special = ~((values >= low) & (values <= high))
+    out = np.float32(layout.base) + np.float32(layout.multiplier) * values
+    out[special] = np.nan
+    return out

@@ -1,0 +1,324 @@
+"""Plans: the output grid cut into tiles, and per tile the images that see it and the DEM
+window it needs (its posts plus the occluder halo of :mod:`orthomvp.engine.halo`).
+
+Planning reads the DEM once in bounded blocks (:func:`orthomvp.engine.grid.scan_dem`) and
+only the headers of the images; everything else is geometry on the tiles' perimeters.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.codes import WorldFrame
+from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
+from orthomvp.engine.grid import with_world as dem_with_world
+from orthomvp.engine.halo import Halo, ToDem, footprint, image_box, tile_halo
+from orthomvp.engine.images import ImageSource, image_source
+from orthomvp.engine.progress import Progress
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.ortho import INTERPOLATION
+from orthomvp.world import detect_world
+
+Box = tuple[float, float, float, float]
+"""Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
+
+IMAGE_MARGIN = 2
+"""Image pixels read beyond the outermost sampled positions (cubic interpolation needs 2)."""
+
+SAMPLE_BUDGET_PIXELS = 1 << 24
+"""Pixels of an image window (per band) above which a tile samples its image in pieces."""
+
+# Bytes of memory per post, from the peak resident set size of runs of the scale benchmark's
+# scene (orthomvp.engine.scale, 2048 x 2048 posts, tiles of 128 to 1024 posts, one thread),
+# rounded up: the DEM window meshed for Embree (world points, triangles, the trimesh, the
+# caster's float32 copies and BVH: about 290 measured), the window's values, and the posts of
+# a tile (with one around) through visibility and sampling (float64 geometry in
+# compute_visibility's sub-tiles, codes, uv, emission: about 150 measured for one view).
+MESH_BYTES = 300
+WINDOW_BYTES = 16
+TILE_BYTES = 100
+VIEW_BYTES = 50
+BASE_BYTES = 300 << 20
+"""An interpreter with numpy, rasterio, pyproj, trimesh and Embree loaded, and GDAL's block
+cache (bounded by :data:`orthomvp.engine.run.GDAL_CACHE` in the writer)."""
+
+
+class HaloWarning(UserWarning):
+    """A camera whose lines of sight are so low that each tile needs most of the DEM."""
+
+
+@dataclass(frozen=True)
+class TileJob:
+    """One output tile: ``window`` on the output grid; ``views``, the indices of the images
+    that may see it; ``dem``, the DEM window it reads (None when no image sees it);
+    ``image_pixels``, per view, the pixels of the image window expected to be read."""
+
+    index: int
+    window: WindowT
+    views: tuple[int, ...]
+    dem: WindowT | None
+    image_pixels: tuple[int, ...]
+
+    @property
+    def dem_posts(self) -> int:
+        """Posts of the DEM window (0 without one)."""
+        if self.dem is None:
+            return 0
+        r0, r1, c0, c1 = self.dem
+        return (r1 - r0) * (c1 - c0)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Everything a worker needs, by value or by path: the DEM, the output grid, the views,
+    the tiles, and the options (``eps`` in DEM posts or None for the default rule,
+    ``interp``). ``spacing`` is one DEM post in metres at the DEM centre, ``post_scale`` one
+    output post in DEM posts (both for the epsilon test, the same in every tile);
+    ``reach`` and ``elevation`` per view: the farthest occluder track in DEM posts and the
+    lowest line of sight in degrees over all tiles."""
+
+    dem: DemSource
+    grid: OutputGrid
+    views: tuple[ImageSource, ...]
+    tiles: tuple[TileJob, ...]
+    tile: int
+    occlusion: bool
+    eps: float | None
+    interp: str
+    spacing: float
+    post_scale: float
+    reach: tuple[float, ...]
+    elevation: tuple[float, ...]
+
+    @property
+    def bands(self) -> int:
+        return self.views[0].bands
+
+    def tile_bytes(self, job: TileJob, images: bool = True) -> int:
+        """Expected peak memory of one tile in a worker, bytes (the constants above)."""
+        r0, r1, c0, c1 = job.window
+        ext = (r1 - r0 + 2) * (c1 - c0 + 2)
+        mesh = MESH_BYTES * job.dem_posts if self.occlusion else 0
+        pixels = max((min(p, SAMPLE_BUDGET_PIXELS) for p in job.image_pixels), default=0)
+        image = 8 * self.bands * pixels if images else 0
+        views = VIEW_BYTES * ext * len(job.views)
+        return WINDOW_BYTES * job.dem_posts + mesh + TILE_BYTES * ext + views + image
+
+    def peak_memory(self, workers: int, processes: int = 0, images: bool = True) -> int:
+        """Expected peak memory of a run with ``workers`` tiles in flight at once and
+        ``processes`` worker processes besides this one (each an interpreter of
+        :data:`BASE_BYTES`), reading images or not, bytes."""
+        sizes = sorted((self.tile_bytes(job, images) for job in self.tiles), reverse=True)
+        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+
+    def summary(self, peak: int, workers: int) -> str:
+        """One line: grid size, tiles, images, the largest DEM window, and the expected
+        ``peak`` memory (bytes) with ``workers`` tiles at a time."""
+        rows, cols = self.grid.shape
+        run = [job for job in self.tiles if job.views]
+        biggest = max(run, key=lambda job: job.dem_posts, default=None)
+        window = ""
+        if biggest is not None and biggest.dem is not None:
+            r0, r1, c0, c1 = biggest.dem
+            window = f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
+        reach = max(self.reach, default=0.0)
+        return (
+            f"plan: {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
+            f"{self.tile} x {self.tile} to run, {len(self.views)} image(s), occluder halo up to "
+            f"{reach:.0f} DEM posts{window}; expected peak memory {peak / 2**30:.2f} GiB with "
+            f"{workers} tile(s) at a time"
+        )
+
+
+def _views(
+    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+) -> tuple[ImageSource, ...]:
+    if not views:
+        raise InputError("give at least one image and its camera")
+    sources = tuple(image_source(image, camera) for image, camera in views)
+    bands = {v.bands for v in sources}
+    if len(bands) != 1:
+        raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
+    return sources
+
+
+def _frame(world: WorldFrame | str) -> WorldFrame | None:
+    """The world frame asked for, None for "auto"."""
+    if world == "auto":
+        return None
+    try:
+        return WorldFrame(world)
+    except ValueError:
+        names = ", ".join(["auto", *(w.value for w in WorldFrame)])
+        raise InputError(f"world frame must be one of {names}, not {world!r}") from None
+
+
+def _no_overlap(view: ImageSource, boxes: list[Box | None]) -> str:
+    """Why no tile of the grid can be seen in ``view``, in one line."""
+    seen = [b for b in boxes if b is not None]
+    if not seen:
+        return f"{view.path}: the camera looks away from the DEM: every post is behind it"
+    c0, c1 = min(b[0] for b in seen), max(b[1] for b in seen)
+    r0, r1 = min(b[2] for b in seen), max(b[3] for b in seen)
+    return (
+        f"{view.path}: the image ({view.width} x {view.height} px) does not cover the output "
+        f"grid: its posts project to columns {c0:.0f}..{c1:.0f}, rows {r0:.0f}..{r1:.0f}"
+    )
+
+
+def _pixels(box: Box, view: ImageSource) -> int:
+    """Image pixels of the window of ``box`` (clipped to the image)."""
+    c0, c1 = max(box[0] - IMAGE_MARGIN, 0), min(box[1] + IMAGE_MARGIN + 1, view.width)
+    r0, r1 = max(box[2] - IMAGE_MARGIN, 0), min(box[3] + IMAGE_MARGIN + 1, view.height)
+    return int(max(c1 - c0, 0) * max(r1 - r0, 0))
+
+
+def _union(a: WindowT, b: WindowT) -> WindowT:
+    return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
+
+
+def _sees(box: Box | None, view: ImageSource) -> bool:
+    """Whether a tile's image box (see :func:`~orthomvp.engine.halo.image_box`) meets the
+    image (half a pixel beyond its outer pixel centres, plus the interpolation margin)."""
+    m = 0.5 + IMAGE_MARGIN
+    return box is not None and (
+        box[1] >= -m
+        and box[0] <= view.width - 1 + m
+        and box[3] >= -m
+        and box[2] <= view.height - 1 + m
+    )
+
+
+def _job(
+    dem: DemSource,
+    to_dem: ToDem,
+    grid: OutputGrid,
+    views: tuple[ImageSource, ...],
+    index: int,
+    window: WindowT,
+    occlusion: bool,
+) -> tuple[TileJob, list[Box | None], list[Halo | None]]:
+    """Plan one tile: the job (the views that see it, its DEM window), and per view the
+    tile's image box and its occluder halo (None where not computed)."""
+    boxes: list[Box | None] = [None] * len(views)
+    halos: list[Halo | None] = [None] * len(views)
+    need = footprint(dem, to_dem, window, grid.on_dem)
+    if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
+        return TileJob(index, window, (), None, ()), boxes, halos
+    seen, pixels = [], []
+    for k, view in enumerate(views):
+        boxes[k] = image_box(dem, to_dem, window, view.camera)
+        if not _sees(boxes[k], view):
+            continue
+        seen.append(k)
+        pixels.append(_pixels(boxes[k], view))
+        if occlusion:
+            halos[k] = tile_halo(dem, to_dem, window, view.camera)
+            need = _union(need, halos[k].window)
+    if not seen:
+        return TileJob(index, window, (), None, ()), boxes, halos
+    return TileJob(index, window, tuple(seen), need, tuple(pixels)), boxes, halos
+
+
+def plan_ortho(
+    dem: str | Path,
+    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+    *,
+    tile: int = 1024,
+    res: tuple[float, float] | None = None,
+    bounds: tuple[float, float, float, float] | None = None,
+    crs: object | None = None,
+    occlusion: bool = True,
+    eps: float | None = None,
+    interp: str = "bilinear",
+    dem_crs: object | None = None,
+    radius_values: bool = False,
+    world: WorldFrame | str = "auto",
+    progress: bool = True,
+) -> Plan:
+    """Plan orthophotos, visibility codes or a mosaic of ``views`` ((image path, camera or
+    camera path) pairs) on the DEM at path ``dem``.
+
+    The output grid is the DEM's, or ``res`` (x, y) and ``bounds`` (left, bottom, right, top)
+    in the units of ``crs`` (default the DEM's; any CRS pyproj knows on the same body), cut
+    into tiles of ``tile`` x ``tile`` posts. ``occlusion``, ``eps`` (DEM posts) and ``interp``
+    are those of :func:`orthomvp.ortho.orthorectify`; ``dem_crs`` overrides the DEM file's
+    CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
+    :meth:`orthomvp.terrain.Terrain.read` and :func:`orthomvp.world.detect_world`.
+
+    Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
+    sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
+    larger than the DEM.
+    """
+    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
+        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    if eps is not None and not eps > 0:
+        raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
+    if interp not in INTERPOLATION:
+        raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
+    frame = _frame(world)
+    sources = _views(views)
+    with Progress("reading the DEM's heights", progress, unit="row") as bar:
+        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
+    if frame is None:
+        frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
+    source = dem_with_world(source, frame)
+    grid = output_grid(source, res, bounds, crs)
+    to_dem = grid_to_dem(grid, source)
+    windows = grid.tiles(int(tile))
+    jobs, boxes = [], [[] for _ in sources]
+    reach, elevation = [0.0] * len(sources), [90.0] * len(sources)
+    with Progress("planning tiles", progress, len(windows)) as bar:
+        for index, window in enumerate(windows):
+            job, tile_boxes, halos = _job(source, to_dem, grid, sources, index, window, occlusion)
+            jobs.append(job)
+            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
+                boxes[k].append(box)
+                if halo is not None:
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
+            bar.update()
+    for k, view in enumerate(sources):
+        if not any(k in job.views for job in jobs):
+            raise GeometryError(_no_overlap(view, boxes[k]))
+        if reach[k] > max(source.shape):
+            warnings.warn(
+                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
+                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
+                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
+                "of the DEM, so memory grows with it (results stay correct)",
+                HaloWarning,
+                stacklevel=2,
+            )
+    spacing = source.post_spacing()
+    post_scale = 1.0 if grid.on_dem else _grid_spacing(grid, source) / spacing
+    return Plan(
+        source,
+        grid,
+        sources,
+        tuple(jobs),
+        int(tile),
+        occlusion,
+        eps,
+        interp,
+        spacing,
+        post_scale,
+        tuple(reach),
+        tuple(elevation),
+    )
+
+
+def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
+    """Metres between neighbouring output posts at the grid centre (mean of both directions)
+    at the DEM's median height, as :meth:`Terrain.post_spacing` gives for a regridded DEM."""
+    rows, cols = grid.shape
+    c0, r0 = (cols - 1) / 2, (rows - 1) / 2
+    c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
+    p = dem.to_world(c, r, np.full(3, np.nanmedian(dem.preview.values)))
+    return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))

@@ -1,0 +1,284 @@
+"""Running a plan: tiles in threads, in processes, or on a Dask cluster; one writer (this
+process) assembles the outputs.
+
+Workers get the plan (paths and geometry, no pixels) and return finished tiles. At most
+``inflight`` tiles are submitted and not yet written at any time, so memory stays bounded by
+the tile, its halo and the band count. Every tile is computed the same way wherever it runs,
+so outputs are identical on threads, processes and a cluster.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import importlib
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import rasterio
+
+from orthomvp.engine.plan import Plan
+from orthomvp.engine.progress import Progress
+from orthomvp.engine.tile import TileResult, empty_result, run_tile
+from orthomvp.engine.writer import Outputs, output_set
+from orthomvp.errors import GeometryError, InputError, OrthoMVPError
+
+GDAL_CACHE = 256 << 20
+"""Bytes of GDAL's block cache in the writer (GDAL's default, 5% of the memory, would hold
+the blocks of tiles that do not align with the output's blocks for the whole run)."""
+
+
+class WorkerError(OrthoMVPError):
+    """A worker died (killed, out of memory, crashed) while running a tile."""
+
+
+@dataclass
+class RunReport:
+    """What a run did: tiles run and skipped (no image sees them), wall-clock seconds, the
+    workers' seconds per phase summed over tiles (read, mesh, visibility, sample) and the
+    writer's (write), posts filled in ``ortho``, and per view the posts inside the image and
+    the posts taken from it (``source``)."""
+
+    tiles_run: int = 0
+    tiles_skipped: int = 0
+    seconds: float = 0.0
+    phases: dict[str, float] = field(default_factory=dict)
+    filled: int = 0
+    inside: list[int] = field(default_factory=list)
+    taken: list[int] = field(default_factory=list)
+
+
+def available_memory() -> int:
+    """Memory available to new work, bytes: MemAvailable of /proc/meminfo where there is
+    one, else the free physical pages."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def preflight(plan: Plan, workers: int, processes: int, images: bool) -> int:
+    """Expected peak memory of the run (:meth:`Plan.peak_memory`), bytes; InputError (one
+    line, saying what to change) when it exceeds :func:`available_memory`."""
+    need = plan.peak_memory(workers, processes, images)
+    have = available_memory()
+    if need > have:
+        raise InputError(
+            f"the run needs about {need / 2**30:.1f} GiB of memory with {workers} tile(s) of "
+            f"{plan.tile} posts at a time, {have / 2**30:.1f} GiB is available: use smaller "
+            "tiles or fewer threads/processes"
+        )
+    return need
+
+
+def _worker_init(plan: Plan) -> None:
+    global _PLAN
+    _PLAN = plan
+
+
+_PLAN: Plan | None = None
+
+
+def _process_tile(index: int, kinds: frozenset[str], threads: int) -> TileResult:
+    """:func:`run_tile` on the plan that :func:`_worker_init` gave this worker process."""
+    assert _PLAN is not None
+    return run_tile(_PLAN, index, kinds, threads)
+
+
+@contextlib.contextmanager
+def _local_executor(
+    plan: Plan, workers: int, processes: int | None
+) -> Iterator[tuple[Callable[[int, frozenset[str], int], Any], Callable]]:
+    """(submit, wait) over a pool of ``workers`` threads, or of ``processes`` processes."""
+    if processes:
+        ctx = multiprocessing.get_context("spawn")
+        pool: cf.Executor = cf.ProcessPoolExecutor(
+            processes, mp_context=ctx, initializer=_worker_init, initargs=(plan,)
+        )
+        submit = lambda i, k, t: pool.submit(_process_tile, i, k, t)  # noqa: E731
+    else:
+        pool = cf.ThreadPoolExecutor(workers)
+        submit = lambda i, k, t: pool.submit(run_tile, plan, i, k, t)  # noqa: E731
+    try:
+        yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextlib.contextmanager
+def _dask_executor(plan: Plan, client: Any) -> Iterator[tuple[Callable, Callable]]:
+    """(submit, wait) over a Dask client; the plan is sent to every worker once."""
+    from distributed import wait
+
+    shared = client.scatter(plan, broadcast=True)
+    submit = lambda i, k, t: client.submit(run_tile, shared, i, k, t, pure=False)  # noqa: E731
+    try:
+        yield submit, lambda fs: wait(fs, return_when="FIRST_COMPLETED")
+    finally:
+        client.cancel([shared])
+
+
+@contextlib.contextmanager
+def dask_client(
+    workers: int | None = None, address: str | None = None, timeout: float = 10.0
+) -> Iterator[Any]:
+    """A ``dask.distributed.Client``: connected to the scheduler at ``address``, or to a
+    LocalCluster of ``workers`` processes (one thread each, default one per core) started
+    here and stopped on exit. Every worker imports the engine before the client is handed
+    out (the import costs a second or two per worker, outside any run).
+
+    InputError (one line) when the scheduler does not answer within ``timeout`` seconds, or
+    when its workers cannot import orthomvp (a remote cluster needs orthomvp installed, and
+    the plan's files at the same paths)."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if address is not None:
+        try:
+            client = Client(address, timeout=timeout)
+        except (OSError, TimeoutError) as exc:
+            reason = " ".join(str(exc).split()) or type(exc).__name__
+            raise InputError(f"no Dask scheduler answers at {address} ({reason})") from None
+        with client:
+            _warm_up(client, address)
+            yield client
+        return
+    cluster = LocalCluster(
+        n_workers=workers or os.cpu_count() or 1,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    )
+    with cluster, Client(cluster) as client:
+        _warm_up(client, "the local cluster")
+        yield client
+
+
+def _warm_up(client: Any, where: str) -> None:
+    """Import the engine in every worker of ``client``; InputError when a worker cannot."""
+    try:
+        client.run(importlib.import_module, run_tile.__module__)
+    except ImportError as exc:
+        raise InputError(f"the Dask workers at {where} cannot import orthomvp ({exc})") from None
+
+
+def _died(exc: BaseException) -> bool:
+    """Whether ``exc`` says that a worker died under a tile."""
+    if isinstance(exc, cf.process.BrokenProcessPool):
+        return True
+    return type(exc).__name__ == "KilledWorker"
+
+
+def run_plan(
+    plan: Plan,
+    outputs: Outputs,
+    *,
+    threads: int | None = None,
+    processes: int | None = None,
+    client: Any = None,
+    progress: bool = True,
+    inflight: int | None = None,
+) -> RunReport:
+    """Run every tile of ``plan`` and write ``outputs``.
+
+    Tiles run in ``threads`` threads (default: one per core), or in ``processes`` worker
+    processes, or on the Dask ``client`` (see :func:`dask_client`); at most ``inflight``
+    tiles (default twice the workers) are in flight. A plain ``threads`` run gives each tile
+    ``threads // tiles`` threads when there are fewer tiles than threads.
+
+    Raises InputError before any work when the expected peak memory exceeds what is
+    available, GeometryError (and writes nothing) when an image sees no post of the grid or
+    only posts facing away, and WorkerError (writing nothing) when a worker dies.
+    """
+    if sum(x is not None for x in (threads, processes, client)) > 1:
+        raise InputError("give threads, processes or a Dask client, not several")
+    for name, value in (("threads", threads), ("processes", processes), ("inflight", inflight)):
+        if value is not None and value < 1:
+            raise InputError(f"{name} must be at least 1, got {value}")
+    kinds = frozenset(outputs.paths())
+    jobs = [job.index for job in plan.tiles if job.views]
+    if client is not None:
+        workers = max(sum(client.nthreads().values()), 1)
+    else:
+        workers = processes or threads or os.cpu_count() or 1
+    at_once = min(workers, max(len(jobs), 1))
+    peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
+    start = time.perf_counter()
+    report = RunReport(inside=[0] * len(plan.views), taken=[0] * len(plan.views))
+    executor = (
+        _dask_executor(plan, client)
+        if client is not None
+        else _local_executor(plan, workers, processes)
+    )
+    with Progress("tiles", progress, len(plan.tiles)) as bar, executor as (submit, wait):
+        bar.note(plan.summary(peak, at_once))
+        inner = 1 if client is not None or processes else max(1, workers // max(len(jobs), 1))
+        limit = inflight or 2 * workers
+        seen = [0] * len(plan.views)
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), output_set(plan, outputs) as writer:
+            for job in plan.tiles:
+                if not job.views:
+                    writer.write(empty_result(plan, job, kinds))
+                    report.tiles_skipped += 1
+                    bar.update()
+            queue, pending = list(reversed(jobs)), set()
+            while queue or pending:
+                while queue and len(pending) < limit:
+                    pending.add(submit(queue.pop(), kinds, inner))
+                done, pending = wait(pending)
+                for future in done:
+                    try:
+                        result = future.result()
+                    except Exception as exc:
+                        if _died(exc):
+                            raise WorkerError(
+                                f"a worker died while running a tile ({type(exc).__name__}: "
+                                f"{' '.join(str(exc).split())[:200]}); nothing was written"
+                            ) from None
+                        raise
+                    t0 = time.perf_counter()
+                    writer.write(result)
+                    _account(report, result, time.perf_counter() - t0)
+                    seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
+                    bar.update()
+            _check_views(plan, report, seen)
+            t0 = time.perf_counter()
+        report.phases["write"] = report.phases.get("write", 0.0) + time.perf_counter() - t0
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _account(report: RunReport, result: TileResult, write_seconds: float) -> None:
+    """Add one tile to the report."""
+    report.tiles_run += 1
+    for phase, seconds in result.seconds.items():
+        report.phases[phase] = report.phases.get(phase, 0.0) + seconds
+    report.phases["write"] = report.phases.get("write", 0.0) + write_seconds
+    if result.data is not None:
+        report.filled += int(np.isfinite(result.data).all(axis=0).sum())
+    report.inside = [a + b for a, b in zip(report.inside, result.inside, strict=True)]
+    if result.source is not None:
+        counts = np.bincount(result.source.ravel(), minlength=len(report.taken) + 1)
+        report.taken = [a + int(b) for a, b in zip(report.taken, counts[1:], strict=True)]
+
+
+def _check_views(plan: Plan, report: RunReport, seen: list[int]) -> None:
+    """GeometryError when a view had no post inside its image in any tile, or only posts
+    facing away (as :func:`~orthomvp.visibility.compute_visibility` raises for a whole grid)."""
+    for view, inside, visible in zip(plan.views, report.inside, seen, strict=True):
+        if not inside:
+            raise GeometryError(f"{view.path}: the image covers none of the output grid's posts")
+        if not visible:
+            raise GeometryError(
+                f"{view.path}: every post in the image faces away from the camera: it looks at "
+                "the surface from below (is the camera inside the body, or the DEM upside down?)"
+            )

@@ -1,0 +1,210 @@
+"""The one writer of a run: tiles arrive in any order and go into tiled GeoTIFFs with windowed
+writes; at the end come overviews, and for Cloud-Optimized GeoTIFFs a streaming copy through
+GDAL's COG driver. Every output is written to a temporary file beside its target, and all of
+a run's outputs are renamed onto their targets only when all of them succeeded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rasterio
+import rasterio.shutil
+from rasterio.enums import Resampling
+from rasterio.windows import Window
+
+from orthomvp.engine.plan import Plan
+from orthomvp.engine.tile import TileResult
+from orthomvp.errors import InputError
+from orthomvp.raster import atomic_path
+
+FORMATS = ("cog", "gtiff")
+COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
+NODATA = {"float32": np.nan, "uint8": 0, "uint16": 0, "int16": -32768}
+"""Output data types of orthophotos and mosaics, with their default nodata values."""
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """What a run writes: ``ortho`` (orthophoto or mosaic, all bands), ``visibility`` (uint8
+    codes of :class:`orthomvp.codes.Code`, one band per view, 0 = nodata), ``source`` (the
+    1-based view each post came from, 0 = none): paths, or None for outputs not wanted.
+
+    ``format`` "cog" (Cloud-Optimized GeoTIFF) or "gtiff" (tiled GeoTIFF with internal
+    overviews); ``compress`` one of :data:`COMPRESSIONS` (with the predictor that fits the
+    data type); ``dtype`` of ``ortho``, one of :data:`NODATA` (integers are rounded and
+    clipped); ``nodata`` its nodata value (default from :data:`NODATA`; valid values that
+    round to it move one step towards the type's range); ``blocksize`` internal tiles in
+    pixels (a multiple of 16).
+    """
+
+    ortho: str | Path | None = None
+    visibility: str | Path | None = None
+    source: str | Path | None = None
+    format: str = "cog"
+    compress: str = "deflate"
+    dtype: str = "float32"
+    nodata: float | None = None
+    blocksize: int = 512
+
+    def __post_init__(self) -> None:
+        if not self.paths():
+            raise InputError("no output asked for: give ortho, visibility or source")
+        for name, value, allowed in (
+            ("format", self.format, FORMATS),
+            ("compression", self.compress, COMPRESSIONS),
+            ("data type", self.dtype, tuple(NODATA)),
+        ):
+            if value not in allowed:
+                raise InputError(
+                    f"output {name} must be one of {', '.join(allowed)}, not {value!r}"
+                )
+        if self.blocksize < 16 or self.blocksize % 16:
+            raise InputError(f"block size must be a multiple of 16 pixels, got {self.blocksize}")
+        if self.nodata is not None and self.dtype != "float32":
+            info = np.iinfo(self.dtype)
+            if not (info.min <= self.nodata <= info.max) or self.nodata != int(self.nodata):
+                raise InputError(f"nodata {self.nodata} is not a {self.dtype} value")
+
+    def paths(self) -> dict[str, Path]:
+        """The outputs asked for, by kind ("ortho", "visibility", "source")."""
+        paths = {"ortho": self.ortho, "visibility": self.visibility, "source": self.source}
+        return {kind: Path(path) for kind, path in paths.items() if path is not None}
+
+    @property
+    def fill(self) -> float:
+        """The nodata value of ``ortho``."""
+        return NODATA[self.dtype] if self.nodata is None else self.nodata
+
+
+def to_dtype(data: np.ndarray, dtype: str, nodata: float) -> np.ndarray:
+    """Float32 values (NaN = empty) as ``dtype`` with ``nodata``: integers rounded and clipped
+    to the type's range; valid values equal to ``nodata`` move one step into the range."""
+    empty = ~np.isfinite(data)
+    if dtype == "float32":
+        return np.where(empty, np.float32(nodata), data) if not np.isnan(nodata) else data
+    info = np.iinfo(dtype)
+    with np.errstate(invalid="ignore"):
+        values = np.clip(np.rint(data), info.min, info.max)
+    step = 1 if nodata < info.max else -1
+    values = np.where(values == nodata, nodata + step, values)
+    return np.where(empty, nodata, values).astype(dtype)
+
+
+def _creation(outputs: Outputs, dtype: str) -> dict[str, object]:
+    """GDAL creation options shared by the tiled GeoTIFF and the COG."""
+    opts: dict[str, object] = {"compress": outputs.compress, "bigtiff": "IF_SAFER"}
+    if outputs.compress != "none":
+        opts["predictor"] = 3 if dtype == "float32" else 2
+        opts["num_threads"] = "ALL_CPUS"
+    return opts
+
+
+def _overview_factors(shape: tuple[int, int], blocksize: int) -> list[int]:
+    """Powers of two down to the first level that fits in one block."""
+    factors, f = [], 2
+    while max(shape) / (f // 2) > blocksize:
+        factors.append(f)
+        f *= 2
+    return factors
+
+
+class _Output:
+    """One output being written: its dataset open for windowed writes."""
+
+    def __init__(self, kind: str, plan: Plan, outputs: Outputs, final: Path, work: Path):
+        self.kind, self.final, self.work, self.outputs = kind, final, work, outputs
+        n = len(plan.views)
+        self.dtype = {"ortho": outputs.dtype, "visibility": "uint8"}.get(
+            kind, "uint8" if n < 256 else "uint16"
+        )
+        self.nodata = outputs.fill if kind == "ortho" else 0
+        self.resampling = Resampling.average if kind == "ortho" else Resampling.nearest
+        rows, cols = plan.grid.shape
+        self.profile = {
+            "driver": "GTiff",
+            "height": rows,
+            "width": cols,
+            "count": {"ortho": plan.bands, "visibility": n}.get(kind, 1),
+            "dtype": self.dtype,
+            "crs": plan.grid.crs.to_wkt(),
+            "transform": plan.grid.transform,
+            "nodata": self.nodata,
+            "tiled": True,
+            "blockxsize": outputs.blocksize,
+            "blockysize": outputs.blocksize,
+            **_creation(outputs, self.dtype),
+        }
+        self.dataset = rasterio.open(work, "w", **self.profile)
+
+    def write(self, result: TileResult) -> None:
+        r0, r1, c0, c1 = result.window
+        data = getattr(result, {"ortho": "data", "visibility": "codes"}.get(self.kind, self.kind))
+        if self.kind == "ortho":
+            data = to_dtype(data, self.dtype, self.nodata)
+        data = data[None] if data.ndim == 2 else data
+        self.dataset.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
+
+    def finish(self) -> None:
+        """Overviews, then (COG) the streaming copy onto the final temporary file."""
+        factors = _overview_factors(self.dataset.shape, self.outputs.blocksize)
+        self.dataset.close()
+        if self.outputs.format == "gtiff":
+            with rasterio.open(self.work, "r+") as dst:
+                dst.build_overviews(factors, self.resampling)
+            return
+        options = {k.upper(): v for k, v in _creation(self.outputs, self.dtype).items()}
+        if "PREDICTOR" in options:
+            options["PREDICTOR"] = "YES"
+        rasterio.shutil.copy(
+            self.work,
+            self.final,
+            driver="COG",
+            BLOCKSIZE=self.outputs.blocksize,
+            RESAMPLING=self.resampling.name.upper(),
+            OVERVIEWS="AUTO",
+            **options,
+        )
+
+
+class Writer:
+    """Writes tiles into every output of a run (see :func:`output_set`)."""
+
+    def __init__(self, items: list[_Output]):
+        self.items = items
+
+    def write(self, result: TileResult) -> None:
+        """Write one tile's arrays into their windows of every output."""
+        for item in self.items:
+            item.write(result)
+
+
+@contextlib.contextmanager
+def output_set(plan: Plan, outputs: Outputs) -> Iterator[Writer]:
+    """A :class:`Writer` for ``outputs``; when the block succeeds, overviews (and the COG
+    copies) are made and every output is renamed onto its target; when anything fails, no
+    target is touched and every temporary file is removed."""
+    with contextlib.ExitStack() as stack:
+        items = []
+        for kind, path in outputs.paths().items():
+            final = stack.enter_context(atomic_path(path))
+            work = final
+            if outputs.format == "cog":
+                fd, name = tempfile.mkstemp(
+                    prefix=f".{path.name}.", suffix=".tiled.tif", dir=final.parent
+                )
+                os.close(fd)
+                work = Path(name)
+                stack.callback(work.unlink, missing_ok=True)
+            item = _Output(kind, plan, outputs, final, work)
+            stack.callback(item.dataset.close)
+            items.append(item)
+        yield Writer(items)
+        for item in items:
+            item.finish()

@@ -1,0 +1,402 @@
+"""The engine: tiled runs agree with untiled and in-memory ones, on every executor; outputs are
+COGs or tiled GeoTIFFs written atomically; memory is bounded by the tile."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+
+import orthomvp.engine.grid as engine_grid
+import orthomvp.engine.run as engine_run
+from orthomvp.camera import PinholeCamera, load_view
+from orthomvp.engine import (
+    HaloWarning,
+    Outputs,
+    WorkerError,
+    dask_client,
+    plan_ortho,
+    run_plan,
+)
+from orthomvp.engine.images import ImageSource, image_source
+from orthomvp.engine.scale import write_scale_scene
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.mesh import terrain_mesh
+from orthomvp.ortho import mosaic, orthorectify
+from orthomvp.raster import write_geotiff
+from orthomvp.raycast import RayCaster
+from orthomvp.synth import look_at
+from orthomvp.terrain import Terrain
+from orthomvp.visibility import compute_visibility
+
+
+def read(path: Path) -> np.ndarray:
+    with rasterio.open(path) as src:
+        return src.read()
+
+
+def same(a: np.ndarray, b: np.ndarray) -> None:
+    """Equal to float32 rounding, with NaN in the same places."""
+    assert a.shape == b.shape
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_allclose(a, b, rtol=1e-6, equal_nan=True)
+
+
+@pytest.fixture(scope="module")
+def crater(crater_dir: Path) -> dict:
+    d = crater_dir
+    views = {name: (d / f"{name}.tif", d / f"{name}.tsai") for name in ("oblique", "nadir")}
+    return {"dem": d / "dem.tif", "terrain": Terrain.read(d / "dem.tif"), "views": views}
+
+
+def run(plan, tmp_path: Path, name: str, **kw) -> dict[str, np.ndarray]:  # noqa: ANN001
+    kinds = kw.pop("kinds", ("ortho", "visibility"))
+    outputs = Outputs(**{k: tmp_path / f"{name}-{k}.tif" for k in kinds}, **kw.pop("out", {}))
+    report = run_plan(plan, outputs, progress=False, **kw)
+    result = {k: read(tmp_path / f"{name}-{k}.tif") for k in kinds}
+    result["report"] = report
+    return result
+
+
+def test_tiled_equals_untiled_and_in_memory(crater: dict, tmp_path: Path) -> None:
+    view = crater["views"]["oblique"]
+    tiled = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    whole = plan_ortho(crater["dem"], [view], tile=64, progress=False)
+    # the halo matters: occluders lie farther from a tile than the tile is wide
+    assert tiled.reach[0] > 16 and len(tiled.tiles) == 16 and len(whole.tiles) == 1
+    assert any(job.dem_posts > 2 * (16 + 2) ** 2 for job in tiled.tiles)
+    a, b = run(tiled, tmp_path, "tiled"), run(whole, tmp_path, "whole")
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])
+    same(a["ortho"], b["ortho"])
+    image, camera = load_view(*view)
+    ortho = orthorectify(crater["terrain"], image, camera)
+    np.testing.assert_array_equal(a["visibility"][0], ortho.visibility.codes)
+    same(a["ortho"], ortho.data)
+    assert {1, 2, 3} <= set(np.unique(a["visibility"]))  # visible, occluded and facing away
+    assert a["report"].filled == int(np.isfinite(ortho.data).all(axis=0).sum())
+
+
+def test_mosaic_tiled_equals_in_memory(crater: dict, tmp_path: Path) -> None:
+    views = [crater["views"]["oblique"], crater["views"]["nadir"]]
+    plan = plan_ortho(crater["dem"], views, tile=16, progress=False)
+    got = run(plan, tmp_path, "mos", kinds=("ortho", "source", "visibility"), threads=2)
+    expected = mosaic(crater["terrain"], [load_view(*v) for v in views])
+    np.testing.assert_array_equal(got["source"][0], expected.source)
+    same(got["ortho"], expected.data)
+    for k, vis in enumerate(expected.visibilities):
+        np.testing.assert_array_equal(got["visibility"][k], vis.codes)
+    assert got["report"].taken == [int((expected.source == k).sum()) for k in (1, 2)]
+
+
+def test_other_grid_and_crs(crater: dict, tmp_path: Path) -> None:
+    view = crater["views"]["oblique"]
+    res = (0.0009, 0.0007)
+    tiled = plan_ortho(crater["dem"], [view], tile=16, res=res, progress=False)
+    whole = plan_ortho(crater["dem"], [view], tile=1024, res=res, progress=False)
+    a, b = run(tiled, tmp_path, "a"), run(whole, tmp_path, "b")
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])
+    same(a["ortho"], b["ortho"])
+    # the in-memory way: the DEM regridded, rays against the original DEM's mesh
+    terrain = crater["terrain"]
+    grid = terrain.regrid(res)
+    scale = float(np.mean(grid.post_spacing()) / np.mean(terrain.post_spacing()))
+    image, camera = load_view(*view)
+    caster = RayCaster(terrain_mesh(terrain))
+    ortho = orthorectify(grid, image, camera, caster=caster, post_scale=scale)
+    assert tiled.grid.shape == grid.shape and tiled.grid.transform == grid.transform
+    np.testing.assert_array_equal(a["visibility"][0], ortho.visibility.codes)
+    np.testing.assert_allclose(a["ortho"], ortho.data, rtol=1e-5, equal_nan=True)
+    # a projected CRS on the same body
+    eqc = "+proj=eqc +lat_ts=26 +lon_0=3.6 +R=1737400 +units=m +no_defs"
+    c1 = run(plan_ortho(crater["dem"], [view], tile=16, crs=eqc, progress=False), tmp_path, "c")
+    c2 = run(plan_ortho(crater["dem"], [view], tile=64, crs=eqc, progress=False), tmp_path, "d")
+    np.testing.assert_array_equal(c1["visibility"], c2["visibility"])
+    same(c1["ortho"], c2["ortho"])
+    with rasterio.open(tmp_path / "c-ortho.tif") as src:
+        assert src.crs.to_dict().get("proj") == "eqc"
+        assert abs(src.transform.a - 80.0) < 1.0  # the DEM's 80 m posts
+    with pytest.raises(InputError, match="another body"):
+        plan_ortho(crater["dem"], [view], crs="EPSG:4326", progress=False)
+
+
+def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    view = crater["views"]["oblique"]
+
+    def refuse(*args: object, **kw: object) -> None:
+        raise AssertionError("a mesh was built")
+
+    monkeypatch.setattr("orthomvp.engine.tile.terrain_mesh", refuse)
+    monkeypatch.setattr("orthomvp.visibility.terrain_mesh", refuse)
+    plan = plan_ortho(crater["dem"], [view], tile=16, occlusion=False, progress=False)
+    got = run(plan, tmp_path, "naive", kinds=("ortho",))
+    image, camera = load_view(*view)
+    same(got["ortho"], orthorectify(crater["terrain"], image, camera, occlusion=False).data)
+
+
+def test_visibility_alone_reads_no_image(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    def refuse(*args: object) -> None:
+        raise AssertionError("an image was read")
+
+    monkeypatch.setattr(ImageSource, "read", refuse)
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    got = run(plan, tmp_path, "vis", kinds=("visibility",))
+    expected = compute_visibility(crater["terrain"], load_view(*view)[1])
+    np.testing.assert_array_equal(got["visibility"][0], expected.codes)
+
+
+def test_uncovered_tiles_are_skipped(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    """An image that covers part of the DEM: tiles it cannot see are not read at all."""
+    image, camera = load_view(*crater["views"]["nadir"])
+    part = image[:, :50, :45]
+    write_geotiff(tmp_path / "part.tif", part, Affine.identity(), None)
+    camera = camera.with_image_size(None, None)
+    reads = []
+    original = engine_grid.DemSource.read
+    monkeypatch.setattr(
+        engine_grid.DemSource, "read", lambda self, w: reads.append(w) or original(self, w)
+    )
+    plan = plan_ortho(crater["dem"], [(tmp_path / "part.tif", camera)], tile=16, progress=False)
+    got = run(plan, tmp_path, "part", threads=1)
+    assert got["report"].tiles_skipped > 0
+    assert len(reads) == got["report"].tiles_run < len(plan.tiles)
+    expected = orthorectify(crater["terrain"], part, camera)
+    np.testing.assert_array_equal(got["visibility"][0], expected.visibility.codes)
+    same(got["ortho"], expected.data)
+
+
+def test_huge_image_windows_are_sampled_in_pieces(
+    crater: dict,
+    tmp_path: Path,
+    monkeypatch,  # noqa: ANN001
+) -> None:
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    whole = run(plan, tmp_path, "whole", kinds=("ortho",))
+    reads = []
+    original = ImageSource.read
+    monkeypatch.setattr(ImageSource, "read", lambda self, w: reads.append(w) or original(self, w))
+    monkeypatch.setattr("orthomvp.engine.tile.SAMPLE_BUDGET_PIXELS", 200)
+    pieces = run(plan, tmp_path, "pieces", kinds=("ortho",))
+    np.testing.assert_array_equal(whole["ortho"], pieces["ortho"])
+    assert len(reads) > 4 * len(plan.tiles)
+    assert max((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in reads) <= 200
+
+
+def grazing_view(terrain: Terrain, tmp_path: Path) -> tuple[Path, PinholeCamera]:
+    """A camera 25 km from the crater's centre, 1.5 km up: lines of sight 2 to 4 degrees above
+    the horizon; its image is noise."""
+    rows, cols = terrain.shape
+    mid = np.array((cols - 1) / 2), np.array((rows - 1) / 2)
+    target = terrain.to_world(*mid, np.array(0.0))
+    up = target / np.linalg.norm(target)
+    north = np.array([0.0, 0.0, 1.0]) - up * up[2]
+    north /= np.linalg.norm(north)
+    centre = target + 1500.0 * up - 25_000.0 * north
+    rotation = look_at(centre, target, north)
+    camera = PinholeCamera(700.0, 700.0, 100.0, 60.0, centre, rotation, width=200, height=120)
+    rng = np.random.default_rng(1)
+    write_geotiff(
+        tmp_path / "grazing.tif", rng.random((1, 120, 200), np.float32), Affine.identity(), None
+    )
+    return tmp_path / "grazing.tif", camera
+
+
+def test_grazing_view_warns_and_stays_correct(crater: dict, tmp_path: Path) -> None:
+    path, camera = grazing_view(crater["terrain"], tmp_path)
+    with pytest.warns(HaloWarning, match="degrees above the horizon"):
+        plan = plan_ortho(crater["dem"], [(path, camera)], tile=16, progress=False)
+    assert plan.elevation[0] < 5.0
+    got = run(plan, tmp_path, "grazing")
+    expected = compute_visibility(crater["terrain"], camera)
+    np.testing.assert_array_equal(got["visibility"][0], expected.codes)
+    assert (expected.codes == 2).sum() > 100  # much of the crater is hidden
+
+
+def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=64, res=(0.0009, 0.0007), progress=False)
+    cog = tmp_path / "cog.tif"
+    run_plan(plan, Outputs(ortho=cog, blocksize=64, compress="zstd"), progress=False)
+    with rasterio.open(cog) as src:
+        assert src.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG"
+        assert src.compression.name == "zstd" and src.block_shapes[0] == (64, 64)
+        assert src.overviews(1) and src.dtypes[0] == "float32" and np.isnan(src.nodata)
+        reference = src.read(1)
+    tif = tmp_path / "plain.tif"
+    out = Outputs(ortho=tif, format="gtiff", compress="lzw", dtype="uint8", nodata=0, blocksize=64)
+    run_plan(plan, out, progress=False)
+    with rasterio.open(tif) as src:
+        assert src.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") != "COG"
+        assert src.block_shapes[0] == (64, 64)
+        assert src.overviews(1) and src.compression.name == "lzw" and src.nodata == 0
+        codes = src.read(1)
+    empty = np.isnan(reference)
+    assert (codes[empty] == 0).all() and (codes[~empty] >= 1).all()
+    expected = np.clip(np.rint(reference[~empty]), 1, 255)
+    np.testing.assert_array_equal(codes[~empty], expected)
+    plan16 = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    out = Outputs(ortho=tmp_path / "i16.tif", compress="none", dtype="int16")
+    run_plan(plan16, out, progress=False)
+    with rasterio.open(tmp_path / "i16.tif") as src:
+        assert src.dtypes[0] == "int16" and src.nodata == -32768 and src.compression is None
+    for bad in ({"format": "png"}, {"compress": "jpeg"}, {"dtype": "float64"}, {"blocksize": 100}):
+        with pytest.raises(InputError):
+            Outputs(ortho=tmp_path / "x.tif", **bad)
+    with pytest.raises(InputError, match="not a uint8 value"):
+        Outputs(ortho=tmp_path / "x.tif", dtype="uint8", nodata=-1)
+
+
+def test_failures_leave_no_output(crater: dict, tmp_path: Path) -> None:
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    with pytest.raises(InputError, match="does not exist"):
+        run_plan(plan, Outputs(ortho=tmp_path / "a.tif", visibility=tmp_path / "no/v.tif"))
+    assert list(tmp_path.iterdir()) == []
+    camera = load_view(*view)[1]
+    away = replace(camera, rotation=camera.rotation @ np.diag([1.0, -1.0, -1.0]))
+    with pytest.raises(GeometryError, match="looks away"):
+        plan_ortho(crater["dem"], [(view[0], away)], progress=False)
+
+
+class DyingCamera(PinholeCamera):
+    """A camera whose projection kills the worker process it runs in."""
+
+    def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if multiprocessing.parent_process() is not None:
+            os._exit(3)
+        return super().project(xyz)
+
+
+def test_processes_equal_threads_and_dead_worker(crater: dict, tmp_path: Path) -> None:
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    a, b = run(plan, tmp_path, "thr", threads=2), run(plan, tmp_path, "proc", processes=2)
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])
+    np.testing.assert_array_equal(a["ortho"], b["ortho"])
+    camera = load_view(*view)[1]
+    dying = DyingCamera(**{k: getattr(camera, k) for k in camera.__dataclass_fields__})
+    plan = plan_ortho(crater["dem"], [(view[0], dying)], tile=16, progress=False)
+    before = set(tmp_path.iterdir())
+    with pytest.raises(WorkerError, match="worker died"):
+        run_plan(plan, Outputs(ortho=tmp_path / "dead.tif"), processes=2, progress=False)
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_dask_local_cluster_equals_threads(crater: dict, tmp_path: Path) -> None:
+    pytest.importorskip("distributed")
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    a = run(plan, tmp_path, "thr", threads=2)
+    with dask_client(workers=2) as client:
+        b = run(plan, tmp_path, "dask", client=client)
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])
+    np.testing.assert_array_equal(a["ortho"], b["ortho"])
+    with pytest.raises(InputError, match="no Dask scheduler answers at tcp://127.0.0.1:9") as err:
+        with dask_client(address="tcp://127.0.0.1:9", timeout=1):
+            pass
+    assert "\n" not in str(err.value)
+
+
+def test_preflight_and_progress(crater: dict, tmp_path: Path, monkeypatch, capfd) -> None:  # noqa: ANN001
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=True)
+    err = capfd.readouterr().err
+    assert "reading the DEM's heights" in err and "planning tiles: 16/16" in err
+    run_plan(plan, Outputs(ortho=tmp_path / "o.tif"), threads=1, progress=True)
+    err = capfd.readouterr().err
+    assert "plan: 64 x 64 posts, 16 of 16 tiles of 16 x 16" in err and "GiB" in err
+    assert "orthomvp: tiles: 16/16 tiles (100%)" in err
+    run_plan(plan, Outputs(ortho=tmp_path / "q.tif"), threads=1, progress=False)
+    assert capfd.readouterr().err == ""
+    monkeypatch.setattr(engine_run, "available_memory", lambda: 100 << 20)
+    with pytest.raises(InputError, match="use smaller tiles or fewer threads/processes"):
+        run_plan(plan, Outputs(ortho=tmp_path / "m.tif"), progress=False)
+    assert not (tmp_path / "m.tif").exists()
+
+
+def test_bad_options(crater: dict) -> None:
+    view = crater["views"]["oblique"]
+    for kw, match in (
+        ({"tile": 1}, "tile must be"),
+        ({"eps": -1.0}, "eps must be"),
+        ({"interp": "lanczos"}, "interpolation"),
+        ({"world": "moon"}, "world frame"),
+    ):
+        with pytest.raises(InputError, match=match):
+            plan_ortho(crater["dem"], [view], progress=False, **kw)
+    with pytest.raises(InputError, match="at least one image"):
+        plan_ortho(crater["dem"], [], progress=False)
+
+
+def test_cube_windows_match_the_whole_cube(tmp_path: Path) -> None:
+    from test_isis import synthetic_raw, write_cube
+
+    from orthomvp.isis import read_cube
+
+    raw, _ = synthetic_raw("SignedWord", np.random.default_rng(0))
+    for tile in (None, (4, 3)):
+        path = tmp_path / f"c{tile is None}.cub"
+        write_cube(path, raw, "SignedWord", "Msb", tile, -12.5, 0.25)
+        whole = read_cube(path)
+        source = ImageSource(path, 9, 7, 2, None)  # type: ignore[arg-type]
+        for window in ((0, 7, 0, 9), (2, 5, 3, 8), (6, 7, 8, 9)):
+            r0, r1, c0, c1 = window
+            np.testing.assert_array_equal(source.read(window), whole[:, r0:r1, c0:c1])
+
+
+def vm(field: str) -> int:
+    """A memory figure of this process from /proc/self/status, bytes."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"no {field} in /proc/self/status")
+
+
+def rss_of_run(dem: Path, image: Path, camera: PinholeCamera, tile: int) -> tuple[int, int]:
+    """In a fresh process: the resident set size once everything is imported, and its peak
+    while planning and running the orthophoto (DEM scanned in blocks of 64 Ki posts), bytes.
+    The peak is reset first (Linux: writing 5 to /proc/self/clear_refs resets VmHWM)."""
+    engine_grid.SCAN_POSTS = 1 << 16
+    Path("/proc/self/clear_refs").write_text("5")
+    base = vm("VmRSS")
+    plan = plan_ortho(dem, [(image, camera)], tile=tile, progress=False)
+    run_plan(plan, Outputs(ortho=dem.parent / "o.tif"), threads=1, progress=False)
+    return base, vm("VmHWM")
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux /proc")
+def test_memory_is_bounded_by_the_tile(tmp_path: Path) -> None:
+    """Peak memory (RSS above the loaded interpreter) of planning and running an orthophoto in
+    tiles of 256 posts: a DEM of 1024 x 1024 posts needs no more than 1.5 times what one of a
+    quarter the posts does, and far less than the ~390 B/post of an untiled run."""
+    grown = []
+    for n in (512, 1024):
+        folder = tmp_path / str(n)
+        folder.mkdir()
+        scene = write_scale_scene(folder, n)
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(1, mp_context=ctx) as pool:
+            base, peak = pool.submit(rss_of_run, *scene, 256).result()
+        grown.append(peak - base)
+    assert grown[1] < 1.5 * grown[0], [g / 2**20 for g in grown]
+    assert grown[1] < 0.5 * 1024 * 1024 * 390, [g / 2**20 for g in grown]
+
+
+def test_image_source_checks_the_camera(crater: dict) -> None:
+    image, camera = crater["views"]["oblique"]
+    wrong = load_view(image, camera)[1].with_image_size(10, 10)
+    with pytest.raises(InputError, match="but its camera says 10 x 10"):
+        image_source(image, wrong)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        src = image_source(image, camera)
+    assert (src.width, src.height, src.bands) == (src.camera.width, src.camera.height, 1)
