@@ -33,7 +33,7 @@ from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import mosaic, orthorectify
 from orthomvp.raster import write_geotiff
 from orthomvp.raycast import RayCaster
-from orthomvp.synth import look_at
+from orthomvp.synthetic import look_at
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import compute_visibility
 

@@ -21,7 +21,7 @@ LAYERS = [
     ("orthomvp.raycast",),
     ("orthomvp.visibility",),
     ("orthomvp.ortho", "orthomvp.mvp"),
-    ("orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
+    ("orthomvp.engine", "orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
     ("orthomvp.epsstudy",),
     ("orthomvp.bench", "orthomvp.demo"),
     ("orthomvp.cli",),
