@@ -46,9 +46,11 @@ def run(*args: str) -> Result:
 
 def assert_one_line_error(proc: Result | subprocess.CompletedProcess, *words: str) -> None:
     assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
+    # the error is one line, the last; before it only the engine's plan line may stand
+    lines = [x for x in proc.stderr.strip().splitlines() if not x.startswith("orthomvp: plan:")]
     assert len(lines) == 1, proc.stderr
     assert lines[0].startswith("orthomvp: error:")
+    assert proc.stderr.strip().splitlines()[-1] == lines[0]
     assert "Traceback" not in proc.stderr
     for word in words:
         assert word in lines[0], lines[0]

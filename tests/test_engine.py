@@ -308,6 +308,7 @@ def test_dask_local_cluster_equals_threads(crater: dict, tmp_path: Path) -> None
 
 def test_preflight_and_progress(crater: dict, tmp_path: Path, monkeypatch, capfd) -> None:  # noqa: ANN001
     view = crater["views"]["oblique"]
+    monkeypatch.setattr("orthomvp.engine.progress.LOG_AFTER", 0.0)  # log even short phases
     plan = plan_ortho(crater["dem"], [view], tile=16, progress=True)
     err = capfd.readouterr().err
     assert "reading the DEM's heights" in err and "planning tiles: 16/16" in err

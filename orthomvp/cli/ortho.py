@@ -1,6 +1,7 @@
 """``orthomvp visibility``, ``ortho`` and ``mosaic``: per-post visibility of an image, its
 occlusion-aware orthophoto, and the orthophoto of many images with hidden posts filled from
-other views."""
+other views. All three run through the streaming engine (:mod:`orthomvp.engine`): tiles of
+the output grid in bounded memory, written as Cloud-Optimized or tiled GeoTIFF."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
-import numpy as np
 
 from orthomvp.cli.command import Command
+from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as_lines
 from orthomvp.cli.options import (
     PATH,
     DemInput,
@@ -25,11 +26,47 @@ from orthomvp.cli.options import (
     pairs_argument,
     quiet,
 )
-from orthomvp.codes import Interp
+from orthomvp.codes import Code, Interp
 
 if TYPE_CHECKING:
-    from orthomvp.terrain import Terrain
-    from orthomvp.visibility import Visibility
+    from orthomvp.engine import Outputs, Plan, RunReport
+
+
+def _plan(
+    dem: DemInput,
+    views: list[tuple[Path, Path]],
+    engine: EngineInput,
+    *,
+    occlusion: bool = True,
+    eps: float | None = None,
+    interp: Interp = Interp.BILINEAR,
+) -> Plan:
+    from orthomvp.engine import plan_ortho
+
+    return plan_ortho(
+        dem.path,
+        views,
+        tile=engine.tile,
+        res=engine.res,
+        bounds=engine.bounds,
+        crs=engine.crs,
+        occlusion=occlusion,
+        eps=eps,
+        interp=interp,
+        dem_crs=dem.crs,
+        radius_values=dem.radius_values,
+        world=dem.world,
+        progress=not quiet(),
+    )
+
+
+def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
+    from orthomvp.engine import Outputs
+
+    outputs: Outputs = Outputs(
+        **paths, format=engine.format, compress=engine.compress, dtype=engine.dtype
+    )
+    return engine.run(plan, outputs, progress=not quiet())
 
 
 @click.command(
@@ -38,22 +75,21 @@ if TYPE_CHECKING:
 @dem_argument
 @image_argument
 @camera_argument
-@output_option("VIS.tif", "the visibility codes (uint8 GeoTIFF on the DEM grid)")
+@output_option("VIS.tif", "the visibility codes (uint8 GeoTIFF on the output grid)")
 @eps_option
+@engine_options(dtype=False)
 @dem_options
-def visibility(dem: DemInput, image: Path, camera: Path, output: Path, eps: float | None) -> None:
-    """Classify every DEM post for one camera: 0 no data / outside the image, 1 visible,
-    2 occluded by terrain, 3 facing away. Written as a uint8 GeoTIFF on the DEM grid."""
-    from orthomvp.camera import load_view
-    from orthomvp.raster import write_geotiff
-    from orthomvp.visibility import compute_visibility
-
-    _, model = load_view(image, camera)
-    terrain = dem.read([model])
-    vis = compute_visibility(terrain, model, eps=eps, progress=not quiet())
-    warn_partial(vis, terrain, str(image))
-    write_geotiff(output, vis.codes, terrain.transform, terrain.crs, nodata=0)
-    counts = ", ".join(f"{v:,} {k}" for k, v in vis.counts().items())
+def visibility(
+    dem: DemInput, image: Path, camera: Path, output: Path, eps: float | None, engine: EngineInput
+) -> None:
+    """Classify every post of the output grid (the DEM's, or --res/--bounds/--crs) for one
+    camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
+    Written as a uint8 GeoTIFF."""
+    with warnings_as_lines():
+        plan = _plan(dem, [(image, camera)], engine, eps=eps)
+        report = _run(plan, engine, visibility=output)
+    warn_partial(report, 0, str(image))
+    counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
     print(f"wrote {output}: {counts}")
 
 
@@ -61,7 +97,7 @@ def visibility(dem: DemInput, image: Path, camera: Path, output: Path, eps: floa
 @dem_argument
 @image_argument
 @camera_argument
-@output_option("ORTHO.tif", "the orthophoto (float32, all bands, NaN = nodata)")
+@output_option("ORTHO.tif", "the orthophoto (all bands; float32 with NaN = nodata by default)")
 @click.option(
     "--visibility",
     "visibility_out",
@@ -75,23 +111,8 @@ def visibility(dem: DemInput, image: Path, camera: Path, output: Path, eps: floa
     is_flag=True,
     help="naive orthophoto: every post inside the image gets a value (ghosts included)",
 )
-@click.option(
-    "--res",
-    type=float,
-    nargs=2,
-    metavar="X Y",
-    show_default="the DEM's",
-    help="output pixel size in DEM CRS units",
-)
-@click.option(
-    "--bounds",
-    type=float,
-    nargs=4,
-    metavar="LEFT BOTTOM RIGHT TOP",
-    show_default="the DEM's",
-    help="output extent in DEM CRS units",
-)
 @eps_option
+@engine_options(dtype=True)
 @dem_options
 def ortho(
     dem: DemInput,
@@ -101,41 +122,20 @@ def ortho(
     visibility_out: Path | None,
     interp: Interp,
     no_occlusion: bool,
-    res: tuple[float, float] | None,
-    bounds: tuple[float, float, float, float] | None,
     eps: float | None,
+    engine: EngineInput,
 ) -> None:
-    """Orthorectify IMAGE through CAMERA onto the DEM grid (all bands, float32, NaN =
-    nodata). Posts that are not visible (occluded, facing away, outside) are nodata unless
-    --no-occlusion asks for the naive orthophoto."""
-    from orthomvp.camera import load_view
-    from orthomvp.mesh import terrain_mesh
-    from orthomvp.ortho import orthorectify
-    from orthomvp.raster import write_geotiff
-    from orthomvp.raycast import RayCaster
-
-    pixels, model = load_view(image, camera)
-    terrain = dem.read([model])
-    caster = RayCaster(terrain_mesh(terrain))
-    grid = terrain.regrid(res, bounds) if res or bounds else terrain
-    result = orthorectify(
-        grid,
-        pixels,
-        model,
-        occlusion=not no_occlusion,
-        eps=eps,
-        interp=interp,
-        caster=caster,
-        progress=not quiet(),
-        post_scale=post_scale(grid, terrain),
-    )
-    warn_partial(result.visibility, grid, str(image))
-    write_geotiff(output, result.data, result.transform, result.crs, nodata=np.nan)
-    if visibility_out:
-        codes = result.visibility.codes
-        write_geotiff(visibility_out, codes, grid.transform, grid.crs, nodata=0)
-    filled = int(np.isfinite(result.data).all(axis=0).sum())
-    print(f"wrote {output}: {filled:,} of {grid.values.size:,} posts filled")
+    """Orthorectify IMAGE through CAMERA onto the output grid (the DEM's, or
+    --res/--bounds/--crs). Posts that are not visible (occluded, facing away, outside) are
+    nodata unless --no-occlusion asks for the naive orthophoto."""
+    with warnings_as_lines():
+        plan = _plan(
+            dem, [(image, camera)], engine, occlusion=not no_occlusion, eps=eps, interp=interp
+        )
+        report = _run(plan, engine, ortho=output, visibility=visibility_out)
+    warn_partial(report, 0, str(image))
+    rows, cols = plan.grid.shape
+    print(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
 
 
 @click.command(
@@ -144,53 +144,54 @@ def ortho(
 )
 @dem_argument
 @pairs_argument()
-@output_option("MOSAIC.tif", "the mosaic (float32, all bands, NaN = nodata)")
+@output_option("MOSAIC.tif", "the mosaic (all bands; float32 with NaN = nodata by default)")
 @click.option(
     "--source",
     type=PATH,
     metavar="SOURCE.tif",
     help="also write which image each post came from",
 )
+@click.option(
+    "--visibility",
+    "visibility_out",
+    type=PATH,
+    metavar="VIS.tif",
+    help="also write the visibility codes of every image, one band per image",
+)
 @interp_option
 @eps_option
+@engine_options(dtype=True)
 @dem_options
 def mosaic(
     dem: DemInput,
     pairs: list[tuple[Path, Path]],
     output: Path,
     source: Path | None,
+    visibility_out: Path | None,
     interp: Interp,
     eps: float | None,
+    engine: EngineInput,
 ) -> None:
-    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the DEM grid; each post
-    takes its value from the visible view with the smallest emission angle. --source records
-    which image (1-based, in command-line order; 0 = none) each post came from."""
-    from orthomvp.camera import load_view
-    from orthomvp.ortho import mosaic as make_mosaic
-    from orthomvp.raster import write_geotiff
-
-    views = [load_view(image, camera) for image, camera in pairs]
-    terrain = dem.read([v[1] for v in views])
-    result = make_mosaic(terrain, views, eps=eps, interp=interp, progress=not quiet())
-    write_geotiff(output, result.data, result.transform, result.crs, nodata=np.nan)
-    if source:
-        write_geotiff(source, result.source, result.transform, result.crs, nodata=0)
-    counts = np.bincount(result.source.ravel(), minlength=len(views) + 1)
-    parts = ", ".join(f"{counts[k]:,} from {pairs[k - 1][0]}" for k in range(1, len(views) + 1))
-    print(f"wrote {output}: {parts}; {counts[0]:,} posts visible in no image")
+    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
+    or --res/--bounds/--crs); each post takes its value from the visible view with the
+    smallest emission angle. --source records which image (1-based, in command-line order;
+    0 = none) each post came from."""
+    with warnings_as_lines():
+        plan = _plan(dem, pairs, engine, eps=eps, interp=interp)
+        report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
+    rows, cols = plan.grid.shape
+    parts = ", ".join(
+        f"{n:,} from {image}" for n, (image, _) in zip(report.taken, pairs, strict=True)
+    )
+    none = rows * cols - sum(report.taken)
+    print(f"wrote {output}: {parts}; {none:,} posts visible in no image")
 
 
-def warn_partial(vis: Visibility, terrain: Terrain, what: str) -> None:
-    """A warning on stderr when the image covers only part of the DEM's valid posts."""
-    outside = int(((vis.codes == 0) & terrain.valid).sum())
-    if outside:
-        share = 100 * (1 - outside / int(terrain.valid.sum()))
+def warn_partial(report: RunReport, view: int, what: str) -> None:
+    """A warning on stderr when the image covers only part of the grid's posts with heights."""
+    if report.valid and report.inside[view] < report.valid:
+        share = 100 * report.inside[view] / report.valid
         print(
             f"orthomvp: warning: {what} covers {share:.1f}% of the DEM's posts; the rest is nodata",
             file=sys.stderr,
         )
-
-
-def post_scale(grid: Terrain, terrain: Terrain) -> float:
-    """Size of one output post in DEM posts (for the epsilon test on a resampled grid)."""
-    return float(np.mean(grid.post_spacing()) / np.mean(terrain.post_spacing()))

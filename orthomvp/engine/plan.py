@@ -129,7 +129,7 @@ class Plan:
             window = f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
         reach = max(self.reach, default=0.0)
         return (
-            f"plan: {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
+            f"orthomvp: plan: {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
             f"{self.tile} x {self.tile} to run, {len(self.views)} image(s), occluder halo up to "
             f"{reach:.0f} DEM posts{window}; expected peak memory {peak / 2**30:.2f} GiB with "
             f"{workers} tile(s) at a time"
@@ -159,8 +159,13 @@ def _frame(world: WorldFrame | str) -> WorldFrame | None:
         raise InputError(f"world frame must be one of {names}, not {world!r}") from None
 
 
-def _no_overlap(view: ImageSource, boxes: list[Box | None]) -> str:
+def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> str:
     """Why no tile of the grid can be seen in ``view``, in one line."""
+    preview = dem.preview
+    points = preview.world_points()[preview.valid]
+    centre = points.mean(axis=0)
+    if np.dot(view.camera.center - centre, preview.up_vectors(centre)) < 0:
+        return f"{view.path}: the camera is below the surface of the DEM"
     seen = [b for b in boxes if b is not None]
     if not seen:
         return f"{view.path}: the camera looks away from the DEM: every post is behind it"
@@ -286,7 +291,7 @@ def plan_ortho(
             bar.update()
     for k, view in enumerate(sources):
         if not any(k in job.views for job in jobs):
-            raise GeometryError(_no_overlap(view, boxes[k]))
+            raise GeometryError(_no_overlap(view, boxes[k], source))
         if reach[k] > max(source.shape):
             warnings.warn(
                 f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "

@@ -1,5 +1,6 @@
 """Feedback on long work: a tqdm bar on a terminal, plain log lines when stderr is not one
-(every :data:`LOG_EVERY` of the work or :data:`LOG_SECONDS` seconds), nothing when quiet."""
+(every :data:`LOG_EVERY` of the work or :data:`LOG_SECONDS` seconds, once a phase has run
+:data:`LOG_AFTER` seconds: short phases stay silent in logs), nothing when quiet."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from tqdm import tqdm
 
 LOG_EVERY = 0.1
 LOG_SECONDS = 30.0
+LOG_AFTER = 2.0
 
 
 class Progress:
@@ -28,8 +30,6 @@ class Progress:
         self._logged = (-1.0, self._start)
         if enabled and sys.stderr.isatty():
             self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
-        elif enabled:
-            self._log()
 
     def __enter__(self) -> Progress:
         return self
@@ -52,7 +52,8 @@ class Progress:
         elif self.enabled:
             share = self.done / self.total if self.total else 0.0
             now = time.monotonic()
-            if share >= self._logged[0] + LOG_EVERY or now >= self._logged[1] + LOG_SECONDS:
+            due = share >= self._logged[0] + LOG_EVERY or now >= self._logged[1] + LOG_SECONDS
+            if due and now >= self._start + LOG_AFTER:
                 self._log()
 
     def note(self, line: str) -> None:
@@ -67,7 +68,7 @@ class Progress:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        elif self.enabled and self._logged[0] < 1.0:
+        elif self.enabled and self._logged[0] >= 0.0 and self._logged[0] < 1.0:
             self._log(final=True)
         self.enabled = False
 

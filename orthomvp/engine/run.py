@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import rasterio
 
+from orthomvp.codes import Code
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
@@ -41,16 +42,19 @@ class WorkerError(OrthoMVPError):
 class RunReport:
     """What a run did: tiles run and skipped (no image sees them), wall-clock seconds, the
     workers' seconds per phase summed over tiles (read, mesh, visibility, sample) and the
-    writer's (write), posts filled in ``ortho``, and per view the posts inside the image and
-    the posts taken from it (``source``)."""
+    writer's (write), posts filled in ``ortho``, the grid's posts with a height (``valid``;
+    tiles that no image sees count whole), and per view the posts inside the image, the posts
+    taken from it (``source``) and the posts of each visibility code (``counts``)."""
 
     tiles_run: int = 0
     tiles_skipped: int = 0
     seconds: float = 0.0
     phases: dict[str, float] = field(default_factory=dict)
     filled: int = 0
+    valid: int = 0
     inside: list[int] = field(default_factory=list)
     taken: list[int] = field(default_factory=list)
+    counts: list[list[int]] = field(default_factory=list)
 
 
 def available_memory() -> int:
@@ -213,7 +217,8 @@ def run_plan(
     at_once = min(workers, max(len(jobs), 1))
     peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
-    report = RunReport(inside=[0] * len(plan.views), taken=[0] * len(plan.views))
+    n = len(plan.views)
+    report = RunReport(inside=[0] * n, taken=[0] * n, counts=[[0] * len(Code) for _ in range(n)])
     executor = (
         _dask_executor(plan, client)
         if client is not None
@@ -227,7 +232,9 @@ def run_plan(
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), output_set(plan, outputs) as writer:
             for job in plan.tiles:
                 if not job.views:
-                    writer.write(empty_result(plan, job, kinds))
+                    empty = empty_result(plan, job, kinds)
+                    writer.write(empty)
+                    _add_counts(report, empty)
                     report.tiles_skipped += 1
                     bar.update()
             queue, pending = list(reversed(jobs)), set()
@@ -266,9 +273,18 @@ def _account(report: RunReport, result: TileResult, write_seconds: float) -> Non
     if result.data is not None:
         report.filled += int(np.isfinite(result.data).all(axis=0).sum())
     report.inside = [a + b for a, b in zip(report.inside, result.inside, strict=True)]
+    _add_counts(report, result)
     if result.source is not None:
         counts = np.bincount(result.source.ravel(), minlength=len(report.taken) + 1)
         report.taken = [a + int(b) for a, b in zip(report.taken, counts[1:], strict=True)]
+
+
+def _add_counts(report: RunReport, result: TileResult) -> None:
+    """Add a tile's valid posts and code counts to the report."""
+    report.valid += result.valid
+    for total, counts in zip(report.counts, result.counts, strict=True):
+        for code, count in enumerate(counts):
+            total[code] += count
 
 
 def _check_views(plan: Plan, report: RunReport, seen: list[int]) -> None:
@@ -276,7 +292,10 @@ def _check_views(plan: Plan, report: RunReport, seen: list[int]) -> None:
     facing away (as :func:`~orthomvp.visibility.compute_visibility` raises for a whole grid)."""
     for view, inside, visible in zip(plan.views, report.inside, seen, strict=True):
         if not inside:
-            raise GeometryError(f"{view.path}: the image covers none of the output grid's posts")
+            raise GeometryError(
+                f"{view.path}: the image ({view.width} x {view.height} px) does not cover the "
+                "output grid: none of its posts projects inside it"
+            )
         if not visible:
             raise GeometryError(
                 f"{view.path}: every post in the image faces away from the camera: it looks at "

@@ -36,8 +36,10 @@ class TileResult:
     """A finished tile: ``window`` on the output grid; ``data`` (bands, rows, cols) float32
     (NaN where empty), ``codes`` (views, rows, cols) uint8, ``source`` (rows, cols) 1-based
     view index (0 = none), each None unless asked for. ``inside`` and ``seen`` count, per view,
-    the posts inside the image and those visible or occluded; ``seconds`` per phase (read,
-    mesh, visibility, sample)."""
+    the posts inside the image and those visible or occluded; ``counts`` per view the posts of
+    each :class:`~orthomvp.codes.Code`; ``valid`` the tile's posts with a height (for a tile
+    that no image sees: all of them, unread); ``seconds`` per phase (read, mesh, visibility,
+    sample)."""
 
     index: int
     window: WindowT
@@ -46,6 +48,8 @@ class TileResult:
     source: np.ndarray | None
     inside: list[int]
     seen: list[int]
+    counts: list[list[int]]
+    valid: int
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -69,6 +73,8 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
         np.zeros(shape, np.uint8 if n < 256 else np.uint16) if "source" in kinds else None,
         [0] * n,
         [0] * n,
+        [[shape[0] * shape[1], 0, 0, 0] for _ in range(n)],
+        shape[0] * shape[1],
     )
 
 
@@ -178,6 +184,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     if plan.occlusion:
         with _timed(seconds, "mesh"):
             caster = RayCaster(terrain_mesh(window), threads=threads)
+    result.valid = int(np.isfinite(grid.values[inner]).sum())
     best = np.full(grid.values[inner].shape, np.inf)
     for k in job.views:
         view = plan.views[k]
@@ -196,6 +203,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
         codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
         result.inside[k] = int((codes != Code.NODATA).sum())
         result.seen[k] = int(np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).sum())
+        result.counts[k] = np.bincount(codes.ravel(), minlength=len(Code)).tolist()
         if result.codes is not None:
             result.codes[k] = codes
         keep = codes == Code.VISIBLE if plan.occlusion else np.isfinite(uv).all(axis=-1)
