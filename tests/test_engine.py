@@ -3,6 +3,7 @@ COGs or tiled GeoTIFFs written atomically; memory is bounded by the tile."""
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import warnings
@@ -401,3 +402,23 @@ def test_image_source_checks_the_camera(crater: dict) -> None:
         warnings.simplefilter("error")
         src = image_source(image, camera)
     assert (src.width, src.height, src.bands) == (src.camera.width, src.camera.height, 1)
+
+
+def test_cli_engine_choices_match_the_engine() -> None:
+    from orthomvp.cli import engine_options
+    from orthomvp.engine import writer
+
+    assert engine_options.FORMATS == writer.FORMATS
+    assert engine_options.COMPRESSIONS == writer.COMPRESSIONS
+    assert engine_options.DTYPES == tuple(writer.NODATA)
+
+
+def test_bench_scale_command(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    from orthomvp.cli import main
+
+    assert main(["bench", "--scale", "128", "--json", str(tmp_path / "scale.json")]) == 0
+    (row,) = json.loads((tmp_path / "scale.json").read_text())["scale"]
+    assert row["posts"] == 128 * 128 and row["filled"] > 0.9 * row["posts"]
+    assert row["us_per_post"] > 0 and row["peak_rss_mb"] > 0
+    assert abs(sum(row["shares"].values()) - 1) < 1e-9
+    assert "us/post" in capsys.readouterr().out

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from orthomvp.cli.command import Command
+from orthomvp.cli.command import Command, Variadic
 from orthomvp.cli.options import PATH, POSITIVE
 
 PEER_DATA_ENV = "ORTHOMVP_DATA"
@@ -79,6 +79,23 @@ def peer_data_default() -> Path | None:
     help="--peer keeps the best of N",
 )
 @click.option(
+    "--scale",
+    "scale_sizes",
+    cls=Variadic,
+    type=click.IntRange(min=64),
+    metavar="N [N ...]",
+    help="only the scale benchmark: ortho of a synthetic DEM of N x N posts (written tile by "
+    "tile, with an image of about as many pixels) through the engine, per size: time per post, "
+    "peak memory, share of each phase; e.g. --scale 1024 2048 4096 8192 16384",
+)
+@click.option(
+    "--scale-dask",
+    type=click.IntRange(min=1),
+    metavar="N",
+    help="--scale also runs each size on a Dask LocalCluster of N workers and reports its time "
+    "over the threaded run's",
+)
+@click.option(
     "--json", "json_path", type=PATH, metavar="FILE", help="also write the figures as JSON"
 )
 def bench(
@@ -90,6 +107,8 @@ def bench(
     peer_data: Path | None,
     peer_res: float | None,
     peer_repeat: int,
+    scale_sizes: tuple[int, ...],
+    scale_dask: int | None,
     json_path: Path | None,
 ) -> None:
     """Ray casting: rays per second through orthomvp's first_hit and through the bare backend
@@ -100,12 +119,14 @@ def bench(
     side-by-side comparison with Orthority (when installed): one ngi-aerial frame (or, without
     the data, a synthetic aerial scene) onto the same grid with both tools, end to end from
     files to GeoTIFF, best of --peer-repeat alternating runs; ratio = orthomvp time /
-    Orthority time."""
+    Orthority time. --scale runs instead the engine's scale benchmark (threads = cores)."""
     from orthomvp import bench as b
     from orthomvp.raster import atomic_path
 
     if peer:
         results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
+    elif scale_sizes:
+        results = {"scale": bench_scale(scale_sizes, scale_dask)}
     else:
         results = {"raycast": b.bench_raycast(size=size, rays=rays)}
         print(b.format_raycast(results["raycast"]))
@@ -118,6 +139,26 @@ def bench(
     if json_path:
         with atomic_path(json_path) as tmp:
             tmp.write_text(json.dumps(results, indent=2))
+
+
+def bench_scale(sizes: tuple[int, ...], dask: int | None) -> list[dict]:
+    """``bench --scale``: the engine on synthetic DEMs of ``sizes`` posts a side with threads
+    (one per core), and on a Dask LocalCluster of ``dask`` workers when asked; printed."""
+    from orthomvp.engine.scale import bench_scale as run
+    from orthomvp.engine.scale import format_scale
+
+    rows = []
+    for n in sizes:
+        row = run((n,), threads=os.cpu_count() or 1)[0]
+        print(format_scale([row]).splitlines()[-1] if rows else format_scale([row]), flush=True)
+        rows.append(row)
+        if dask:
+            other = run((n,), dask=dask)[0]
+            other["over_threads"] = other["us_per_post"] / row["us_per_post"]
+            line = format_scale([other]).splitlines()[-1]
+            print(f"{line}  ({other['over_threads']:.2f}x the threaded run)", flush=True)
+            rows.append(other)
+    return rows
 
 
 def bench_peer(data: Path | None, res: float | None, repeat: int) -> dict:
