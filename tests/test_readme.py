@@ -11,18 +11,37 @@ import numpy as np
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
-def test_readme_python_example(tmp_path: Path) -> None:
-    from orthomvp.synthetic import make_scene
-
-    make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
-    block = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
+def _run_block(marker: str, folder: Path) -> dict:
+    """Run the README's Python block that contains ``marker`` in ``folder``; its names."""
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    (block,) = [b for b in blocks if marker in b]
     cwd = os.getcwd()
-    os.chdir(tmp_path)
+    os.chdir(folder)
     try:
         namespace: dict = {}
         exec(compile(block, "README.md", "exec"), namespace)
     finally:
         os.chdir(cwd)
+    return namespace
+
+
+def test_readme_engine_example(tmp_path: Path) -> None:
+    from orthomvp.raster import read_image
+    from orthomvp.synthetic import make_scene
+
+    make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
+    namespace = _run_block("plan_ortho", tmp_path)
+    assert namespace["report"].filled > 0
+    threaded, dask = read_image(tmp_path / "ortho.tif"), read_image(tmp_path / "ortho-dask.tif")
+    np.testing.assert_array_equal(threaded, dask)
+    assert read_image(tmp_path / "vis.tif").shape == (1, 48, 48)
+
+
+def test_readme_python_example(tmp_path: Path) -> None:
+    from orthomvp.synthetic import make_scene
+
+    make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
+    namespace = _run_block("compute_visibility", tmp_path)
     np.testing.assert_allclose(namespace["c2"], namespace["c"], atol=1e-7)
     assert (namespace["mos"].source > 0).all()
     fit, dem = namespace["fit"], namespace["dem"]
