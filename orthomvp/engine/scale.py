@@ -73,9 +73,11 @@ def _profile(n: int, dtype: str) -> dict:
     }
 
 
-def scale_camera(terrain: Terrain, n: int) -> PinholeCamera:
-    """The scene's camera (module docstring) over the DEM grid ``terrain`` (its values are
-    not used beyond its georeference)."""
+def scale_camera(terrain: Terrain, n: int, pixels: int | None = None) -> PinholeCamera:
+    """The scene's camera (module docstring) over the DEM grid ``terrain`` of ``n`` x ``n``
+    posts (its values are not used beyond its georeference), with an image of ``pixels`` x
+    ``pixels`` (default ``n``) that just covers the grid."""
+    pixels = pixels or n
     mid = (n - 1) / 2
     lon, lat = terrain.pixel_to_lonlat(np.array(mid), np.array(mid))
     up = unit_vector(lon, lat)
@@ -94,14 +96,18 @@ def scale_camera(terrain: Terrain, n: int) -> PinholeCamera:
     r = np.concatenate([np.zeros(33), np.full(33, n - 1.0), edge, edge])
     local = (terrain.to_world(c, r, np.zeros(len(c))) - centre) @ rotation
     half = np.abs(local[:, :2] / local[:, 2:]).max()
-    f = (n / 2 - 1) / half
-    return PinholeCamera(f, f, n / 2 - 0.5, n / 2 - 0.5, centre, rotation, width=n, height=n)
+    f = (pixels / 2 - 1) / half
+    mid_px = pixels / 2 - 0.5
+    return PinholeCamera(f, f, mid_px, mid_px, centre, rotation, width=pixels, height=pixels)
 
 
-def write_scale_scene(folder: str | Path, posts: int) -> tuple[Path, Path, PinholeCamera]:
+def write_scale_scene(
+    folder: str | Path, posts: int, pixels: int | None = None
+) -> tuple[Path, Path, PinholeCamera]:
     """Write the scene of ``posts`` x ``posts`` (module docstring) into ``folder`` block by
-    block (memory: one block): ``dem.tif`` (float32 heights) and ``image.tif`` (uint8);
-    returns their paths and the camera."""
+    block (memory: one block): ``dem.tif`` (float32 heights) and ``image.tif`` (uint8,
+    ``pixels`` x ``pixels``, default ``posts``); returns their paths and the camera."""
+    pixels = pixels or posts
     folder = Path(folder)
     step = np.degrees(SPACING / 1737400.0)
     transform = Affine(step, 0, 30.0 - posts * step / 2, 0, -step, posts * step / 2)
@@ -113,12 +119,12 @@ def write_scale_scene(folder: str | Path, posts: int) -> tuple[Path, Path, Pinho
             r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
             dst.write(hills(c, r).astype(np.float32)[None], window=Window(c0, r0, c1 - c0, r1 - r0))
     grid = Terrain(np.zeros((2, 2)), transform, CRS.from_user_input(LUNAR), name="scale")
-    camera = scale_camera(grid, posts)
+    camera = scale_camera(grid, posts, pixels)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        dst = rasterio.open(image, "w", **_profile(posts, "uint8"))
+        dst = rasterio.open(image, "w", **_profile(pixels, "uint8"))
     with dst:
-        for r0, r1, c0, c1 in _blocks(posts):
+        for r0, r1, c0, c1 in _blocks(pixels):
             r, c = np.mgrid[r0:r1, c0:c1]
             dst.write(texture(c, r)[None], window=Window(c0, r0, c1 - c0, r1 - r0))
     return dem, image, camera
@@ -160,10 +166,12 @@ def bench_scale(
     processes: int | None = None,
     dask: int | None = None,
     folder: str | Path | None = None,
+    pixels: int | None = None,
 ) -> list[dict]:
     """For each size (posts a side): write the scene, then plan and run its orthophoto in a
     fresh process with ``threads`` threads, or ``processes`` processes, or a Dask
-    LocalCluster of ``dask`` workers; tiles of ``tile`` posts. Returns per size: posts, times
+    LocalCluster of ``dask`` workers; tiles of ``tile`` posts; an image of ``pixels`` a side
+    (default: as many as posts). Returns per size: posts, times
     (writing the inputs, planning, running), microseconds per post, seconds per phase summed
     over workers (read, mesh: mesh and BVH build, visibility: casting, sample, write) with
     their shares, and the peak RSS of the run's process and of its workers in MB."""
@@ -171,7 +179,7 @@ def bench_scale(
     for n in sizes:
         with tempfile.TemporaryDirectory(prefix="orthomvp-scale-", dir=folder) as tmp:
             t0 = time.perf_counter()
-            dem, image, camera = write_scale_scene(tmp, n)
+            dem, image, camera = write_scale_scene(tmp, n, pixels)
             writing = time.perf_counter() - t0
             ctx = multiprocessing.get_context("spawn")
             ours, theirs = ctx.Pipe()
@@ -190,6 +198,7 @@ def bench_scale(
                 child.join()
         total = sum(row["phases_s"].values())
         row.update(
+            pixels=(pixels or n) ** 2,
             posts=n * n,
             size=n,
             mode=f"dask {dask}"
