@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -563,10 +564,10 @@ def test_cli_mesh_colour_options(
     capsys.readouterr()
     bad = str(tmp_path / "bad.ply")
     other = tmp_path / "other.tif"
-    t.with_values(truth[:-1]).write(other)  # one row short: another grid
+    replace(t, values=truth[:-1]).write(other)  # one row short: another grid
     for args, words in (
         (["--error-against", str(other)], "not on the grid"),
-        (["--texture", vis, "--colour-by", "error", "--error-limit", "-1"], "positive"),
+        (["--texture", vis, "--colour-by", "error", "--error-limit", "-1"], "range x>0"),
         (["--texture", fit, "--colour-by", "visibility"], "codes"),
         (["--colour-by", "error"], "needs a raster"),
         (["--texture", vis, "--colour-by", "visibility", "--error-limit", "2"], "error colours"),

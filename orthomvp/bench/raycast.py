@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from orthomvp.bench.timing import best_time
-from orthomvp.bench.workload import bench_terrain, camera_rays
+from orthomvp.bench.workload import bench_terrain, camera_rays, check_raycast_memory
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import BACKENDS, RayCaster
 
@@ -16,6 +16,7 @@ from orthomvp.raycast import BACKENDS, RayCaster
 def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
     """Rays per second of :meth:`RayCaster.first_hit` and of the bare backend call per backend,
     ``rays`` rays onto a ``size`` x ``size`` DEM; one row per backend."""
+    check_raycast_memory(size, rays)
     terrain = bench_terrain(size)
     tmesh = terrain_mesh(terrain)
     origin, dirs = camera_rays(terrain, rays)
