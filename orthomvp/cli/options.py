@@ -290,27 +290,29 @@ def check_outputs(
     for i, out in enumerate(given):
         for other in given[:i]:
             if same_file(out.path, other.path):
+                alias = f" (as {out.path})" if str(out.path) != str(other.path) else ""
                 raise usage_error(
-                    f"{out.path}: given to both {other.option} and {out.option}; one would "
-                    "overwrite the other: give each output its own file"
+                    f"{other.path}: given to both {other.option} and {out.option}{alias}; one "
+                    "would overwrite the other: give each output its own file"
                 )
     if not overwrite:
         for out in given:
             for label, path in inputs:
                 if path is not None and same_file(out.path, path):
+                    alias = f" ({path})" if str(out.path) != str(path) else ""
                     raise usage_error(
-                        f"{out.path}: {out.option} would overwrite the input {label}; give "
-                        "another file name, or --overwrite to replace it"
+                        f"{out.path}: {out.option} would overwrite the input {label}{alias}; "
+                        "give another file name, or --overwrite to replace it"
                     )
     for out in given:
         path = out.path
+        if path.is_dir():
+            raise usage_error(f"{path}: {out.option} names a directory; give a file name")
         if out.suffixes and path.suffix.lower() not in out.suffixes:
             raise usage_error(
                 f"{path}: {out.option} writes {out.name}; name it "
                 f"{' or '.join(out.suffixes)}" + (f", not {path.suffix}" if path.suffix else "")
             )
-        if path.is_dir():
-            raise usage_error(f"{path}: {out.option} names a directory; give a file name")
         check_directory(path.parent, f"{path}: {out.option}")
 
 
