@@ -10,9 +10,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 import pytest
 import trimesh
+from conftest import require_open3d
 from PIL import Image
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -55,6 +55,7 @@ def test_demo_outputs_and_figures(demo: tuple[Path, str]) -> None:
 
 
 def test_demo_meshes_open_in_trimesh_and_open3d(demo: tuple[Path, str]) -> None:
+    o3d = require_open3d()
     out, _ = demo
     posts = 120 * 120
     for name in ("crater.ply", "fitted.ply"):
