@@ -84,6 +84,11 @@ def test_help_documents_every_argument_and_option() -> None:
                 or ctx.params[param.name] not in (None, False, ())
             ):
                 assert "[default:" in record, f"{name}: {param.name} does not show its default"
+            # every number has its valid range checked where it is defined, and shown
+            assert param.type not in (click.INT, click.FLOAT), f"{name}: {param.name} unbounded"
+            if isinstance(param.type, click.types._NumberRangeBase):
+                described = "".join(param.type._describe_range().split())
+                assert described in record, f"{name}: {param.name} does not show {described}"
 
 
 def test_choices_match_the_library() -> None:
@@ -93,6 +98,22 @@ def test_choices_match_the_library() -> None:
     from orthomvp.present import colours
 
     assert synth_cli.KINDS == synthetic.KINDS and mesh_cli.COLOUR_KINDS == colours.COLOUR_KINDS
+    # the ranges the command line checks are the library's
+    from orthomvp.cli import fit as fit_cli
+    from orthomvp.cli import render as render_cli
+    from orthomvp.mvp import fit as fit_lib
+    from orthomvp.present import export, snapshot
+    from orthomvp.synthetic import rendering, scene
+
+    assert (synth_cli.SPACING_RANGE, synth_cli.GSD_RATIO_RANGE, synth_cli.MAX_SUPERSAMPLE) == (
+        scene.SPACING_RANGE,
+        scene.GSD_RATIO_RANGE,
+        rendering.MAX_SUPERSAMPLE,
+    )
+    assert render_cli.MAX_RAYS == snapshot.MAX_RAYS
+    assert mesh_cli.MESH_SUFFIXES == export.EXPORT_FORMATS
+    deconvolve = next(p for p in fit_cli.fit.params if p.name == "deconvolve")
+    assert deconvolve.type.max == fit_lib.MAX_DECONVOLVE
 
 
 def test_usage_errors_are_one_line(tmp_path: Path) -> None:

@@ -26,6 +26,9 @@ from orthomvp.cli.options import (
 )
 from orthomvp.cli.ortho import view_inputs
 
+MAX_DECONVOLVE = 10
+"""as :data:`orthomvp.mvp.fit.MAX_DECONVOLVE` (not imported: --help stays fast)"""
+
 
 @click.command(
     cls=Command,
@@ -75,10 +78,11 @@ from orthomvp.cli.ortho import view_inputs
 @click.option("--no-reject", is_flag=True, help="keep every view (no outliers)")
 @click.option(
     "--deconvolve",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=MAX_DECONVOLVE),
     default=1,
     metavar="STEPS",
-    help="Van Cittert steps from plane heights to surface heights (0 = plane heights)",
+    help="Van Cittert steps from plane heights to surface heights (0 = plane heights; each "
+    "step may amplify noise once more)",
 )
 @eps_option
 @overwrite_option

@@ -42,6 +42,8 @@ from orthomvp.validate import number, of_type
 from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
+MAX_DECONVOLVE = 10
+"""Most Van Cittert steps: each step may amplify noise once more (up to steps + 1 times)."""
 BYTES_PER_SAMPLE = 160
 """Peak memory of a batch per post, view and window sample (patches, their gradients and
 normalisation; about 135 measured), bytes."""
@@ -64,7 +66,7 @@ class FitOptions:
     Checked when made (InputError naming the field and its range): ``hwin``, ``levels``,
     ``max_iter`` integers >= 1; ``sigma`` None or > 0; ``htol``, ``ntol`` > 0;
     ``reject_below`` None or in [-1, 1] (a correlation); ``margin`` >= 0; ``deconvolve`` an
-    integer >= 0.
+    integer from 0 to :data:`MAX_DECONVOLVE`.
     """
 
     hwin: int = 10
@@ -83,7 +85,7 @@ class FitOptions:
 
         for name in ("hwin", "levels", "max_iter"):
             check(name, minimum=1, integer=True)
-        check("deconvolve", minimum=0, integer=True)
+        check("deconvolve", minimum=0, maximum=MAX_DECONVOLVE, integer=True)
         for name in ("htol", "ntol"):
             check(name, minimum=0, min_open=True)
         check("margin", minimum=0)
