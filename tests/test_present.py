@@ -4,6 +4,7 @@ imports: the core never loads the heavy libraries, and a missing one fails with 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -204,3 +205,38 @@ def test_without_libusb_only_decimation_and_the_open3d_backend_fail(
         status, _, err = results[name]
         assert status == 2 and "libusb-1.0.so.0" in err and "apt-get install libusb-1.0-0" in err
     assert not (tmp_path / "d.ply").exists()
+
+
+def test_figures_keep_their_legend_and_show_a_scale(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The overview's legend keeps all its rows inside the figure, and every 2D map carries a
+    scale bar in metres or km."""
+    from matplotlib.offsetbox import AnchoredOffsetbox
+
+    from orthomvp.present import figures
+
+    saved = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig))
+    rng = np.random.default_rng(0)
+    dem = rng.normal(size=(60, 60)).cumsum(0)
+    codes = np.ones((60, 60), np.uint8)
+    codes[20:30, 20:40], codes[40:50, 10:20] = Code.OCCLUDED, Code.FACING_AWAY
+    figures.scene_overview(dem, 50.0, rng.random((70, 65)), codes, "o.png", gsd=40.0)
+    maps = rng.random((3, 60, 60))
+    figures.ortho_comparison(*maps, "c.png", spacing=50.0)
+    figures.height_error_maps(maps[0] - 0.5, maps[1] - 0.5, 50.0, "e.png")
+    overview, comparison, errors = saved
+    overview.canvas.draw()  # lay the figure out as saving does
+    renderer = overview.canvas.get_renderer()
+    (legend,) = overview.legends
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["visible", "occluded", "facing away"]
+    box = overview.bbox
+    for text in legend.get_texts():
+        extent = text.get_window_extent(renderer)
+        assert box.x0 <= extent.x0 and extent.x1 <= box.x1 and box.y0 <= extent.y0, text
+    for fig, n in ((overview, 3), (comparison, 3), (errors, 2)):
+        bars = [a for ax in fig.axes for a in ax.artists if isinstance(a, AnchoredOffsetbox)]
+        assert len(bars) == n, fig
+        for bar in bars:
+            label = bar.get_child().get_children()[1].get_children()[0].get_text()
+            assert re.fullmatch(r"\d+ (m|km)( \(at the centre\))?", label), label

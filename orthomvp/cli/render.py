@@ -98,6 +98,11 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 )
 @click.option("--title", help="a caption in the upper left corner")
 @click.option("--no-legend", is_flag=True, help="no legend or colour bar")
+@click.option(
+    "--crop",
+    is_flag=True,
+    help="cut the empty background around the scene (the image gets smaller than --size)",
+)
 @overwrite_option
 @dem_options
 def render(
@@ -118,6 +123,7 @@ def render(
     size: tuple[int, int] | None,
     title: str | None,
     no_legend: bool,
+    crop: bool,
     overwrite: bool,
 ) -> None:
     """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
@@ -157,6 +163,7 @@ def render(
             legend=not no_legend,
             title=title,
             error_limit=error_limit,
+            crop=crop,
         ),
     )
     try:

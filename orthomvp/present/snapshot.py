@@ -58,6 +58,8 @@ if TYPE_CHECKING:
     import pyvista as pv
 
 DEFAULT_SIZE = (1024, 768)
+CROP_MARGIN = 12
+"""Pixels of background kept around the content of a cropped snapshot."""
 MAX_RAYS = 10_000
 """Most rays drawn per camera (more only paint the snapshot over)."""
 CAMERA_COLOURS = ("#ffd21f", "#ff4fd8", "#4fc3ff", "#ffffff", "#a98bff", "#ff6b6b")
@@ -86,7 +88,8 @@ class SnapshotOptions:
     default 1024 x 768 (``from-camera``: the camera's aspect, 1024 on the long side).
     ``legend`` draws the legend or colour bar; ``title`` a caption. ``error_limit``: the height
     error colours saturate at +-this many metres (positive; default: the 99th percentile of
-    |error|).
+    |error|). ``crop`` cuts the empty background around what is drawn, to within
+    :data:`CROP_MARGIN` pixels (the image is then smaller than ``size``).
     """
 
     rays: int = 0
@@ -99,6 +102,7 @@ class SnapshotOptions:
     legend: bool = True
     title: str | None = None
     error_limit: float | None = None
+    crop: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "view", View(self.view))
@@ -134,11 +138,13 @@ class Snapshot:
     """A rendered scene: ``image`` (H, W, 3) uint8 RGB, top row first; ``plotter``, the pyvista
     Plotter, still open, for adding to the scene (in the local frame: world minus ``origin``)
     and rendering again with ``plotter.screenshot(return_img=True)``; ``origin`` (3,) float64,
-    world metres."""
+    world metres; ``box`` (left, top, right, bottom) the part of the plotter's window that
+    ``image`` shows (all of it unless the options asked to crop)."""
 
     image: np.ndarray
     plotter: pv.Plotter
     origin: np.ndarray
+    box: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     def save(self, path: str | Path) -> None:
         """Write ``image`` atomically; the format follows the suffix (.png, .jpg, ...)."""
@@ -240,10 +246,43 @@ def snapshot(
         _add_light(plotter, centre, up)
         plotter.reset_camera_clipping_range()
         image = np.ascontiguousarray(plotter.screenshot(return_img=True)[..., :3])
+        box = (0, 0, width, height)
+        if opts.crop:
+            box = content_box(image, background_image(width, height), CROP_MARGIN)
+            left, top, right, bottom = box
+            image = np.ascontiguousarray(image[top:bottom, left:right])
     except BaseException:
         plotter.close()
         raise
-    return Snapshot(image, plotter, tmesh.origin.copy())
+    return Snapshot(image, plotter, tmesh.origin.copy(), box)
+
+
+def background_image(width: int, height: int) -> np.ndarray:
+    """The snapshot background alone, (height, width, 3) uint8, as a snapshot draws it."""
+    plotter = _plotter(width, height)
+    try:
+        return np.ascontiguousarray(plotter.screenshot(return_img=True)[..., :3])
+    finally:
+        plotter.close()
+
+
+def content_box(
+    image: np.ndarray, background: np.ndarray, margin: int = 0
+) -> tuple[int, int, int, int]:
+    """(left, top, right, bottom) pixel box, right and bottom exclusive, around the pixels of
+    ``image`` that differ from ``background`` (same shape), widened by ``margin`` pixels and
+    kept inside the image; the whole image when nothing differs."""
+    height, width = image.shape[:2]
+    drawn = np.abs(image.astype(np.int16) - background.astype(np.int16)).max(axis=-1) > 2
+    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+    if not len(rows):
+        return 0, 0, width, height
+    return (
+        max(int(cols[0]) - margin, 0),
+        max(int(rows[0]) - margin, 0),
+        min(int(cols[-1]) + 1 + margin, width),
+        min(int(rows[-1]) + 1 + margin, height),
+    )
 
 
 def _default_size(
