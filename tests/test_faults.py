@@ -159,6 +159,8 @@ def test_unusable_output_directories_are_refused_before_any_work(
     assert_refused(run(*vis, dem / "v.tif"), 2, dem, "is not a directory")
     assert_refused(run("synth", "crater", tmp_path / "nodir" / "s"), 2, "nodir", "does not exist")
     assert_refused(run("synth", "crater", dem), 2, dem, "is a file")
+    assert_refused(run("demo", tmp_path / "nodir" / "d"), 2, "nodir", "does not exist")
+    assert_refused(run("demo", dem), 2, dem, "is a file")
     assert_refused(
         run("eps-study", tmp_path, "-o", tmp_path / "nodir" / "p"), 2, "nodir", "does not exist"
     )
