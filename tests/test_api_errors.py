@@ -207,3 +207,13 @@ def test_the_real_cause_is_named(view: tuple, crater_dir: Path) -> None:
     away = away.with_image_size(None, None)
     with pytest.raises(InputError, match="camera 1 looks away from the DEM"):
         snapshot(dem, cameras=[away], options=SnapshotOptions(view="from-camera"))
+
+
+def test_a_window_too_large_for_the_images_is_named() -> None:
+    """Posts seen by two images, but patches that leave the images: the window is the cause,
+    not the visibility."""
+    scene = make_scene("crater", size=16, spacing=80.0)
+    cameras = list(scene.cameras.values())[:2]
+    images = [scene.render(camera, 1) for camera in cameras]
+    with pytest.raises(GeometryError, match=r"25 x 25 samples \(hwin 12\): choose a smaller hwin"):
+        fit_dem(scene.terrain, images, cameras, FitOptions(hwin=12, levels=1))

@@ -294,7 +294,18 @@ def fit_dem(
     out.samples = stack.samples
     out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
     if not out.resolved.any():
-        raise GeometryError("no post is visible in 2 or more images: nothing to fit")
+        seen = problem.usable & (problem.visible.sum(axis=0) >= 2)
+        if not seen.any():
+            raise GeometryError("no post is visible in 2 or more images: nothing to fit")
+        side = 2 * window.hwin + 1
+        step = 2 ** (problem.levels - 1)
+        steps = f", {step} posts a sample at the coarsest level" if step > 1 else ""
+        raise GeometryError(
+            f"{int(seen.sum()):,} posts are visible in 2 or more images, but at none of them "
+            f"do 2 images hold the whole patch of {side} x {side} samples (hwin "
+            f"{window.hwin}{steps}): choose a smaller hwin"
+            + (" or fewer levels" if step > 1 else "")
+        )
     return out
 
 
