@@ -137,7 +137,7 @@ def test_an_extension_that_does_not_match_the_format_is_refused(
          "s.jpg", "--source writes a GeoTIFF"),
         (["fit", dem, *views(scene), "-o", tmp_path / "f.tif", "--normals", tmp_path / "n.jpg"],
          "n.jpg", "--normals"),
-        (["render", dem, "-o", tmp_path / "r.tif"], "r.tif", ".png or .jpg or .jpeg"),
+        (["render", dem, "-o", tmp_path / "r.ply"], "r.ply", "writes an image", ".png or .jpg"),
         (["mesh", dem, "-o", tmp_path / "m.stl"], "m.stl", ".ply or .obj or .glb"),
     ]  # fmt: skip
     for args, *words in cases:

@@ -28,7 +28,8 @@ from orthomvp.codes import View
 
 MAX_RAYS = 10_000
 """as :data:`orthomvp.present.snapshot.MAX_RAYS` (not imported: --help stays fast)"""
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
+"""the image formats a snapshot is saved in, by the extension (all written by Pillow)"""
 
 
 @click.command(
@@ -37,7 +38,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
     short_help="offscreen 3D snapshot of the DEM, its cameras and a result on its grid",
 )
 @dem_argument
-@output_option("SNAP", "SNAP.png (or .jpg, .jpeg)")
+@output_option("SNAP", "SNAP.png (or .jpg, .tif, .webp, .bmp)")
 @click.option("--ortho", type=PATH, metavar="ORTHO.tif", help="drape an orthophoto")
 @click.option("--visibility", type=PATH, metavar="VIS.tif", help="colour by visibility codes")
 @click.option(
@@ -139,7 +140,7 @@ def render(
     given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
     inputs = [("DEM", dem.path)] + [(f"--{key}", path) for key, path in given.items()]
     inputs += [(f"--camera {k}", path) for k, path in enumerate(cameras, start=1)]
-    check_outputs([Output("-o", output, IMAGE_SUFFIXES, "a PNG or JPEG image")], inputs, overwrite)
+    check_outputs([Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite)
     models = [read_camera(path) for path in cameras]
     if view == View.FROM_CAMERA and not camera_index <= len(models):
         raise usage_error(
