@@ -106,7 +106,7 @@ def test_what_passed_silently_is_refused_or_documented(view: tuple) -> None:
         ({"sigma": float("nan")}, "sigma must be > 0"),
         ({"reject_below": 5}, "reject_below must be in [-1, 1]"),
         ({"deconvolve": -3}, "deconvolve must be in [0, 10]"),
-        ({"max_iter": 0}, "max_iter"),
+        ({"max_iter": -1}, "max_iter must be >= 0"),
         ({"htol": -1}, "htol"),
     ):
         with pytest.raises(InputError, match=words.replace("[", r"\[").replace("]", r"\]")):

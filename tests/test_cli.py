@@ -221,7 +221,7 @@ def test_mesh_bad_inputs_leave_nothing(tmp_path: Path) -> None:
             "--dem-crs",
             "+proj=longlat +R=1737400",
         ),
-        "format",
+        "-o writes a mesh",
     )
     assert_one_line_error(
         run(

@@ -63,10 +63,10 @@ class FitOptions:
     heights to surface heights (:mod:`orthomvp.mvp.deconvolve`; 0 reports plane heights).
     The optimiser's other constants are :class:`~orthomvp.mvp.lm.LMSettings`' defaults.
 
-    Checked when made (InputError naming the field and its range): ``hwin``, ``levels``,
-    ``max_iter`` integers >= 1; ``sigma`` None or > 0; ``htol``, ``ntol`` > 0;
-    ``reject_below`` None or in [-1, 1] (a correlation); ``margin`` >= 0; ``deconvolve`` an
-    integer from 0 to :data:`MAX_DECONVOLVE`.
+    Checked when made (InputError naming the field and its range): ``hwin``, ``levels``
+    integers >= 1; ``max_iter`` an integer >= 0 (0 evaluates the starting planes); ``sigma``
+    None or > 0; ``htol``, ``ntol`` > 0; ``reject_below`` None or in [-1, 1] (a
+    correlation); ``margin`` >= 0; ``deconvolve`` an integer from 0 to :data:`MAX_DECONVOLVE`.
     """
 
     hwin: int = 10
@@ -83,8 +83,9 @@ class FitOptions:
         def check(name: str, **limits: object) -> None:
             object.__setattr__(self, name, number(getattr(self, name), name, **limits))
 
-        for name in ("hwin", "levels", "max_iter"):
+        for name in ("hwin", "levels"):
             check(name, minimum=1, integer=True)
+        check("max_iter", minimum=0, integer=True)  # 0: the planes where they start
         check("deconvolve", minimum=0, maximum=MAX_DECONVOLVE, integer=True)
         for name in ("htol", "ntol"):
             check(name, minimum=0, min_open=True)
