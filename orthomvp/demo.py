@@ -12,11 +12,13 @@ import io
 import json
 import time
 from dataclasses import replace
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
+from orthomvp import __version__
 from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
 from orthomvp.mesh import terrain_mesh
@@ -64,9 +66,12 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
         _meshes(tmp, scene, arrays)
         figures["seconds"] = time.perf_counter() - t0
         lines = _summary(figures, outdir)
+        about = _about(scene)
         with atomic_path(tmp / "summary.json") as f:
-            f.write_text(json.dumps(figures, indent=2))
-        write_index(tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES)
+            f.write_text(json.dumps({**figures, "about": dict(about)}, indent=2))
+        write_index(
+            tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES, about
+        )
     for line in lines:
         print(line)
     return figures
@@ -104,10 +109,14 @@ def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
         ),
         "mosaic_fills_hidden": float(np.isfinite(mos.data[0])[hidden].mean()),
     }
+    gsd = float(scene.summary["views"]["oblique"]["gsd_m"])
     scene_overview(
-        terrain.values, DEMO_SPACING, oblique.image[0], oblique.truth, tmp / "overview.png"
+        terrain.values, DEMO_SPACING, oblique.image[0], oblique.truth, tmp / "overview.png",
+        gsd=gsd,
+    )  # fmt: skip
+    ortho_comparison(
+        naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png", DEMO_SPACING
     )
-    ortho_comparison(naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png")
     arrays = {"visibility": aware.visibility.codes, "mosaic": mos.data}
     return figures, arrays
 
@@ -179,8 +188,8 @@ def _snapshots(tmp: Path, scene: SceneData, arrays: dict) -> None:
     oblique, nadir = scene.views["oblique"].camera, scene.views["nadir"].camera
     truth = terrain.values
     limit = float(np.nanpercentile(np.abs(arrays["start"].values - truth), 99))
-    raised = SnapshotOptions(exaggerate=1.5, size=SNAP_SIZE)
-    errors = SnapshotOptions(size=SNAP_SIZE, error_limit=limit)
+    raised = SnapshotOptions(exaggerate=1.5, size=SNAP_SIZE, crop=True)
+    errors = SnapshotOptions(size=SNAP_SIZE, error_limit=limit, crop=True)
     shots = {
         "snap-visibility.png": (
             dict(visibility=arrays["visibility"], cameras=[oblique, nadir]),
@@ -243,6 +252,29 @@ FILES = [
     ("objective-llplot.csv", "data of the llplot"),
     ("summary.json", "every figure in the summary"),
 ]  # fmt: skip
+
+
+def _about(scene: SceneData) -> list[tuple[str, str]]:
+    """What made this page: the version, the date and the demo's parameters."""
+    views = scene.summary["views"]
+    made = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return [
+        ("orthomvp", __version__),
+        ("made", made),
+        ("scene", f"crater (orthomvp synth crater --size {DEMO_SIZE} --spacing {DEMO_SPACING:g}"
+         f" --seed {scene.summary['seed']}): {DEMO_SIZE} x {DEMO_SIZE} posts of "
+         f"{DEMO_SPACING:g} m on the Moon"),
+        ("views", ", ".join(f"{name} ({v['emission_deg']:g} degrees, GSD {v['gsd_m']:.0f} m)"
+                             for name, v in views.items())),
+        ("visibility", "epsilon = max(4 posts, GSD in posts), the default"),
+        ("fit start", f"truth smoothed over 2 posts, +{START_OFFSET:g} m, +{START_NOISE:g} m "
+         "RMS of smooth random error (seed 1)"),
+        ("fit", f"hwin {FIT.hwin}, sigma {FIT.window_sigma:g} posts, {FIT.levels} pyramid "
+         f"level{'s' if FIT.levels > 1 else ''}, reject below {FIT.reject_below}, deconvolve "
+         f"{FIT.deconvolve}, all {len(views)} views"),
+        ("objective plots", f"post (c, r) = {EXPLORE_POST}"),
+        ("snapshots", f"{SNAP_SIZE[0]} x {SNAP_SIZE[1]} px, cropped to the scene"),
+    ]  # fmt: skip
 
 
 def _summary(f: dict, outdir: Path) -> list[str]:

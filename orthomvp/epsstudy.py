@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from orthomvp.codes import classify
+from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
+from orthomvp.validate import number
 from orthomvp.visibility import Visibility, compute_visibility
 
 DEFAULT_EPS_VALUES = tuple(np.round(np.geomspace(0.02, 20, 19), 3))
@@ -51,7 +53,12 @@ def eps_study(
     noise: tuple[float, ...] = (0.0,),
     seed: int = 0,
 ) -> list[dict]:
-    """Score the visibility test for every epsilon, view and DEM noise level (metres)."""
+    """Score the visibility test for every epsilon (DEM posts, each > 0), view and DEM noise
+    level (standard deviations in metres, each >= 0); InputError for other values."""
+    eps_values = tuple(
+        number(e, "an epsilon (DEM posts)", minimum=0, min_open=True) for e in _values(eps_values)
+    )
+    noise = tuple(number(n, "a DEM noise level (metres)", minimum=0) for n in _values(noise))
     scene = load_scene(scene_dir)
     rows = []
     for sigma in noise:
@@ -68,6 +75,16 @@ def eps_study(
                 scores = classification_scores(reclassify(vis, eps), view.truth, keep)
                 rows.append({"noise_m": sigma, "view": name, "eps": label, **scores})
     return rows
+
+
+def _values(values: object) -> tuple:
+    """``values`` as a non-empty tuple; InputError for anything else."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+        raise InputError(f"expected a sequence of numbers, got {values!r:.40}")
+    values = tuple(values)
+    if not values:
+        raise InputError("expected at least one value, got none")
+    return values
 
 
 def write_csv(rows: list[dict], path: str | Path) -> None:

@@ -1,7 +1,15 @@
 """The orthomvp exception family.
 
-Every error that a user can cause (bad files, bad arguments, impossible geometry) raises a
-subclass of :class:`OrthoMVPError`; the CLI prints its message as one line and exits with 2.
+Every error that a user can cause (bad files, bad arguments, impossible geometry, outputs that
+cannot be written) raises a subclass of :class:`OrthoMVPError`; the CLI prints its message as
+one line and exits with 2. Each class is also a subclass of the matching built-in, as
+rasterio's are, so that code catching ``ValueError`` or ``OSError`` keeps working:
+
+- :class:`InputError` (``ValueError``): a file or argument that cannot be used: missing,
+  corrupt, of the wrong type or shape, out of range;
+- :class:`FormatError` (an ``InputError``): a file that breaks its format;
+- :class:`GeometryError` (``ValueError``): geometry that cannot work;
+- :class:`OutputError` (``OSError``): an output that cannot be written.
 """
 
 from __future__ import annotations
@@ -13,8 +21,9 @@ class OrthoMVPError(Exception):
     """Base class of all errors orthomvp reports to users."""
 
 
-class InputError(OrthoMVPError):
-    """A file or argument that cannot be used (missing, corrupt, inconsistent)."""
+class InputError(OrthoMVPError, ValueError):
+    """A file or argument that cannot be used (missing, corrupt, inconsistent, of the wrong
+    type, shape or range)."""
 
 
 class FormatError(InputError):
@@ -27,5 +36,15 @@ class FormatError(InputError):
         super().__init__(f"{where}: {message}")
 
 
-class GeometryError(OrthoMVPError):
+class GeometryError(OrthoMVPError, ValueError):
     """Geometry that cannot work: a camera behind the surface, no overlap between DEM and image."""
+
+
+class OutputError(OrthoMVPError, OSError):
+    """An output that cannot be written (no space, no permission, a missing directory); the
+    message names the path and the cause."""
+
+
+class OrthoMVPWarning(UserWarning):
+    """Something a user should know that does not stop the work (infinite DEM heights taken
+    as nodata, an image that covers only part of the DEM); the CLI prints it as one line."""

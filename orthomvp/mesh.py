@@ -16,6 +16,7 @@ import numpy as np
 from orthomvp.errors import InputError
 from orthomvp.optional import require
 from orthomvp.terrain import Terrain
+from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
     import trimesh
@@ -80,6 +81,7 @@ def terrain_mesh(
     ``origin`` defaults to the world position of the valid post nearest the grid centre. Faces
     are wound so that their normals point up (away from the body centre, or +z in a map frame).
     """
+    of_type(terrain, Terrain, "terrain")
     t = terrain if values is None else terrain.with_values(values)
     pts = t.world_points().reshape(-1, 3)
     valid = t.valid

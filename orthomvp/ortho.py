@@ -19,13 +19,19 @@ import numpy as np
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp.camera import PinholeCamera, check_image
+from orthomvp.camera import PinholeCamera, as_image, check_image
 from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
+from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.validate import of_type
+from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, Visibility, compute_visibility
+
+BYTES_PER_BAND_POST = 12
+"""Memory of an orthophoto per band and post beyond its visibility: the float32 result and the
+samples, bytes."""
 
 INTERPOLATION = {
     Interp.NEAREST: cv2.INTER_NEAREST,
@@ -67,6 +73,12 @@ def sample_image(
     outside the image and NaN image pixels give NaN.
     """
     flag = INTERPOLATION[Interp(interp)]
+    image = as_image(image)
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
+    if uv is None or uv.shape[-1:] != (2,):
+        raise InputError(
+            f"pixel positions must have shape (..., 2), got {getattr(uv, 'shape', uv)}"
+        )
     shape = uv.shape[:-1]
     flat = uv.reshape(-1, 2).astype(np.float32)
     # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
@@ -111,9 +123,18 @@ def orthorectify(
     visibility of this camera on this grid; otherwise it is computed (see
     :func:`~orthomvp.visibility.compute_visibility` for ``eps``, ``caster``, ``progress`` and
     ``post_scale``).
+
+    ``image`` may also be (rows, cols) (one band); integer images are taken as float32 with
+    their values (see :func:`orthomvp.camera.as_image`). Wrong types, shapes and ranges raise
+    :class:`~orthomvp.errors.InputError`, as does a grid too large for the memory.
     """
     interp = Interp(interp)
+    of_type(terrain, Terrain, "terrain")
+    image = as_image(image)
     camera = check_image(image, camera)
+    if visibility is not None:
+        of_type(visibility, Visibility, "visibility", " (of compute_visibility) or None")
+    check_orthophoto_memory(terrain.shape, image.shape[0], "use a coarser grid (Terrain.regrid)")
     vis = visibility or compute_visibility(
         terrain,
         camera,
@@ -143,8 +164,13 @@ def mosaic(
     ``interp`` as in :func:`orthorectify`; ``caster`` reuses a ray caster built on this
     terrain's mesh (one is built otherwise)."""
     interp = Interp(interp)
-    if not views:
-        raise InputError("a mosaic needs at least one image")
+    of_type(terrain, Terrain, "terrain")
+    if not isinstance(views, (list, tuple)) or not views:
+        raise InputError(f"a mosaic needs a list of (image, camera) views, got {views!r:.40}")
+    for k, view in enumerate(views, start=1):
+        if not (isinstance(view, (list, tuple)) and len(view) == 2):
+            raise InputError(f"view {k} of the mosaic must be an (image, camera) pair")
+    views = [(as_image(img, f"view {k}"), cam) for k, (img, cam) in enumerate(views, start=1)]
     bands = {img.shape[0] for img, _ in views}
     if len(bands) != 1:
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
@@ -167,3 +193,23 @@ def mosaic(
         source[better] = k
         best[better] = vis.emission[better]
     return Mosaic(data, source, terrain.transform, terrain.crs, visibilities)
+
+
+def orthophoto_bytes(shape: tuple[int, int], bands: int) -> float:
+    """Peak memory of an orthophoto of ``bands`` bands on a grid of ``shape`` posts, bytes."""
+    return (
+        float(shape[0])
+        * float(shape[1])
+        * (VISIBILITY_BYTES_PER_POST + BYTES_PER_BAND_POST * bands)
+    )
+
+
+def check_orthophoto_memory(shape: tuple[int, int], bands: int, advice: str) -> None:
+    """InputError, before any work, when an orthophoto on ``shape`` posts cannot fit in
+    memory (see :mod:`orthomvp.memory`)."""
+    rows, cols = shape
+    check_memory(
+        f"this grid is {count_text(float(rows) * cols)} posts ({cols:,} x {rows:,})",
+        orthophoto_bytes(shape, bands),
+        advice,
+    )

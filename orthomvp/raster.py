@@ -76,9 +76,13 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
 
 def open_raster(path: str | Path) -> rasterio.DatasetReader:
     """Open a raster with rasterio, turning every failure into an :class:`InputError`."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"a raster file name is a str or a Path, got {type(path).__name__}")
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{path}: no such file")
+        raise InputError(
+            f"{path}: {'a directory, not a file' if path.is_dir() else 'no such file'}"
+        )
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -93,7 +97,7 @@ def read_image(path: str | Path) -> np.ndarray:
     ISIS3 cubes (``.cub``) are read by :func:`orthomvp.isis.read_cube` (special pixels -> NaN);
     everything else (GeoTIFF/TIFF of any dtype and band count, PNG, JPEG, ...) by rasterio.
     """
-    if Path(path).suffix.lower() == ".cub":
+    if isinstance(path, (str, os.PathLike)) and Path(path).suffix.lower() == ".cub":
         return read_cube(path)
     with open_raster(path) as src:
         try:

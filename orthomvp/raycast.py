@@ -46,6 +46,11 @@ class RayCaster:
     def __init__(self, tmesh: TerrainMesh, backend: str = "embree", threads: int | None = None):
         if backend not in BACKENDS:
             raise InputError(f"ray-casting backend must be one of {BACKENDS}, not {backend!r}")
+        if not isinstance(tmesh, TerrainMesh):
+            raise InputError(
+                f"a ray caster needs a TerrainMesh (orthomvp.mesh.terrain_mesh), got "
+                f"{type(tmesh).__name__}"
+            )
         self.tmesh = tmesh
         self.backend = backend
         self.threads = threads or os.cpu_count() or 1

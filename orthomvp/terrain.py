@@ -16,6 +16,8 @@ Conventions (see ARCHITECTURE.md):
 
 from __future__ import annotations
 
+import os
+import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -26,7 +28,8 @@ from pyproj import CRS, Transformer
 from pyproj.exceptions import CRSError
 
 from orthomvp.codes import WorldFrame
-from orthomvp.errors import InputError
+from orthomvp.errors import InputError, OrthoMVPWarning
+from orthomvp.memory import check_memory, count_text
 from orthomvp.raster import open_raster, write_geotiff
 
 
@@ -70,6 +73,14 @@ def grid_normals(p: np.ndarray, up: np.ndarray) -> np.ndarray:
     return n
 
 
+def _heights(values: object, name: str) -> np.ndarray:
+    """``values`` as a float64 array; InputError for anything that is not real numbers."""
+    arr = np.asarray(values)
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise InputError(f"{name}: DEM values must be real numbers, got {arr.dtype} values")
+    return arr.astype(np.float64)
+
+
 def horizontal_crs(crs: CRS) -> CRS:
     """The horizontal part of a (possibly compound) CRS."""
     if crs.is_compound:
@@ -85,12 +96,19 @@ def parse_crs(value: object, source: str) -> CRS:
         raise InputError(f"{source}: cannot understand CRS {value!r} ({exc})") from exc
 
 
+REGRID_BYTES_PER_POST = 160
+"""Peak memory of :meth:`Terrain.regrid` per output post (grid coordinates and interpolation
+temporaries), bytes."""
+
+
 @dataclass(frozen=True)
 class Terrain:
     """A DEM on a regular grid: values, georeference, body and conventions.
 
-    ``values`` is float64 ``(rows, cols)``, NaN at nodata posts (holes). ``transform`` maps pixel
-    *corner* coordinates to CRS coordinates (GDAL convention).
+    ``values`` is float64 ``(rows, cols)``, NaN at nodata posts (holes); infinite values are
+    holes too (they become NaN). ``transform`` maps pixel *corner* coordinates to CRS
+    coordinates (GDAL convention); ``crs`` is a pyproj CRS or anything it reads. Construction
+    checks all of this and raises :class:`~orthomvp.errors.InputError`.
     """
 
     values: np.ndarray
@@ -101,11 +119,19 @@ class Terrain:
     name: str = field(default="dem", compare=False)
 
     def __post_init__(self) -> None:
-        vals = np.asarray(self.values, dtype=np.float64)
+        vals = _heights(self.values, self.name)
         if vals.ndim != 2 or min(vals.shape) < 2:
             raise InputError(f"{self.name}: a DEM needs at least 2 x 2 posts, got {vals.shape}")
+        if np.isinf(vals).any():
+            vals = np.where(np.isinf(vals), np.nan, vals)
         object.__setattr__(self, "values", vals)
-        object.__setattr__(self, "crs", horizontal_crs(self.crs))
+        if not isinstance(self.transform, Affine):
+            raise InputError(
+                f"{self.name}: the transform must be an affine.Affine, got "
+                f"{type(self.transform).__name__}"
+            )
+        crs = self.crs if isinstance(self.crs, CRS) else parse_crs(self.crs, self.name)
+        object.__setattr__(self, "crs", horizontal_crs(crs))
         object.__setattr__(self, "world", WorldFrame(self.world))  # InputError on a bad name
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")
@@ -125,7 +151,11 @@ class Terrain:
         world: WorldFrame | str = WorldFrame.BODY,
         crs: object | None = None,
     ) -> Terrain:
-        """Read band 1 of a GeoTIFF DEM; nodata posts become NaN. ``crs`` overrides the file's."""
+        """Read band 1 of a GeoTIFF DEM; nodata posts become NaN, and so do infinite values
+        (with an :class:`~orthomvp.errors.OrthoMVPWarning` that counts them). ``crs``
+        overrides the file's."""
+        if not isinstance(path, (str, os.PathLike)):
+            raise InputError(f"a DEM file name is a str or a Path, got {type(path).__name__}")
         with open_raster(path) as src:
             try:
                 band = src.read(1, masked=True)
@@ -142,7 +172,38 @@ class Terrain:
         if transform == Affine.identity():
             raise InputError(f"{path}: the DEM has no georeference (identity transform)")
         values = np.ma.filled(band.astype(np.float64), np.nan)
-        return cls(values, transform, the_crs, radius_values, world, name=str(path))
+        infinite = int(np.isinf(values).sum())
+        if infinite:
+            warnings.warn(
+                f"{path}: {infinite:,} infinite height{'s' if infinite > 1 else ''} taken as "
+                "nodata",
+                OrthoMVPWarning,
+                stacklevel=2,
+            )
+        terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
+        terrain.check_convention()
+        return terrain
+
+    def check_convention(self) -> None:
+        """InputError when the values cannot be in the convention this DEM says (body frame
+        only): radii far from the body's radius (heights read with ``radius_values``), or
+        heights of the order of the radius (radii read without it)."""
+        if self.world != WorldFrame.BODY:
+            return
+        median = float(np.nanmedian(self.values))
+        radius = self.radii[0]
+        if self.radius_values and abs(median - radius) > 0.5 * radius:
+            raise InputError(
+                f"{self.name}: the values are taken as radii from the body centre "
+                f"(--radius-values), but their median, {median:,.0f} m, is far from the body's "
+                f"radius, {radius:,.0f} m: are they heights above it?"
+            )
+        if not self.radius_values and abs(median) > 0.5 * radius:
+            raise InputError(
+                f"{self.name}: the values are taken as heights above the body's surface, but "
+                f"their median, {median:,.0f} m, is of the order of its radius, {radius:,.0f} "
+                "m: are they radii from its centre (--radius-values)?"
+            )
 
     def write(self, path: str | Path, values: np.ndarray | None = None) -> None:
         """Write ``values`` (default: this DEM's) as float32 GeoTIFF on this grid, NaN = nodata."""
@@ -150,8 +211,13 @@ class Terrain:
         write_geotiff(path, data.astype(np.float32), self.transform, self.crs, nodata=np.nan)
 
     def with_values(self, values: np.ndarray) -> Terrain:
-        """The same grid and conventions with other values."""
-        return replace(self, values=np.asarray(values, dtype=np.float64))
+        """The same grid and conventions with other ``values`` of the same (rows, cols) shape."""
+        vals = _heights(values, self.name)
+        if vals.shape != self.shape:
+            raise InputError(
+                f"{self.name}: new values must have the DEM's shape {self.shape}, got {vals.shape}"
+            )
+        return replace(self, values=vals)
 
     # ----------------------------------------------------------------------------- the grid
     @property
@@ -345,26 +411,54 @@ class Terrain:
         )
         return np.where(inside, out, np.nan)
 
-    def regrid(
+    def output_grid(
         self, res: tuple[float, float] | None = None, bounds: tuple[float, ...] | None = None
-    ) -> Terrain:
-        """The DEM on another grid of the same CRS: pixel size ``res`` (x, y) and ``bounds``
-        (left, bottom, right, top), both in CRS units (degrees or metres); values interpolated
-        with :meth:`interpolate`. Defaults keep this DEM's resolution and extent."""
+    ) -> tuple[Affine, tuple[int, int]]:
+        """The transform and (rows, cols) of the grid that :meth:`regrid` makes for ``res``
+        and ``bounds``, checked (finite, positive, ordered), without making it."""
         t = self.transform
         rows, cols = self.shape
         left, top = t.c, t.f
         right, bottom = left + cols * t.a, top + rows * t.e
         if bounds is not None:
-            left, bottom, right, top = (float(v) for v in bounds)
-            if not (right > left and top > bottom):
-                raise InputError(f"bounds must be left bottom right top, got {bounds}")
-        dx, dy = (abs(t.a), abs(t.e)) if res is None else (float(res[0]), float(res[1]))
-        if not (dx > 0 and dy > 0):
-            raise InputError(f"resolution must be positive, got {res}")
-        n_c = max(int(round((right - left) / dx)), 2)
-        n_r = max(int(round((top - bottom) / dy)), 2)
-        grid = Affine(dx, 0, left, 0, -dy, top)
+            try:
+                left, bottom, right, top = (float(v) for v in bounds)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"bounds must be four numbers (left, bottom, right, top), got {bounds!r}"
+                ) from None
+            if not (
+                np.isfinite([left, bottom, right, top]).all() and right > left and top > bottom
+            ):
+                raise InputError(
+                    f"bounds must be finite, left < right and bottom < top, got {bounds}"
+                )
+        if res is None:
+            dx, dy = abs(t.a), abs(t.e)
+        else:
+            try:
+                dx, dy = (float(v) for v in res)
+            except (TypeError, ValueError):
+                raise InputError(f"resolution must be two numbers (x, y), got {res!r}") from None
+            if not (np.isfinite([dx, dy]).all() and dx > 0 and dy > 0):
+                raise InputError(f"resolution must be finite and positive, got {res}")
+        n_c = max(round((right - left) / dx), 2)
+        n_r = max(round((top - bottom) / dy), 2)
+        return Affine(dx, 0, left, 0, -dy, top), (n_r, n_c)
+
+    def regrid(
+        self, res: tuple[float, float] | None = None, bounds: tuple[float, ...] | None = None
+    ) -> Terrain:
+        """The DEM on another grid of the same CRS: pixel size ``res`` (x, y) and ``bounds``
+        (left, bottom, right, top), both in CRS units (degrees or metres); values interpolated
+        with :meth:`interpolate`. Defaults keep this DEM's resolution and extent. A grid that
+        cannot fit in memory is refused before it is made (InputError)."""
+        grid, (n_r, n_c) = self.output_grid(res, bounds)
+        check_memory(
+            f"this grid is {count_text(n_r * n_c)} posts ({n_c:,} x {n_r:,})",
+            n_r * n_c * REGRID_BYTES_PER_POST,
+            "choose a coarser resolution or smaller bounds",
+        )
         new = replace(self, values=np.zeros((n_r, n_c)), transform=grid)
         c, r = self.crs_to_pixel(*new.pixel_to_crs(*new.grid()))
         values = self.interpolate(c, r)

@@ -24,11 +24,17 @@ from tqdm import tqdm
 from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, grid_normals
+from orthomvp.validate import number, of_type
+from orthomvp.world import check_cameras_above
 
 TILE = 512
+VISIBILITY_BYTES_PER_POST = 160
+"""Peak memory of the visibility test per post (its per-post results, the grid's world
+points and normals, resampling temporaries; about 80 measured), bytes."""
 EPS_FLOOR = 4.0
 EPS_GSD_FACTOR = 1.0
 
@@ -141,13 +147,23 @@ def compute_visibility(
     whole DEM's, so that tiles agree). ``strict=False`` returns the codes instead of raising
     GeometryError when no post is seen (a tile of a larger grid).
     """
+    of_type(terrain, Terrain, "terrain")
+    of_type(camera, PinholeCamera, "camera", " (orthomvp.camera.read_camera)")
     if camera.width is None or camera.height is None:
         raise InputError("the camera needs its image size (width, height) for visibility")
-    if eps is not None and not eps > 0:
-        raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
+    if eps is not None:
+        eps = number(eps, "eps (DEM posts)", minimum=0, min_open=True)
+    post_scale = number(post_scale, "post_scale", minimum=0, min_open=True)
+    if caster is not None:
+        of_type(caster, RayCaster, "caster")
+    rows, cols = terrain.shape
+    check_memory(
+        f"this grid is {count_text(float(rows) * cols)} posts ({cols:,} x {rows:,})",
+        float(rows) * cols * VISIBILITY_BYTES_PER_POST,
+        "use a smaller or coarser DEM",
+    )
     if caster is None and occlusion:
         caster = RayCaster(terrain_mesh(terrain))
-    rows, cols = terrain.shape
     codes = np.zeros((rows, cols), np.uint8)
     uv = np.full((rows, cols, 2), np.nan)
     miss = np.full((rows, cols), np.nan)
@@ -213,6 +229,10 @@ def compute_visibility(
 
 def _no_overlap_reason(terrain: Terrain, camera: PinholeCamera) -> str:
     """Why no post of the DEM can be seen by the camera, in one line."""
+    try:
+        check_cameras_above(terrain, camera.center)
+    except GeometryError as exc:
+        return str(exc)
     c, r = terrain.grid()
     p = terrain.to_world(c, r, terrain.values)[terrain.valid]
     uv, depth = camera.project(p)

@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from orthomvp.codes import WorldFrame
-from orthomvp.errors import InputError
+from orthomvp.errors import GeometryError, InputError
 from orthomvp.terrain import Terrain
 
 MAP_EXTENTS = 3.0
@@ -107,4 +107,35 @@ def detect_world(terrain: Terrain, centres: np.ndarray) -> WorldFrame:
     raise InputError(
         f"{terrain.name}: cannot tell the cameras' world frame: {why}; "
         "give --world body or --world map"
+    )
+
+
+def check_cameras_above(terrain: Terrain, centres: np.ndarray) -> None:
+    """GeometryError when a camera centre of ``centres`` (n, 3) does not sit above the DEM in
+    the body-fixed frame of its CRS (see :func:`body_plausible`): the DEM's CRS names another
+    body (an Earth CRS for lunar cameras), or the cameras belong to the map frame. Says how far
+    from the body's centre the camera is, against the body's radius. Map-frame terrains are
+    not checked."""
+    if terrain.world != WorldFrame.BODY:
+        return
+    centres = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    if not len(centres):
+        return
+    ok = body_plausible(terrain, centres)
+    if ok.all():
+        return
+    k = int(np.flatnonzero(~ok)[0])
+    distance = float(np.linalg.norm(centres[k]))
+    radius = terrain.radii[1]
+    where = (
+        f"{distance / 1000:,.0f} km from the centre of the DEM's body, below its surface "
+        f"({radius / 1000:,.0f} km radius)"
+        if distance < radius
+        else "beyond the DEM's horizon (on another side of the body)"
+    )
+    raise GeometryError(
+        f"{terrain.name}: camera {k + 1} is {where} in the DEM's CRS "
+        f"({terrain.geodetic_crs.name}): the cameras do not sit above the DEM in this "
+        "CRS and body; is it the right CRS for these cameras (--dem-crs), or do they live in "
+        "the DEM's map frame (--world map)?"
     )

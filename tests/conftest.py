@@ -7,8 +7,10 @@ and skip when it is absent.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -26,6 +28,40 @@ def shared(*parts: str) -> Path:
             "(set ORTHOMVP_DATA to the data directory; default ../shared/data)"
         )
     return path
+
+
+@functools.cache
+def open3d_missing() -> str | None:
+    """Why Open3D cannot be imported (on Debian, without the system library libusb-1.0, it
+    fails with an OSError), or None when it can."""
+    try:
+        import open3d  # noqa: F401
+    except (ImportError, OSError) as exc:
+        return (
+            f"Open3D cannot be imported ({exc}); on Debian or Ubuntu: apt-get install libusb-1.0-0"
+        )
+    return None
+
+
+def require_open3d() -> ModuleType:
+    """The open3d module; skips the test, saying why, when it cannot be imported."""
+    if reason := open3d_missing():
+        pytest.skip(reason)
+    import open3d
+
+    return open3d
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests run on the Open3D ray-casting backend skip when Open3D cannot be imported."""
+    on_open3d = [
+        item
+        for item in items
+        if getattr(item, "callspec", None) and item.callspec.params.get("backend") == "open3d"
+    ]
+    if on_open3d and (reason := open3d_missing()):
+        for item in on_open3d:
+            item.add_marker(pytest.mark.skip(reason=reason))
 
 
 @pytest.fixture(scope="session")

@@ -4,16 +4,19 @@ index page loaded in a real headless browser."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 import pytest
 import trimesh
+from conftest import require_open3d
 from PIL import Image
+
+import orthomvp
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
@@ -55,6 +58,7 @@ def test_demo_outputs_and_figures(demo: tuple[Path, str]) -> None:
 
 
 def test_demo_meshes_open_in_trimesh_and_open3d(demo: tuple[Path, str]) -> None:
+    o3d = require_open3d()
     out, _ = demo
     posts = 120 * 120
     for name in ("crater.ply", "fitted.ply"):
@@ -68,8 +72,10 @@ def test_demo_meshes_open_in_trimesh_and_open3d(demo: tuple[Path, str]) -> None:
     assert len(geom.vertices) == posts and geom.visual.material is not None
 
 
-def image_report(page: Path) -> list[tuple[str, bool]]:
-    """Load ``page`` in headless Chromium and return every <img> with whether it loaded."""
+def page_report(page: Path, width: int = 1000) -> dict:
+    """Load ``page`` in headless Chromium, ``width`` pixels wide, and report every <img> with
+    whether it loaded and its natural size, whether the summary <pre> and the page fit their
+    width, and the page's text."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -85,21 +91,28 @@ def image_report(page: Path) -> list[tuple[str, bool]]:
         "--disable-sync",
         "--no-first-run",
         "--allow-file-access-from-files",
+        f"--window-size={width},900",
     ):
         options.add_argument(flag)
     driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
     try:
         driver.set_page_load_timeout(60)
         driver.get(page.resolve().as_uri())
-        return [
-            (src, bool(ok))
-            for src, ok in driver.execute_script(
-                "return Array.from(document.images).map("
-                "i => [i.getAttribute('src'), i.complete && i.naturalWidth > 0]);"
-            )
-        ]
+        return driver.execute_script(
+            "const pre = document.querySelector('pre');"
+            "return {images: Array.from(document.images).map(i => [i.getAttribute('src'),"
+            "  i.complete && i.naturalWidth > 0, i.naturalWidth, i.naturalHeight]),"
+            " pre: [pre.scrollWidth, pre.clientWidth],"
+            " page: [document.documentElement.scrollWidth, window.innerWidth],"
+            " text: document.body.innerText};"
+        )
     finally:
         driver.quit()
+
+
+def image_report(page: Path) -> list[tuple[str, bool]]:
+    """Every <img> of ``page`` in headless Chromium with whether it loaded."""
+    return [(src, bool(ok)) for src, ok, *_ in page_report(page)["images"]]
 
 
 @pytest.mark.skipif(
@@ -114,6 +127,19 @@ def test_index_page_loads_every_picture_in_a_browser(
     report = image_report(out / "index.html")
     assert sorted(src for src, _ in report) == pngs  # every picture is on the page
     assert all(ok for _, ok in report), [src for src, ok in report if not ok]
+    for width in (1000, 700):  # the summary wraps inside the page, which never scrolls sideways
+        page = page_report(out / "index.html", width)
+        (pre_scroll, pre_width), (page_scroll, window) = page["pre"], page["page"]
+        assert pre_scroll <= pre_width and page_scroll <= window, (width, page)
+    # the page says what made it: the version, the date and the demo's parameters
+    text = page["text"]
+    assert f"orthomvp\t{orthomvp.__version__}" in text
+    assert re.search(r"made\t\d{4}-\d\d-\d\d \d\d:\d\d UTC", text)
+    for words in ("120 x 120 posts of 50 m", "hwin 5", "oblique (55 degrees", "seed 1"):
+        assert words in text, words
+    # the 3D snapshots are cropped to the scene: smaller than the 900 x 640 rendered
+    sizes = {src: (w, h) for src, _, w, h in page["images"] if src.startswith("snap-")}
+    assert len(sizes) == 4 and all(w * h < 0.8 * 900 * 640 for w, h in sizes.values()), sizes
     # the check can fail: a copy of the page with one picture missing is caught
     broken = tmp_path / "broken"
     shutil.copytree(out, broken, ignore=shutil.ignore_patterns("scene", "*.tif", "*.ply"))

@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "orthomvp"
 
 LAYERS = [
     ("orthomvp", "orthomvp.errors"),
-    ("orthomvp.codes", "orthomvp.optional"),
+    ("orthomvp.codes", "orthomvp.optional", "orthomvp.memory", "orthomvp.validate"),
     ("orthomvp.isis",),
     ("orthomvp.raster",),
     ("orthomvp.terrain",),

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 import pytest
 import trimesh
 from affine import Affine
+from conftest import require_open3d
 from matplotlib import colormaps
 from pyproj import CRS
 from scipy.ndimage import maximum_filter, minimum_filter
@@ -23,6 +25,9 @@ from orthomvp.present.export import export_mesh
 from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import make_scene
 from orthomvp.terrain import Terrain
+
+if TYPE_CHECKING:
+    import open3d
 
 R = 1737400.0
 MOON = CRS.from_proj4(f"+proj=longlat +R={R:.0f} +no_defs")
@@ -190,6 +195,7 @@ def sample_texture(mesh: trimesh.Trimesh) -> np.ndarray:
 
 @pytest.mark.parametrize("local", [False, True], ids=["world", "local"])
 def test_export_ply(tmp_path: Path, local: bool) -> None:
+    o3d = require_open3d()
     t, tex = small_terrain(), rgb_texture()
     tm = terrain_mesh(t)
     offset = np.zeros(3) if local else tm.origin
@@ -212,6 +218,7 @@ def test_export_ply(tmp_path: Path, local: bool) -> None:
 
 @pytest.mark.parametrize("local", [False, True], ids=["world", "local"])
 def test_export_obj(tmp_path: Path, local: bool) -> None:
+    o3d = require_open3d()
     t, tex = small_terrain(), rgb_texture()
     tm = terrain_mesh(t)
     offset = np.zeros(3) if local else tm.origin
@@ -329,6 +336,7 @@ def bump(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
 
 
 def test_decimation_stays_on_the_surface(tmp_path: Path) -> None:
+    o3d = require_open3d()
     n = 60
     corner = 20.0 - n / 2 * STEP, 5.0 + n / 2 * STEP
     t0 = Terrain(np.zeros((n, n)), Affine(STEP, 0, corner[0], 0, -STEP, corner[1]), MOON)
@@ -390,7 +398,7 @@ def expected_counts(valid: np.ndarray) -> tuple[int, int]:
     return int(valid.sum()), int((a & d & b).sum() + (b & d & e).sum())
 
 
-def o3d_texture_colours(o3: o3d.geometry.TriangleMesh) -> np.ndarray:
+def o3d_texture_colours(o3: open3d.geometry.TriangleMesh) -> np.ndarray:
     """RGB of an Open3D mesh's texture at each triangle corner's UV (nearest texel); Open3D
     keeps v pointing down the image rows."""
     ids = np.asarray(o3.triangle_material_ids)
@@ -406,6 +414,7 @@ def o3d_texture_colours(o3: o3d.geometry.TriangleMesh) -> np.ndarray:
 def test_visibility_colours_in_every_format(
     tmp_path: Path, crater48: tuple, fmt: str, local: bool
 ) -> None:
+    o3d = require_open3d()
     t, _, codes = crater48
     tm = terrain_mesh(t)
     n_vert, n_tri = expected_counts(t.valid)
@@ -452,6 +461,7 @@ def test_visibility_colours_in_every_format(
 
 
 def test_error_colours(tmp_path: Path, crater48: tuple) -> None:
+    o3d = require_open3d()
     t, truth, _ = crater48
     tm = terrain_mesh(t)
     c, _ = t.grid()
@@ -493,6 +503,7 @@ def test_error_colours(tmp_path: Path, crater48: tuple) -> None:
 
 
 def test_decimation_keeps_visibility_colours(tmp_path: Path, crater48: tuple) -> None:
+    o3d = require_open3d()
     t, _, codes = crater48
     tm = terrain_mesh(t)
     target = 1000
@@ -563,10 +574,10 @@ def test_cli_mesh_colour_options(
     capsys.readouterr()
     bad = str(tmp_path / "bad.ply")
     other = tmp_path / "other.tif"
-    t.with_values(truth[:-1]).write(other)  # one row short: another grid
+    replace(t, values=truth[:-1]).write(other)  # one row short: another grid
     for args, words in (
         (["--error-against", str(other)], "not on the grid"),
-        (["--texture", vis, "--colour-by", "error", "--error-limit", "-1"], "positive"),
+        (["--texture", vis, "--colour-by", "error", "--error-limit", "-1"], "range x>0"),
         (["--texture", fit, "--colour-by", "visibility"], "codes"),
         (["--colour-by", "error"], "needs a raster"),
         (["--texture", vis, "--colour-by", "visibility", "--error-limit", "2"], "error colours"),

@@ -3,6 +3,8 @@ imports: the core never loads the heavy libraries, and a missing one fails with 
 
 from __future__ import annotations
 
+import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -133,3 +135,108 @@ def test_interpolation_names_and_keyword_only_options() -> None:
         sample_image(image, uv, "linear")
     with pytest.raises(TypeError):
         orthorectify(plain_terrain(), image, None, False)  # options are keyword-only
+
+
+NO_LIBUSB = """
+import importlib.abc, sys
+class NoLibusb(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] == "open3d":  # as on Debian without libusb-1.0-0
+            raise OSError("libusb-1.0.so.0: cannot open shared object file: No such file")
+sys.meta_path.insert(0, NoLibusb())
+"""
+
+
+@pytest.mark.slow
+def test_without_libusb_only_decimation_and_the_open3d_backend_fail(
+    crater_dir: Path, tmp_path: Path
+) -> None:
+    """Open3D fails to import without the system library libusb-1.0 (an OSError): every module
+    still imports and every command works, except mesh decimation and the Open3D ray-casting
+    backend, which say what to install; the benchmark reports the backend as unavailable."""
+    d = crater_dir
+    dem, views = (
+        d / "dem.tif",
+        [d / "oblique.tif", d / "oblique.tsai", d / "nadir.tif", d / "nadir.tsai"],
+    )
+    commands = {
+        "visibility": ["visibility", dem, *views[:2], "-o", tmp_path / "v.tif"],
+        "ortho": ["ortho", dem, *views[:2], "-o", tmp_path / "o.tif"],
+        "mosaic": ["mosaic", dem, *views, "-o", tmp_path / "m.tif"],
+        "fit": ["fit", dem, *views, "-o", tmp_path / "f.tif", "--hwin", "3", "--levels", "1"],
+        "mesh": ["mesh", dem, "-o", tmp_path / "m.ply", "--texture", tmp_path / "o.tif"],
+        "render": ["render", dem, "-o", tmp_path / "r.png", "--size", "64", "48"],
+        "bench": ["bench", "--size", "20", "--rays", "100", "--ortho-size", "0", "--mvp-size", "0"],
+        "decimate": ["mesh", dem, "-o", tmp_path / "d.ply", "--decimate", "100"],
+    }
+    script = NO_LIBUSB + (
+        "import json, pkgutil, importlib, io, contextlib\n"
+        "import orthomvp\n"
+        "for m in pkgutil.walk_packages(orthomvp.__path__, 'orthomvp.'):\n"
+        "    if m.name != 'orthomvp.__main__':\n"
+        "        importlib.import_module(m.name)\n"
+        "from orthomvp.cli import main\n"
+        "results = {}\n"
+        f"for name, args in { ({k: [str(a) for a in v] for k, v in commands.items()})!r}.items():\n"
+        "    out, err = io.StringIO(), io.StringIO()\n"
+        "    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):\n"
+        "        results[name] = [main(['-q', *args]), out.getvalue(), err.getvalue()]\n"
+        "from orthomvp.errors import InputError\n"
+        "from orthomvp.mesh import terrain_mesh\n"
+        "from orthomvp.raycast import RayCaster\n"
+        "from orthomvp.terrain import Terrain\n"
+        f"tm = terrain_mesh(Terrain.read({str(dem)!r}))\n"
+        "try:\n"
+        "    RayCaster(tm, 'open3d')\n"
+        "except InputError as exc:\n"
+        "    results['open3d backend'] = [2, '', str(exc)]\n"
+        "RayCaster(tm)\n"
+        "print(json.dumps(results))\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads(proc.stdout)
+    for name in ("visibility", "ortho", "mosaic", "fit", "mesh", "render", "bench"):
+        assert results[name][0] == 0, (name, results[name][2])
+    assert "open3d   not available" in results["bench"][1] and "embree" in results["bench"][1]
+    for name in ("decimate", "open3d backend"):
+        status, _, err = results[name]
+        assert status == 2 and "libusb-1.0.so.0" in err and "apt-get install libusb-1.0-0" in err
+    assert not (tmp_path / "d.ply").exists()
+
+
+def test_figures_keep_their_legend_and_show_a_scale(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The overview's legend keeps all its rows inside the figure, and every 2D map carries a
+    scale bar in metres or km."""
+    from matplotlib.offsetbox import AnchoredOffsetbox
+
+    from orthomvp.present import figures
+
+    saved = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig))
+    rng = np.random.default_rng(0)
+    dem = rng.normal(size=(60, 60)).cumsum(0)
+    codes = np.ones((60, 60), np.uint8)
+    codes[20:30, 20:40], codes[40:50, 10:20] = Code.OCCLUDED, Code.FACING_AWAY
+    figures.scene_overview(dem, 50.0, rng.random((70, 65)), codes, "o.png", gsd=40.0)
+    maps = rng.random((3, 60, 60))
+    figures.ortho_comparison(*maps, "c.png", spacing=50.0)
+    figures.height_error_maps(maps[0] - 0.5, maps[1] - 0.5, 50.0, "e.png")
+    overview, comparison, errors = saved
+    overview.canvas.draw()  # lay the figure out as saving does
+    renderer = overview.canvas.get_renderer()
+    (legend,) = overview.legends
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["visible", "occluded", "facing away"]
+    box = overview.bbox
+    for text in legend.get_texts():
+        extent = text.get_window_extent(renderer)
+        assert box.x0 <= extent.x0 and extent.x1 <= box.x1 and box.y0 <= extent.y0, text
+    for fig, n in ((overview, 3), (comparison, 3), (errors, 2)):
+        bars = [a for ax in fig.axes for a in ax.artists if isinstance(a, AnchoredOffsetbox)]
+        assert len(bars) == n, fig
+        for bar in bars:
+            label = bar.get_child().get_children()[1].get_children()[0].get_text()
+            assert re.fullmatch(r"\d+ (m|km)( \(at the centre\))?", label), label

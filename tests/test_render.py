@@ -12,7 +12,12 @@ from PIL import Image
 from orthomvp.cli import main
 from orthomvp.codes import Code, View
 from orthomvp.errors import InputError
-from orthomvp.present.snapshot import SnapshotOptions, snapshot
+from orthomvp.present.snapshot import (
+    CROP_MARGIN,
+    SnapshotOptions,
+    background_image,
+    snapshot,
+)
 from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import Scene, make_scene
 
@@ -185,6 +190,31 @@ def test_bad_inputs_raise_input_errors(crater: Scene) -> None:
     for rasters, options, words in cases:
         with pytest.raises(InputError, match=words):
             snapshot(t, **rasters, options=SnapshotOptions(**options))
+
+
+def test_crop_cuts_only_empty_background(crater: Scene) -> None:
+    """A cropped snapshot is the uncropped one inside its box, and outside the box the
+    uncropped one shows nothing but the background."""
+    full = snapshot(crater.terrain, options=SnapshotOptions(size=SIZE))
+    cut = snapshot(crater.terrain, options=SnapshotOptions(size=SIZE, crop=True))
+    full.close()
+    cut.close()
+    left, top, right, bottom = cut.box
+    assert full.box == (0, 0, *SIZE) and cut.image.shape == (bottom - top, right - left, 3)
+    assert cut.image.size < 0.8 * full.image.size  # the empty margins are gone
+    np.testing.assert_array_equal(cut.image, full.image[top:bottom, left:right])
+    background = background_image(*SIZE)
+    outside = np.ones(SIZE[::-1], bool)
+    outside[top:bottom, left:right] = False
+    drawn = np.abs(full.image.astype(int) - background.astype(int)).max(axis=-1) > 2
+    assert not drawn[outside].any()
+    # the box is tight: the scene comes to within the margin of each side (or to the edge)
+    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+    assert (top, left) == (max(rows[0] - CROP_MARGIN, 0), max(cols[0] - CROP_MARGIN, 0))
+    assert (bottom, right) == (
+        min(rows[-1] + 1 + CROP_MARGIN, SIZE[1]),
+        min(cols[-1] + 1 + CROP_MARGIN, SIZE[0]),
+    )
 
 
 def test_options_take_view_names_and_check_themselves() -> None:

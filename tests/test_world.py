@@ -134,4 +134,5 @@ def test_cli_world_auto_on_ngi_aerial(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main([*args, "-o", str(tmp_path / "map.tif"), "--world", "map"]) == 0
     assert capsys.readouterr().out.split(":", 1)[1] == auto
     assert main([*args, "-o", str(tmp_path / "body.tif"), "--world", "body"]) == 2  # overridden
-    assert "below the surface" in capsys.readouterr().err
+    err = capsys.readouterr().err  # the cameras are not above the DEM in body-fixed metres
+    assert "below its surface" in err and "do not sit above the DEM" in err

@@ -43,6 +43,8 @@ def demo_pictures(tmp: Path) -> None:
     ):
         shutil.copy(demo / name, HERE / name)
     pair = [np.asarray(Image.open(demo / f"snap-error-{k}.png")) for k in ("start", "fitted")]
+    height = max(p.shape[0] for p in pair)  # cropped snapshots: pad with their bottom rows
+    pair = [np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0)), mode="edge") for p in pair]
     Image.fromarray(np.hstack(pair)).save(HERE / "snap-error.png")
 
 

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 def format_raycast(rows: list[dict]) -> str:
     """A small text table of :func:`~orthomvp.bench.raycast.bench_raycast` results."""
+    triangles = next((f"{r['triangles']:,}" for r in rows if "triangles" in r), "?")
     lines = [
-        f"ray casting: {rows[0]['rays']:,} rays onto {rows[0]['triangles']:,} triangles",
+        f"ray casting: {rows[0]['rays']:,} rays onto {triangles} triangles",
         f"{'backend':<8} {'build s':>8} {'raw Mray/s':>11} {'wrapper Mray/s':>15} {'ratio':>6}",
     ]
     for r in rows:
+        if "unavailable" in r:
+            lines.append(f"{r['backend']:<8} not available: {r['unavailable']}")
+            continue
         lines.append(
             f"{r['backend']:<8} {r['build_s']:>8.2f} {r['raw_rays_per_s'] / 1e6:>11.3f} "
             f"{r['wrapper_rays_per_s'] / 1e6:>15.3f} {r['ratio']:>6.2f}"

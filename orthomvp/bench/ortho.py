@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from orthomvp.bench.timing import best_time
-from orthomvp.bench.workload import bench_camera, bench_terrain
+from orthomvp.bench.workload import bench_camera, bench_terrain, check_ortho_memory
 from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import orthorectify
 from orthomvp.raycast import RayCaster
@@ -18,6 +18,7 @@ def bench_ortho(size: int = 2000) -> dict:
     """Occlusion-aware orthophoto of one image onto a ``size`` x ``size`` DEM, against the bare
     Embree cast of one ray per post (the same rays) in the same run. Mesh and BVH building
     are timed separately and excluded from both."""
+    check_ortho_memory(size)
     terrain = bench_terrain(size)
     t0 = time.perf_counter()
     caster = RayCaster(terrain_mesh(terrain))

@@ -8,14 +8,17 @@ import time
 import numpy as np
 
 from orthomvp.bench.timing import best_time
-from orthomvp.bench.workload import bench_terrain, camera_rays
+from orthomvp.bench.workload import bench_terrain, camera_rays, check_raycast_memory
+from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import BACKENDS, RayCaster
 
 
 def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
     """Rays per second of :meth:`RayCaster.first_hit` and of the bare backend call per backend,
-    ``rays`` rays onto a ``size`` x ``size`` DEM; one row per backend."""
+    ``rays`` rays onto a ``size`` x ``size`` DEM; one row per backend (a backend that cannot
+    be loaded gets a row with its reason as ``unavailable``)."""
+    check_raycast_memory(size, rays)
     terrain = bench_terrain(size)
     tmesh = terrain_mesh(terrain)
     origin, dirs = camera_rays(terrain, rays)
@@ -25,7 +28,11 @@ def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:
     rows = []
     for backend in BACKENDS:
         t0 = time.perf_counter()
-        caster = RayCaster(tmesh, backend)
+        try:
+            caster = RayCaster(tmesh, backend)
+        except InputError as exc:  # an optional backend that cannot load
+            rows.append({"backend": backend, "unavailable": str(exc), "rays": rays})
+            continue
         build = time.perf_counter() - t0
         raw = best_time(lambda c=caster: c.raw_cast(o32, d32))
         wrapped = best_time(lambda c=caster: c.first_hit(origin, dirs))

@@ -8,8 +8,44 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.memory import check_memory, count_text
 from orthomvp.synthetic import MOON_CRS, MOON_RADIUS, ViewSpec, orbital_camera
 from orthomvp.terrain import Terrain, unit_vector
+from orthomvp.validate import number
+
+RAYCAST_BYTES_PER_POST = 600
+"""Peak memory of the ray-casting benchmark per DEM post (DEM, mesh, Embree and Open3D
+scenes), bytes."""
+BYTES_PER_RAY = 300
+"""Peak memory of the ray-casting benchmark per ray (float64 and float32 rays, hits), bytes."""
+ORTHO_BYTES_PER_POST = 1000
+"""Peak memory of the orthophoto benchmark per DEM post (DEM, mesh, Embree scene, the image,
+the orthophoto and the bare cast's rays), bytes."""
+
+
+def check_raycast_memory(
+    size: int, rays: int, advice: str = "choose a smaller size or fewer rays"
+) -> None:
+    """InputError, before any work, for a ray-casting benchmark that cannot fit in memory."""
+    size = number(size, "size (posts)", minimum=2, integer=True)
+    rays = number(rays, "rays", minimum=1, integer=True)
+    posts = float(size) * size
+    check_memory(
+        f"the ray-casting benchmark is {count_text(posts)} posts and {count_text(rays)} rays",
+        posts * RAYCAST_BYTES_PER_POST + rays * BYTES_PER_RAY,
+        advice,
+    )
+
+
+def check_ortho_memory(size: int, advice: str = "choose a smaller size") -> None:
+    """InputError, before any work, for an orthophoto benchmark that cannot fit in memory."""
+    size = number(size, "size (posts)", minimum=2, integer=True)
+    posts = float(size) * size
+    check_memory(
+        f"the orthophoto benchmark is {count_text(posts)} posts ({size:,} x {size:,})",
+        posts * ORTHO_BYTES_PER_POST,
+        advice,
+    )
 
 
 def bench_terrain(size: int) -> Terrain:

@@ -17,6 +17,7 @@ test, where it shares the ``.json`` extension). Writers replace the destination 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -38,9 +39,10 @@ from orthomvp.camera.formats._common import CameraFile, CameraFormat
 from orthomvp.camera.formats.json import camera_to_dict, write_json
 from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
 from orthomvp.camera.formats.tsai import tsai_text, write_tsai
-from orthomvp.camera.model import ORTHONORMAL_TOLERANCE, PinholeCamera, check_image
+from orthomvp.camera.model import ORTHONORMAL_TOLERANCE, PinholeCamera, as_image, check_image
 from orthomvp.errors import FormatError
 from orthomvp.raster import read_image
+from orthomvp.validate import of_type
 
 __all__ = [
     "FORMATS",
@@ -54,6 +56,7 @@ __all__ = [
     "PhotometrixDistortion",
     "PinholeCamera",
     "TsaiDistortion",
+    "as_image",
     "camera_to_dict",
     "check_image",
     "distortion_class",
@@ -89,6 +92,7 @@ def read_camera(
     A missing or unreadable file raises InputError; a file that breaks its format raises
     FormatError naming it (and the line, for text formats).
     """
+    of_type(path, (str, os.PathLike), "a camera file name")
     file = CameraFile(Path(path), image, interior)
     return _format_of(file).read(file)
 

@@ -60,6 +60,16 @@ def _finite(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _points(value: object, what: str, n: int) -> np.ndarray:
+    """``value`` as a float64 array; InputError when it is not numbers."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{what} needs an array of shape (..., {n}), got {type(value).__name__}"
+        ) from None
+
+
 def _default_axis(index: int) -> Callable[[], np.ndarray]:
     """A factory of the unit vector along axis ``index`` (VW's default u, v, w)."""
     return lambda: np.eye(3)[index]
@@ -188,7 +198,7 @@ class PinholeCamera:
         not in front, and (as VW's point_to_pixel check) points whose distorted pixel does not
         map back to them through :meth:`ray`, e.g. beyond a fold of the distortion, get NaN uv.
         """
-        xyz = np.asarray(xyz, dtype=np.float64)
+        xyz = _points(xyz, "project", 3)
         if xyz.shape[-1:] != (3,):
             raise InputError(f"project needs points of shape (..., 3), got {xyz.shape}")
         s = (xyz - self.center) @ self.world_to_image_axes.T
@@ -213,7 +223,7 @@ class PinholeCamera:
         Returns ``origins`` (..., 3), the camera centre in world metres, and unit ``directions``
         (..., 3) pointing into the scene. Pixels where the distortion cannot be inverted get NaN.
         """
-        uv = np.asarray(uv, dtype=np.float64)
+        uv = _points(uv, "ray", 2)
         if uv.shape[-1:] != (2,):
             raise InputError(f"ray needs pixels of shape (..., 2), got {uv.shape}")
         undistorted = self.distortion.undistort(uv * self.pitch, self._focal, self._offset)
@@ -225,13 +235,42 @@ class PinholeCamera:
         return origins, directions
 
 
-def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
-    """Validate a (bands, rows, cols) image and return the camera with the image's size."""
-    if image.ndim != 3 or image.shape[0] < 1 or min(image.shape[1:]) < 2:
+def as_image(image: object, name: str = "image") -> np.ndarray:
+    """``image`` as a float32 (bands, rows, cols) array: a (rows, cols) array is one band;
+    integer images keep their values (a uint8 image becomes float32 0 to 255). Refused with
+    InputError: anything that is not an array of real numbers (booleans, complex numbers,
+    strings), arrays of other dimensions, and a (rows, cols, bands) image such as PIL and
+    OpenCV give (move its last axis first: ``np.moveaxis(image, -1, 0)``)."""
+    if not isinstance(image, np.ndarray):
         raise InputError(
-            f"{name}: expected an image of shape (bands, rows, cols), got {image.shape}"
+            f"{name}: expected an image array (bands, rows, cols), got {type(image).__name__}"
         )
-    rows, cols = image.shape[1:]
+    if not (np.issubdtype(image.dtype, np.floating) or np.issubdtype(image.dtype, np.integer)):
+        raise InputError(f"{name}: image pixels must be real numbers, got {image.dtype}")
+    img = image[None] if image.ndim == 2 else image
+    if img.ndim != 3 or img.shape[0] < 1 or min(img.shape[1:]) < 2:
+        raise InputError(
+            f"{name}: expected an image of shape (bands, rows, cols) or (rows, cols), got "
+            f"{image.shape}"
+        )
+    if img.shape[2] <= 4 < img.shape[0]:
+        raise InputError(
+            f"{name}: the image's shape {image.shape} looks like (rows, cols, bands); orthomvp "
+            "takes (bands, rows, cols): pass np.moveaxis(image, -1, 0)"
+        )
+    return img if img.dtype == np.float32 else img.astype(np.float32)
+
+
+def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
+    """Validate an image (as :func:`as_image` takes it) against ``camera`` and return the camera
+    with the image's size."""
+    img = as_image(image, name)
+    if not isinstance(camera, PinholeCamera):
+        raise InputError(
+            f"{name}: its camera must be a PinholeCamera (orthomvp.camera.read_camera), got "
+            f"{type(camera).__name__}"
+        )
+    rows, cols = img.shape[1:]
     if camera.width is not None and (camera.width, camera.height) != (cols, rows):
         raise InputError(
             f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"

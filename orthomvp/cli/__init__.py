@@ -1,17 +1,32 @@
 """The ``orthomvp`` command line: a click group with one module per command (or small group of
 commands), which share the arguments and options of :mod:`orthomvp.cli.options`.
 
-Every user error becomes one line on stderr and exit status 2: usage errors as
-``orthomvp: error: COMMAND: message``, errors the library reports (bad files, impossible
-geometry) as ``orthomvp: error: message``. Ctrl-C exits with 130. Outputs are written
-atomically, so a failed command leaves nothing half-written.
+Every error is one line on stderr, and the exit status says what kind it was:
+
+- 0: done;
+- 1: an internal error (a bug: ``orthomvp: internal error: ...``; ``ORTHOMVP_DEBUG=1`` shows
+  the traceback) or running out of memory;
+- 2: a user error: a bad command line (``orthomvp: error: COMMAND: message``), or an error the
+  library reports (bad files, impossible geometry, an output that cannot be written:
+  ``orthomvp: error: message``);
+- 130 on Ctrl-C (SIGINT), 143 on SIGTERM (as sent by ``timeout``, batch schedulers and Dask's
+  nanny): ``orthomvp: interrupted; no partial output was kept``. SIGTERM raises
+  :class:`Terminated`, a ``KeyboardInterrupt``, so that everything that cleans up on Ctrl-C
+  (the atomic outputs' temporary files, thread pools) cleans up on SIGTERM too.
+
+Python warnings are printed as one line each, ``orthomvp: warning: message``.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from types import FrameType
 
 import click
 
@@ -21,6 +36,11 @@ from orthomvp.cli.options import quiet_option
 from orthomvp.errors import OrthoMVPError
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "show_default": True}
+EXIT_INTERNAL, EXIT_USER, EXIT_SIGINT, EXIT_SIGTERM = 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread while :func:`main` runs."""
 
 
 @click.group(cls=Group, context_settings=CONTEXT_SETTINGS, invoke_without_command=True)
@@ -32,47 +52,102 @@ def cli(ctx: click.Context, quiet: bool) -> None:
 
     Run 'orthomvp COMMAND --help' for a command's arguments and options.
     """
-    if ctx.invoked_subcommand is None:
-        click.echo(ctx.get_help())
-        ctx.exit(2)
+    if ctx.invoked_subcommand is None:  # like rio: a usage error (stderr, exit 2), in one line
+        raise click.UsageError("no command given; 'orthomvp --help' lists the commands")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit status.
+    """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit status
+    (see the module docstring).
 
     This is click's ``main`` with ``standalone_mode=False`` taken one step further: the context
-    is made and invoked here, so that every error, Ctrl-C included, is reported below as one
-    line (click would turn Ctrl-C into an Abort after writing a blank line).
+    is made and invoked here, so that every error, Ctrl-C and SIGTERM included, is reported
+    below as one line (click would turn Ctrl-C into an Abort after writing a blank line).
     """
     args = sys.argv[1:] if argv is None else [str(arg) for arg in argv]
-    try:
-        with cli.make_context("orthomvp", args) as ctx:
-            cli.invoke(ctx)
-    except click.exceptions.Exit as exc:  # --help, --version, or no command
-        return exc.exit_code
-    except click.UsageError as exc:
-        where = exc.ctx.command_path.partition(" ")[2] if exc.ctx else ""
-        return _error(f"{where}: {exc.format_message()}" if where else exc.format_message())
-    except (click.ClickException, OrthoMVPError, OSError) as exc:
-        return _error(exc.format_message() if isinstance(exc, click.ClickException) else exc)
-    except KeyboardInterrupt:
-        print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
-        return 130
-    except Exception as exc:  # a bug, not a user error: still one line, unless debugging
-        if os.environ.get("ORTHOMVP_DEBUG"):
-            raise
-        return _error(
-            f"internal error ({type(exc).__name__}: {exc}); rerun with ORTHOMVP_DEBUG=1 for a "
-            "traceback and please report it"
-        )
+    with sigterm_raises(), one_line_warnings():
+        try:
+            with cli.make_context("orthomvp", args) as ctx:
+                cli.invoke(ctx)
+        except click.exceptions.Exit as exc:  # --help, --version
+            return exc.exit_code
+        except click.UsageError as exc:
+            where = exc.ctx.command_path.partition(" ")[2] if exc.ctx else ""
+            return _error(f"{where}: {exc.format_message()}" if where else exc.format_message())
+        except click.ClickException as exc:
+            return _error(exc.format_message())
+        except OrthoMVPError as exc:
+            return _error(exc)
+        except OSError as exc:  # from a library below us, e.g. a file that vanished
+            return _error(_os_error_text(exc))
+        except (KeyboardInterrupt, click.exceptions.Abort) as exc:
+            print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
+            return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
+        except MemoryError as exc:
+            return _error(
+                f"out of memory ({exc or 'an allocation failed'}): try a smaller grid, window "
+                "or image",
+                EXIT_INTERNAL,
+            )
+        except Exception as exc:  # a bug, not a user error: still one line, unless debugging
+            if os.environ.get("ORTHOMVP_DEBUG"):
+                raise
+            text = " ".join(f"{type(exc).__name__}: {exc}".split())
+            print(
+                f"orthomvp: internal error: {text[:300]}; rerun with ORTHOMVP_DEBUG=1 for a "
+                "traceback and please report it",
+                file=sys.stderr,
+            )
+            return EXIT_INTERNAL
     return 0
 
 
-def _error(message: object) -> int:
-    """Report ``message`` as one line on stderr; the exit status of user errors."""
-    text = " ".join(str(message).splitlines())
+def _error(message: object, status: int = EXIT_USER) -> int:
+    """Report ``message`` as one line on stderr; returns ``status``."""
+    text = " ".join(str(message).split())
     print(f"orthomvp: error: {text}", file=sys.stderr)
-    return 2
+    return status
+
+
+def _os_error_text(exc: OSError) -> str:
+    """``PATH: cause`` of an OSError that names a file, its own text otherwise."""
+    if exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
+    return str(exc)
+
+
+def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    # once: a second SIGTERM must not interrupt the clean-up that the first one started
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated
+
+
+@contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (elsewhere
+    signals cannot be handled, and nothing changes); the previous handler comes back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Within the block, warnings print as ``orthomvp: warning: message`` (one line, no
+    source path)."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+        text = " ".join(str(message).split())
+        print(f"orthomvp: warning: {text}", file=file or sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 def main_entry() -> None:

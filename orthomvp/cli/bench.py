@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command, Variadic
-from orthomvp.cli.options import PATH, POSITIVE
+from orthomvp.cli.options import PATH, POSITIVE, Output, SizeOrZero, check_outputs
 
 PEER_DATA_ENV = "ORTHOMVP_DATA"
 """The environment variable naming the data folder that holds ``ngi-aerial/``."""
@@ -38,14 +38,14 @@ def peer_data_default() -> Path | None:
 )
 @click.option(
     "--ortho-size",
-    type=click.IntRange(min=0),
+    type=SizeOrZero(2),
     default=2000,
     metavar="N",
     help="orthophoto DEM posts per side (0 skips)",
 )
 @click.option(
     "--mvp-size",
-    type=click.IntRange(min=0),
+    type=SizeOrZero(8),
     default=96,
     metavar="N",
     help="MVP fit DEM posts per side (0 skips)",
@@ -121,8 +121,17 @@ def bench(
     files to GeoTIFF, best of --peer-repeat alternating runs; ratio = orthomvp time /
     Orthority time. --scale runs instead the engine's scale benchmark (threads = cores)."""
     from orthomvp import bench as b
+    from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
     from orthomvp.raster import atomic_path
+    from orthomvp.synthetic.scene import check_scene_memory
 
+    check_outputs([Output("--json", json_path, ())])
+    if not peer:  # every check before the first benchmark runs
+        check_raycast_memory(size, rays, "choose a smaller --size or fewer --rays")
+        if ortho_size:
+            check_ortho_memory(ortho_size, "choose a smaller --ortho-size (0 skips)")
+        if mvp_size:
+            check_scene_memory(mvp_size, 0.8, "choose a smaller --mvp-size (0 skips)")
     if peer:
         results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
     elif scale_sizes:

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command
-from orthomvp.cli.options import PATH, quiet
+from orthomvp.cli.options import PATH, check_outdir, quiet
 
 
 @click.command(cls=Command, short_help="run the pipeline end to end on a built-in synthetic scene")
@@ -25,4 +25,5 @@ def demo(outdir: Path) -> None:
     print a summary."""
     from orthomvp.demo import run_demo
 
+    check_outdir(outdir, "OUTDIR")
     run_demo(outdir, quiet=quiet())

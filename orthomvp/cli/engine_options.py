@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from orthomvp.cli.options import POSITIVE, usage_error
+from orthomvp.cli.options import FINITE, POSITIVE, usage_error
 
 if TYPE_CHECKING:
     from orthomvp.engine import Outputs, Plan, RunReport
@@ -100,6 +100,11 @@ def engine_options(*, dtype: bool) -> Callable[[F], F]:
             if len(given) > 1:
                 names = " and ".join(f"--{k}" for k in given)
                 raise usage_error(f"{names} exclude each other: give one")
+            bounds = kwargs["bounds"]
+            if bounds and not (bounds[0] < bounds[2] and bounds[1] < bounds[3]):
+                raise usage_error(
+                    f"--bounds must be LEFT BOTTOM RIGHT TOP, got {' '.join(map(str, bounds))}"
+                )
             engine = EngineInput(
                 **{k: kwargs.pop(k) for k in ("res", "bounds", "crs", "tile")},
                 **{k: kwargs.pop(k) for k in ("threads", "processes", "dask")},
@@ -120,11 +125,11 @@ def engine_options(*, dtype: bool) -> Callable[[F], F]:
             ),
             click.option(
                 "--bounds",
-                type=float,
+                type=FINITE,
                 nargs=4,
                 metavar="LEFT BOTTOM RIGHT TOP",
                 show_default="the DEM's",
-                help="output extent in the output CRS's units",
+                help="output extent in the output CRS's units, LEFT < RIGHT and BOTTOM < TOP",
             ),
             click.option(
                 "--crs",

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command, Variadic
-from orthomvp.cli.options import PATH, POSITIVE
+from orthomvp.cli.options import NON_NEGATIVE, PATH, POSITIVE, Output, check_outputs
 
 
 @click.command(
@@ -40,7 +40,7 @@ from orthomvp.cli.options import PATH, POSITIVE
 @click.option(
     "--dem-noise",
     cls=Variadic,
-    type=click.FloatRange(min=0),
+    type=NON_NEGATIVE,
     default=(0.0,),
     metavar="METRES ...",
     help="standard deviations of Gaussian noise added to the DEM",
@@ -53,9 +53,10 @@ def eps_study(
     and F1 per view (CSV) and a plot (PNG)."""
     from orthomvp import epsstudy
 
+    csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
+    check_outputs([Output("-o", csv, ()), Output("-o", png, ())])
     values = eps or epsstudy.DEFAULT_EPS_VALUES
     rows = epsstudy.eps_study(scene, eps_values=values, noise=dem_noise)
-    csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
     epsstudy.write_csv(rows, csv)
     epsstudy.plot(rows, png)
     for r in rows:

@@ -12,17 +12,29 @@ from orthomvp.cli.options import (
     PATH,
     POSITIVE,
     DemInput,
+    Number,
+    Output,
+    check_outputs,
     dem_argument,
     dem_options,
     eps_option,
     levels_option,
     output_option,
+    overwrite_option,
     pairs_argument,
     quiet,
 )
+from orthomvp.cli.ortho import view_inputs
+
+MAX_DECONVOLVE = 10
+"""as :data:`orthomvp.mvp.fit.MAX_DECONVOLVE` (not imported: --help stays fast)"""
 
 
-@click.command(cls=Command, short_help="refine the DEM with the multi-view plane fitter (MVP)")
+@click.command(
+    cls=Command,
+    exclusive=[("reject_below", "no_reject")],
+    short_help="refine the DEM with the multi-view plane fitter (MVP)",
+)
 @dem_argument
 @pairs_argument(minimum=2)
 @output_option("FITTED.tif", "the refined DEM")
@@ -58,20 +70,22 @@ from orthomvp.cli.options import (
 @levels_option("coarse-to-fine pyramid levels (1 = off)")
 @click.option(
     "--reject-below",
-    type=float,
+    type=Number(min=-1, max=1),
     default=0.5,
     metavar="RHO",
-    help="drop a view whose patch correlates with the other views' mean below RHO",
+    help="drop a view whose patch correlates with the other views' mean below RHO (a correlation)",
 )
 @click.option("--no-reject", is_flag=True, help="keep every view (no outliers)")
 @click.option(
     "--deconvolve",
-    type=click.IntRange(min=0, clamp=True),
+    type=click.IntRange(min=0, max=MAX_DECONVOLVE),
     default=1,
     metavar="STEPS",
-    help="Van Cittert steps from plane heights to surface heights (0 = plane heights)",
+    help="Van Cittert steps from plane heights to surface heights (0 = plane heights; each "
+    "step may amplify noise once more)",
 )
 @eps_option
+@overwrite_option
 @dem_options
 def fit(
     dem: DemInput,
@@ -88,6 +102,7 @@ def fit(
     no_reject: bool,
     deconvolve: int,
     eps: float | None,
+    overwrite: bool,
 ) -> None:
     """Fit a plane (height, normal) at every DEM post to the images in which the post is
     visible, so that the images projected onto it agree (MVP paper eqs. 11-21; coarse to
@@ -96,10 +111,17 @@ def fit(
     per-post results, all on the DEM grid."""
     from orthomvp.camera import load_view
     from orthomvp.mvp import FitOptions, fit_dem
+    from orthomvp.mvp.fit import check_fit_memory
     from orthomvp.raster import write_geotiff
 
-    loaded = [load_view(image, camera) for image, camera in pairs]
-    terrain = dem.read([v[1] for v in loaded])
+    outputs = [
+        Output("-o", output),
+        Output("--normals", normals),
+        Output("--cost", cost),
+        Output("--views", views),
+        Output("--uncertainty", uncertainty),
+    ]
+    check_outputs(outputs, view_inputs(dem, pairs), overwrite)
     options = FitOptions(
         hwin=hwin,
         sigma=sigma,
@@ -107,6 +129,9 @@ def fit(
         reject_below=None if no_reject else reject_below,
         deconvolve=deconvolve,
     )
+    loaded = [load_view(image, camera) for image, camera in pairs]
+    terrain = dem.read([v[1] for v in loaded])
+    check_fit_memory(terrain.shape, len(loaded), hwin, advice="choose a smaller --hwin")
     res = fit_dem(
         terrain,
         [v[0] for v in loaded],

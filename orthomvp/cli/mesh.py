@@ -11,13 +11,18 @@ from orthomvp.cli.command import Command
 from orthomvp.cli.options import (
     PATH,
     DemInput,
+    Output,
+    check_outputs,
     dem_argument,
     dem_options,
     error_limit_option,
     output_option,
+    overwrite_option,
     usage_error,
 )
 
+MESH_SUFFIXES = (".ply", ".obj", ".glb")
+"""as :data:`orthomvp.present.export.EXPORT_FORMATS` (not imported: --help stays fast)"""
 COLOUR_KINDS = ("image", "visibility", "error")
 """what a texture raster holds, as :data:`orthomvp.present.colours.COLOUR_KINDS` (not
 imported: --help stays fast)"""
@@ -63,6 +68,7 @@ imported: --help stays fast)"""
     metavar="TRIANGLES",
     help="simplify to about this many triangles (Open3D quadric decimation)",
 )
+@overwrite_option
 @dem_options
 def mesh(
     dem: DemInput,
@@ -73,6 +79,7 @@ def mesh(
     error_limit: float | None,
     local_origin: bool,
     decimate: int | None,
+    overwrite: bool,
 ) -> None:
     """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
     skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
@@ -89,6 +96,9 @@ def mesh(
         raise usage_error("--colour-by needs a raster: give --texture (or --error-against)")
     if error_limit is not None and kind != "error":
         raise usage_error("--error-limit applies to error colours only (--colour-by error)")
+    inputs = [("DEM", dem.path), ("--texture", texture), ("--error-against", error_against)]
+    mesh_output = Output("-o", output, MESH_SUFFIXES, "a mesh")
+    check_outputs([mesh_output], inputs, overwrite)
     terrain = dem.read()
     tmesh = terrain_mesh(terrain)
     if error_against:

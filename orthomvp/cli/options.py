@@ -5,6 +5,8 @@ colour limits and the output file; and the value types they check."""
 from __future__ import annotations
 
 import functools
+import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -29,24 +31,47 @@ CAMERA_HELP = (
 )
 
 
-class PositiveFloat(click.FloatRange):
-    """A number > 0 (NaN refused); --help shows the range."""
+class Number(click.FloatRange):
+    """A finite number (NaN and infinities refused) within optional bounds; --help shows the
+    range (``x>0``, ``0<=x<=1``)."""
 
     name = "float"
 
-    def __init__(self) -> None:
-        super().__init__(min=0, min_open=True)
+    def _describe_range(self) -> str:
+        return "finite" if self.min is None and self.max is None else super()._describe_range()
 
     def convert(
         self, value: Any, param: click.Parameter | None, ctx: click.Context | None
     ) -> float:
         number = click.FLOAT.convert(value, param, ctx)
-        if not number > 0:
-            self.fail(f"{number} is not positive", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{number} is not a finite number", param, ctx)
+        return float(super().convert(number, param, ctx))
+
+
+POSITIVE = Number(min=0, min_open=True)
+"""A finite number > 0."""
+NON_NEGATIVE = Number(min=0)
+"""A finite number >= 0."""
+FINITE = Number()
+"""Any finite number."""
+
+
+class SizeOrZero(click.IntRange):
+    """An integer that is 0 (skip) or at least ``minimum``; --help shows ``x=0 or x>=N``."""
+
+    def __init__(self, minimum: int) -> None:
+        super().__init__(min=0)
+        self.minimum = minimum
+
+    def _describe_range(self) -> str:
+        return f"x=0 or x>={self.minimum}"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> int:
+        number = super().convert(value, param, ctx)
+        if 0 < number < self.minimum:
+            self.fail(f"{number} is not 0 (skip) or at least {self.minimum}", param, ctx)
         return number
-
-
-POSITIVE = PositiveFloat()
 
 
 def enum_choice(enum: type[Enum], *extra: str) -> dict[str, Any]:
@@ -86,21 +111,24 @@ class DemInput:
 
     def read(self, cameras: Sequence[PinholeCamera] = ()) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
-        :func:`orthomvp.world.detect_world`), body-fixed when there are none."""
+        :func:`orthomvp.world.detect_world`), body-fixed when there are none. In the body frame
+        every camera must sit above the DEM (:func:`orthomvp.world.check_cameras_above`)."""
         from dataclasses import replace
 
         import numpy as np
 
         from orthomvp.terrain import Terrain
-        from orthomvp.world import detect_world
+        from orthomvp.world import check_cameras_above, detect_world
 
         world = WorldFrame.BODY if self.world == "auto" else WorldFrame(self.world)
         terrain = Terrain.read(
             self.path, radius_values=self.radius_values, world=world, crs=self.crs
         )
-        if self.world == "auto" and cameras:
+        if cameras:
             centres = np.array([camera.center for camera in cameras])
-            terrain = replace(terrain, world=detect_world(terrain, centres))
+            if self.world == "auto":
+                terrain = replace(terrain, world=detect_world(terrain, centres))
+            check_cameras_above(terrain, centres)
         return terrain
 
 
@@ -225,3 +253,96 @@ def error_limit_option(help: str) -> Callable[[F], F]:  # noqa: A002
         show_default="the 99th percentile of |error|",
         help=help,
     )
+
+
+overwrite_option = click.option(
+    "--overwrite",
+    is_flag=True,
+    help="let an output replace one of the inputs (every input is read in full first)",
+)
+
+
+# --------------------------------------------------------------------- output checks
+GEOTIFF = (".tif", ".tiff")
+"""File name extensions of the GeoTIFF outputs."""
+
+
+@dataclass(frozen=True)
+class Output:
+    """An output file of a command, for :func:`check_outputs`: the ``option`` that names it
+    (``-o``, ``--visibility``), its ``path`` (None when not asked for), the ``suffixes`` its
+    format allows (lower case; empty: any) and the format's ``name`` for messages."""
+
+    option: str
+    path: Path | None
+    suffixes: tuple[str, ...] = GEOTIFF
+    name: str = "a GeoTIFF"
+
+
+def check_outputs(
+    outputs: Sequence[Output],
+    inputs: Sequence[tuple[str, Path | None]] = (),
+    overwrite: bool = False,
+) -> None:
+    """Refuse, before any work, outputs that cannot end well, with a usage error naming the
+    path: two outputs with the same path; an output that is one of the ``inputs`` ((label,
+    path) pairs, e.g. ("DEM", dem.path)) unless ``overwrite``; a file name whose extension does
+    not match the output's format; an output that is a directory, or whose directory is
+    missing, not a directory or not writable."""
+    given = [out for out in outputs if out.path is not None]
+    for i, out in enumerate(given):
+        for other in given[:i]:
+            if same_file(out.path, other.path):
+                alias = f" (as {out.path})" if str(out.path) != str(other.path) else ""
+                raise usage_error(
+                    f"{other.path}: given to both {other.option} and {out.option}{alias}; one "
+                    "would overwrite the other: give each output its own file"
+                )
+    if not overwrite:
+        for out in given:
+            for label, path in inputs:
+                if path is not None and same_file(out.path, path):
+                    alias = f" ({path})" if str(out.path) != str(path) else ""
+                    raise usage_error(
+                        f"{out.path}: {out.option} would overwrite the input {label}{alias}; "
+                        "give another file name, or --overwrite to replace it"
+                    )
+    for out in given:
+        path = out.path
+        if path.is_dir():
+            raise usage_error(f"{path}: {out.option} names a directory; give a file name")
+        if out.suffixes and path.suffix.lower() not in out.suffixes:
+            raise usage_error(
+                f"{path}: {out.option} writes {out.name}; name it "
+                f"{' or '.join(out.suffixes)}" + (f", not {path.suffix}" if path.suffix else "")
+            )
+        check_directory(path.parent, f"{path}: {out.option}")
+
+
+def check_outdir(path: Path, option: str) -> None:
+    """Refuse an output directory ``path`` that is an existing file or whose parent directory
+    is missing or not writable (a usage error naming it)."""
+    if path.exists() and not path.is_dir():
+        raise usage_error(f"{path}: {option} is a file, not a directory")
+    check_directory(path.parent, f"{path}: {option}")
+
+
+def check_directory(directory: Path, what: str) -> None:
+    """A usage error ``"{what} ..."`` unless ``directory`` exists and is writable."""
+    directory = directory if str(directory) else Path(".")
+    if not directory.is_dir():
+        problem = "is not a directory" if directory.exists() else "does not exist"
+        raise usage_error(f"{what}: the directory {directory} {problem}")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise usage_error(f"{what}: cannot write in the directory {directory} (permission denied)")
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether paths ``a`` and ``b`` name the same file: the same path once resolved
+    (symbolic links, ``..``), or, when both exist, the same inode (hard links)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False

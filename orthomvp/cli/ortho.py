@@ -16,13 +16,16 @@ from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as
 from orthomvp.cli.options import (
     PATH,
     DemInput,
+    Output,
     camera_argument,
+    check_outputs,
     dem_argument,
     dem_options,
     eps_option,
     image_argument,
     interp_option,
     output_option,
+    overwrite_option,
     pairs_argument,
     quiet,
 )
@@ -78,13 +81,21 @@ def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
 @output_option("VIS.tif", "the visibility codes (uint8 GeoTIFF on the output grid)")
 @eps_option
 @engine_options(dtype=False)
+@overwrite_option
 @dem_options
 def visibility(
-    dem: DemInput, image: Path, camera: Path, output: Path, eps: float | None, engine: EngineInput
+    dem: DemInput,
+    image: Path,
+    camera: Path,
+    output: Path,
+    eps: float | None,
+    engine: EngineInput,
+    overwrite: bool,
 ) -> None:
     """Classify every post of the output grid (the DEM's, or --res/--bounds/--crs) for one
     camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
     Written as a uint8 GeoTIFF."""
+    check_outputs([Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite)
     with warnings_as_lines():
         plan = _plan(dem, [(image, camera)], engine, eps=eps)
         report = _run(plan, engine, visibility=output)
@@ -113,6 +124,7 @@ def visibility(
 )
 @eps_option
 @engine_options(dtype=True)
+@overwrite_option
 @dem_options
 def ortho(
     dem: DemInput,
@@ -124,10 +136,13 @@ def ortho(
     no_occlusion: bool,
     eps: float | None,
     engine: EngineInput,
+    overwrite: bool,
 ) -> None:
     """Orthorectify IMAGE through CAMERA onto the output grid (the DEM's, or
     --res/--bounds/--crs). Posts that are not visible (occluded, facing away, outside) are
     nodata unless --no-occlusion asks for the naive orthophoto."""
+    outputs = [Output("-o", output), Output("--visibility", visibility_out)]
+    check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite)
     with warnings_as_lines():
         plan = _plan(
             dem, [(image, camera)], engine, occlusion=not no_occlusion, eps=eps, interp=interp
@@ -161,6 +176,7 @@ def ortho(
 @interp_option
 @eps_option
 @engine_options(dtype=True)
+@overwrite_option
 @dem_options
 def mosaic(
     dem: DemInput,
@@ -171,11 +187,18 @@ def mosaic(
     interp: Interp,
     eps: float | None,
     engine: EngineInput,
+    overwrite: bool,
 ) -> None:
     """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
     or --res/--bounds/--crs); each post takes its value from the visible view with the
     smallest emission angle. --source records which image (1-based, in command-line order;
     0 = none) each post came from."""
+    outputs = [
+        Output("-o", output),
+        Output("--source", source),
+        Output("--visibility", visibility_out),
+    ]
+    check_outputs(outputs, view_inputs(dem, pairs), overwrite)
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, eps=eps, interp=interp)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
@@ -185,6 +208,16 @@ def mosaic(
     )
     none = rows * cols - sum(report.taken)
     print(f"wrote {output}: {parts}; {none:,} posts visible in no image")
+
+
+def view_inputs(dem: DemInput, pairs: list[tuple[Path, Path]]) -> list[tuple[str, Path]]:
+    """The input files of a command reading ``dem`` and (image, camera) ``pairs``, labelled
+    for :func:`~orthomvp.cli.options.check_outputs`."""
+    inputs = [("DEM", dem.path)]
+    for k, (image, camera) in enumerate(pairs, start=1):
+        n = f" {k}" if len(pairs) > 1 else ""
+        inputs += [(f"IMAGE{n}", image), (f"CAMERA{n}", camera)]
+    return inputs
 
 
 def warn_partial(report: RunReport, view: int, what: str) -> None:

@@ -9,17 +9,27 @@ import click
 
 from orthomvp.cli.command import Command, Variadic
 from orthomvp.cli.options import (
+    FINITE,
     PATH,
     POSITIVE,
     DemInput,
+    Number,
+    Output,
+    check_outputs,
     dem_argument,
     dem_options,
     enum_choice,
     error_limit_option,
     output_option,
+    overwrite_option,
     usage_error,
 )
 from orthomvp.codes import View
+
+MAX_RAYS = 10_000
+"""as :data:`orthomvp.present.snapshot.MAX_RAYS` (not imported: --help stays fast)"""
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
+"""the image formats a snapshot is saved in, by the extension (all written by Pillow)"""
 
 
 @click.command(
@@ -28,7 +38,7 @@ from orthomvp.codes import View
     short_help="offscreen 3D snapshot of the DEM, its cameras and a result on its grid",
 )
 @dem_argument
-@output_option("SNAP", "SNAP.png (or .jpg)")
+@output_option("SNAP", "SNAP.png (or .jpg, .tif, .webp, .bmp)")
 @click.option("--ortho", type=PATH, metavar="ORTHO.tif", help="drape an orthophoto")
 @click.option("--visibility", type=PATH, metavar="VIS.tif", help="colour by visibility codes")
 @click.option(
@@ -44,7 +54,11 @@ from orthomvp.codes import View
     help="cameras to draw (.tsai, .pinhole or .json), numbered from 1",
 )
 @click.option(
-    "--rays", type=click.IntRange(min=0), default=0, metavar="N", help="rays drawn per camera"
+    "--rays",
+    type=click.IntRange(min=0, max=MAX_RAYS),
+    default=0,
+    metavar="N",
+    help="rays drawn per camera",
 )
 @click.option(
     "--view",
@@ -61,14 +75,14 @@ from orthomvp.codes import View
 )
 @click.option(
     "--azimuth",
-    type=float,
+    type=FINITE,
     metavar="DEG",
     show_default="opposite the first camera, else 210",
     help="oblique view from this azimuth, degrees clockwise from grid north",
 )
 @click.option(
     "--elevation",
-    type=click.FloatRange(min=0, max=90, min_open=True),
+    type=Number(min=0, max=90, min_open=True),
     default=45.0,
     metavar="DEG",
     help="oblique view elevation, degrees",
@@ -85,6 +99,12 @@ from orthomvp.codes import View
 )
 @click.option("--title", help="a caption in the upper left corner")
 @click.option("--no-legend", is_flag=True, help="no legend or colour bar")
+@click.option(
+    "--crop",
+    is_flag=True,
+    help="cut the empty background around the scene (the image gets smaller than --size)",
+)
+@overwrite_option
 @dem_options
 def render(
     dem: DemInput,
@@ -104,6 +124,8 @@ def render(
     size: tuple[int, int] | None,
     title: str | None,
     no_legend: bool,
+    crop: bool,
+    overwrite: bool,
 ) -> None:
     """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
     orthophoto, or coloured by visibility codes (occluded posts green) or by the height error
@@ -115,6 +137,10 @@ def render(
 
     if (heights is None) != (truth is None):
         raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")
+    given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
+    inputs = [("DEM", dem.path)] + [(f"--{key}", path) for key, path in given.items()]
+    inputs += [(f"--camera {k}", path) for k, path in enumerate(cameras, start=1)]
+    check_outputs([Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite)
     models = [read_camera(path) for path in cameras]
     if view == View.FROM_CAMERA and not camera_index <= len(models):
         raise usage_error(
@@ -122,7 +148,6 @@ def render(
             f"files ({len(models)}), got {camera_index}"
         )
     terrain = dem.read(models)
-    given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
     rasters = {key: read_image(path) for key, path in given.items() if path is not None}
     snap = snapshot(
         terrain,
@@ -139,6 +164,7 @@ def render(
             legend=not no_legend,
             title=title,
             error_limit=error_limit,
+            crop=crop,
         ),
     )
     try:

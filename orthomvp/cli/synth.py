@@ -7,10 +7,14 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command
-from orthomvp.cli.options import PATH, POSITIVE, quiet
+from orthomvp.cli.options import PATH, Number, check_outdir, quiet
 
 KINDS = ("planar", "crater", "hills")
 """the scene kinds of :func:`orthomvp.synthetic.make_scene` (not imported: --help stays fast)"""
+SPACING_RANGE = (0.01, 10_000.0)
+GSD_RATIO_RANGE = (0.05, 20.0)
+MAX_SUPERSAMPLE = 16
+"""the ranges of :mod:`orthomvp.synthetic` (tests check that they agree)"""
 
 
 @click.command(cls=Command, short_help="write a synthetic scene with exact ground truth")
@@ -37,14 +41,14 @@ KINDS = ("planar", "crater", "hills")
 )
 @click.option(
     "--spacing",
-    type=POSITIVE,
+    type=Number(min=SPACING_RANGE[0], max=SPACING_RANGE[1]),
     metavar="METRES",
     show_default="per kind: 40/40/30",
     help="DEM post spacing, metres",
 )
 @click.option(
     "--gsd-ratio",
-    type=POSITIVE,
+    type=Number(min=GSD_RATIO_RANGE[0], max=GSD_RATIO_RANGE[1]),
     metavar="RATIO",
     default=0.8,
     help="image ground sample distance / DEM post spacing",
@@ -58,7 +62,7 @@ KINDS = ("planar", "crater", "hills")
 )
 @click.option(
     "--supersample",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=MAX_SUPERSAMPLE),
     default=3,
     metavar="N",
     help="rays per pixel side when rendering",
@@ -78,7 +82,11 @@ def synth(
     scene.json."""
     from orthomvp.raster import atomic_dir
     from orthomvp.synthetic import make_scene
+    from orthomvp.synthetic.kinds import DEFAULTS
+    from orthomvp.synthetic.scene import check_scene_memory
 
+    check_outdir(outdir, "OUTDIR")
+    check_scene_memory(size or DEFAULTS[kind][0], gsd_ratio, "choose a smaller --size")
     scene = make_scene(kind, size=size, spacing=spacing, gsd_ratio=gsd_ratio, seed=seed)
     with atomic_dir(outdir) as tmp:
         summary = scene.write(tmp, supersample=supersample, progress=not quiet())

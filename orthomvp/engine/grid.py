@@ -9,6 +9,7 @@ for the DEM wherever a whole-grid view is needed (frame detection, longitude wra
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +22,7 @@ from rasterio.windows import Window
 
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
-from orthomvp.errors import InputError
+from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.raster import open_raster
 from orthomvp.terrain import Terrain, parse_crs
 
@@ -63,7 +64,9 @@ class DemSource:
                 band = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
             except RasterioError as exc:
                 raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
-        return np.ma.filled(band.astype(np.float64), np.nan)
+        values = np.ma.filled(band.astype(np.float64), np.nan)
+        values[np.isinf(values)] = np.nan  # as Terrain.read: infinite heights are nodata
+        return values
 
     def window_terrain(self, window: WindowT, values: np.ndarray) -> Terrain:
         """A :class:`Terrain` of ``values`` read from ``window`` (its own pixel (0, 0) is the
@@ -132,13 +135,17 @@ def scan_dem(
         stride = max(1, -(-max(rows, cols) // PREVIEW))
         if progress:
             progress.set_total(rows)
-        lo, hi, parts = np.inf, -np.inf, []
+        lo, hi, parts, infinite = np.inf, -np.inf, [], 0
         for r0, r1 in _blocks(rows, cols):
             try:
                 band = src.read(1, window=Window(0, r0, cols, r1 - r0), masked=True)
             except RasterioError as exc:
                 raise InputError(f"{path}: corrupt raster data ({exc})") from exc
             block = np.ma.filled(band.astype(np.float64), np.nan)
+            bad = np.isinf(block)
+            if bad.any():
+                infinite += int(bad.sum())
+                block[bad] = np.nan
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
             parts.append(block[(-r0) % stride :: stride, ::stride])
@@ -146,6 +153,12 @@ def scan_dem(
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
         raise InputError(f"{path}: the DEM holds no valid heights")
+    if infinite:
+        warnings.warn(
+            f"{path}: {infinite:,} infinite height{'s' if infinite > 1 else ''} taken as nodata",
+            OrthoMVPWarning,
+            stacklevel=2,
+        )
     shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
     preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)
     values = np.concatenate(parts)

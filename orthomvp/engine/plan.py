@@ -23,7 +23,7 @@ from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.ortho import INTERPOLATION
-from orthomvp.world import detect_world
+from orthomvp.world import check_cameras_above, detect_world
 
 Box = tuple[float, float, float, float]
 """Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
@@ -274,6 +274,7 @@ def plan_ortho(
     if frame is None:
         frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
     source = dem_with_world(source, frame)
+    check_cameras_above(source.preview, np.array([v.camera.center for v in sources]))
     grid = output_grid(source, res, bounds, crs)
     to_dem = grid_to_dem(grid, source)
     windows = grid.tiles(int(tile))

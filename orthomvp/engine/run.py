@@ -16,6 +16,7 @@ import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -177,7 +178,7 @@ def _warm_up(client: Any, where: str) -> None:
 
 def _died(exc: BaseException) -> bool:
     """Whether ``exc`` says that a worker died under a tile."""
-    if isinstance(exc, cf.process.BrokenProcessPool):
+    if isinstance(exc, BrokenProcessPool):
         return True
     return type(exc).__name__ == "KilledWorker"
 

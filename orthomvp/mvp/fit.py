@@ -22,12 +22,14 @@ squares fit, s^2 (J^T G J)^-1 (J^T G^2 J) (J^T G J)^-1, whose (h, h) element is 
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.errors import GeometryError
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.memory import check_memory
 from orthomvp.mvp.deconvolve import deconvolve
 from orthomvp.mvp.lm import LMSettings, fit_planes
 from orthomvp.mvp.model import PlaneModel
@@ -36,9 +38,15 @@ from orthomvp.mvp.plane import angles_from_normal
 from orthomvp.mvp.problem import FitProblem
 from orthomvp.mvp.window import Window
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import run_tiles
+from orthomvp.validate import number, of_type
+from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
+MAX_DECONVOLVE = 10
+"""Most Van Cittert steps: each step may amplify noise once more (up to steps + 1 times)."""
+BYTES_PER_SAMPLE = 160
+"""Peak memory of a batch per post, view and window sample (patches, their gradients and
+normalisation; about 135 measured), bytes."""
 _LM = LMSettings()
 
 
@@ -54,6 +62,11 @@ class FitOptions:
     patch must keep from the image border; ``deconvolve``: Van Cittert steps from plane
     heights to surface heights (:mod:`orthomvp.mvp.deconvolve`; 0 reports plane heights).
     The optimiser's other constants are :class:`~orthomvp.mvp.lm.LMSettings`' defaults.
+
+    Checked when made (InputError naming the field and its range): ``hwin``, ``levels``
+    integers >= 1; ``max_iter`` an integer >= 0 (0 evaluates the starting planes); ``sigma``
+    None or > 0; ``htol``, ``ntol`` > 0; ``reject_below`` None or in [-1, 1] (a
+    correlation); ``margin`` >= 0; ``deconvolve`` an integer from 0 to :data:`MAX_DECONVOLVE`.
     """
 
     hwin: int = 10
@@ -65,6 +78,22 @@ class FitOptions:
     reject_below: float | None = 0.5
     margin: float = 1.0
     deconvolve: int = 1
+
+    def __post_init__(self) -> None:
+        def check(name: str, **limits: object) -> None:
+            object.__setattr__(self, name, number(getattr(self, name), name, **limits))
+
+        for name in ("hwin", "levels"):
+            check(name, minimum=1, integer=True)
+        check("max_iter", minimum=0, integer=True)  # 0: the planes where they start
+        check("deconvolve", minimum=0, maximum=MAX_DECONVOLVE, integer=True)
+        for name in ("htol", "ntol"):
+            check(name, minimum=0, min_open=True)
+        check("margin", minimum=0)
+        if self.sigma is not None:
+            check("sigma", minimum=0, min_open=True)
+        if self.reject_below is not None:
+            check("reject_below", minimum=-1, maximum=1)
 
     @property
     def window_sigma(self) -> float:
@@ -216,7 +245,16 @@ def fit_dem(
     mesh); see :class:`~orthomvp.mvp.problem.FitProblem`. ``threads``: tiles fitted at once
     (default: one per core); ``progress``: a progress bar over tiles.
     """
-    opts = options or FitOptions()
+    opts = FitOptions() if options is None else of_type(options, FitOptions, "options")
+    of_type(terrain, Terrain, "terrain")
+    if not isinstance(images, (list, tuple)) or not isinstance(cameras, (list, tuple)):
+        raise InputError(
+            f"images and cameras must be lists, got {type(images).__name__} and "
+            f"{type(cameras).__name__}"
+        )
+    if threads is not None:
+        threads = number(threads, "threads", minimum=1, integer=True)
+    check_fit_memory(terrain.shape, len(images), opts.hwin, threads or os.cpu_count() or 1)
     window = opts.window
     problem = FitProblem.build(
         terrain, images, cameras, levels=opts.levels, eps=eps, visible=visible, min_views=2
@@ -257,5 +295,38 @@ def fit_dem(
     out.samples = stack.samples
     out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
     if not out.resolved.any():
-        raise GeometryError("no post is visible in 2 or more images: nothing to fit")
+        seen = problem.usable & (problem.visible.sum(axis=0) >= 2)
+        if not seen.any():
+            raise GeometryError("no post is visible in 2 or more images: nothing to fit")
+        side = 2 * window.hwin + 1
+        step = 2 ** (problem.levels - 1)
+        steps = f", {step} posts a sample at the coarsest level" if step > 1 else ""
+        raise GeometryError(
+            f"{int(seen.sum()):,} posts are visible in 2 or more images, but at none of them "
+            f"do 2 images hold the whole patch of {side} x {side} samples (hwin "
+            f"{window.hwin}{steps}): choose a smaller hwin"
+            + (" or fewer levels" if step > 1 else "")
+        )
     return out
+
+
+def check_fit_memory(
+    shape: tuple[int, int],
+    views: int,
+    hwin: int,
+    threads: int | None = None,
+    advice: str = "choose a smaller hwin",
+) -> None:
+    """InputError, before any work, when a fit of ``views`` views on a DEM of ``shape`` posts
+    with window half-size ``hwin``, ``threads`` batches at once (default one per core),
+    cannot fit in memory."""
+    threads = threads or os.cpu_count() or 1
+    side = 2 * hwin + 1
+    batch = TILE * TILE * views * side * side * BYTES_PER_SAMPLE
+    posts = float(shape[0]) * shape[1] * views * VISIBILITY_BYTES_PER_POST
+    check_memory(
+        f"hwin {hwin} makes patches of {side:,} x {side:,} samples, for {views} views and "
+        f"{TILE * TILE} posts at a time on {threads} thread{'s' if threads > 1 else ''}",
+        threads * batch + posts,
+        advice,
+    )

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, check_image
+from orthomvp.camera import PinholeCamera, as_image, check_image
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
@@ -31,14 +31,14 @@ def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
 def first_bands(
     images: list[np.ndarray], cameras: list[PinholeCamera], names: list[str]
 ) -> tuple[list[np.ndarray], list[PinholeCamera]]:
-    """Band 1 of each image ((bands, rows, cols) or (rows, cols)) as float32, and each camera
-    checked against its image and given its size; ``names`` label errors."""
+    """Band 1 of each image ((bands, rows, cols) or (rows, cols), see
+    :func:`orthomvp.camera.as_image`) as float32, and each camera checked against its image and
+    given its size; ``names`` label errors."""
     bands, cams = [], []
     for image, camera, name in zip(images, cameras, names, strict=True):
-        img = np.asarray(image)
-        img = img[None] if img.ndim == 2 else img
+        img = as_image(image, name)
         cams.append(check_image(img, camera, name))
-        bands.append(img[0].astype(np.float32))
+        bands.append(img[0])
     return bands, cams
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from orthomvp.codes import CODE_RGB, Code
 from orthomvp.errors import InputError
 from orthomvp.terrain import Terrain
+from orthomvp.validate import number
 
 COLOUR_KINDS = ("image", "visibility", "error")
 ERROR_CMAP = "RdBu_r"
@@ -95,10 +96,10 @@ def image_colours(bands: np.ndarray, name: str = "image") -> np.ndarray:
 
 
 def check_error_limit(limit: float | None) -> float | None:
-    """``limit`` (metres, or None for automatic), InputError unless positive."""
-    if limit is not None and not limit > 0:
-        raise InputError(f"the error colour limit must be positive metres, got {limit}")
-    return limit
+    """``limit`` (metres, or None for automatic), InputError unless a finite number > 0."""
+    if limit is None:
+        return None
+    return number(limit, "the error colour limit (metres)", minimum=0, min_open=True)
 
 
 def error_colour_limit(error: np.ndarray, limit: float | None = None) -> float:

@@ -16,6 +16,7 @@ from orthomvp.mesh import TerrainMesh
 from orthomvp.optional import require
 from orthomvp.present.colours import NAN_RGB, post_colours
 from orthomvp.raster import atomic_path
+from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
     import trimesh
@@ -42,6 +43,7 @@ def export_mesh(
     ``target_triangles`` the mesh is first decimated with Open3D; the colours then travel as
     vertex colours in every format. Files are written atomically.
     """
+    of_type(tmesh, TerrainMesh, "the mesh", " (orthomvp.mesh.terrain_mesh)")
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in EXPORT_FORMATS:

@@ -29,7 +29,34 @@ def _save(fig, path: str | Path) -> None:  # noqa: ANN001
     _pyplot().close(fig)
 
 
-def _visibility_axes(ax, codes: np.ndarray, title: str) -> None:  # noqa: ANN001
+def scale_bar(ax, metres_per_pixel: float, note: str = "") -> None:  # noqa: ANN001
+    """A scale bar in the lower left of an image axes: a round length (1, 2 or 5 times a power
+    of ten, metres or km) about a fifth of the image's width, labelled, on a light box."""
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    width = abs(np.diff(ax.get_xlim())[0]) * metres_per_pixel
+    target = width / 5
+    power = 10 ** np.floor(np.log10(target))
+    length = max((m * power for m in (1, 2, 5) if m * power <= target), default=power)
+    label = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
+    bar = AnchoredSizeBar(
+        ax.transData,
+        length / metres_per_pixel,
+        label + note,
+        "lower left",
+        pad=0.4,
+        sep=3,
+        color="black",
+        frameon=True,
+        size_vertical=max(width / metres_per_pixel / 150, 0.5),
+        fontproperties={"size": 8},
+    )
+    bar.patch.set_alpha(0.75)
+    ax.add_artist(bar)
+
+
+def _visibility_axes(ax, codes: np.ndarray, title: str) -> list:  # noqa: ANN001
+    """Draw visibility codes; returns the legend handles of the codes present."""
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
@@ -38,8 +65,7 @@ def _visibility_axes(ax, codes: np.ndarray, title: str) -> None:  # noqa: ANN001
     )
     ax.set_title(title)
     present = [code for code in Code if (codes == code).any()]
-    handles = [Patch(color=CODE_COLOURS[code], label=code.label) for code in present]
-    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2, fontsize=8)
+    return [Patch(color=CODE_COLOURS[code], label=code.label) for code in present]
 
 
 def scene_overview(
@@ -49,28 +75,41 @@ def scene_overview(
     truth: np.ndarray,
     path: str | Path,
     view: str = "oblique",
+    gsd: float | None = None,
 ) -> None:
-    """Shaded DEM, a rendered image and its truth visibility side by side."""
+    """Shaded DEM, a rendered image and its truth visibility side by side, with scale bars
+    (``spacing``: DEM post spacing, ``gsd``: the image's ground sample distance at the scene
+    centre, both metres) and a legend of the visibility codes below the figure."""
     from matplotlib.colors import LightSource
 
     plt = _pyplot()
     shade = LightSource(azdeg=315, altdeg=35).hillshade(dem, dx=spacing, dy=spacing)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.8), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 5.2), layout="constrained")
     axes[0].imshow(shade, cmap="gray")
     axes[0].set_title("DEM (shaded relief)")
     axes[1].imshow(image, cmap="gray")
     axes[1].set_title(f"rendered '{view}' image (raw frame)")
-    _visibility_axes(axes[2], truth, "truth visibility of that view")
+    handles = _visibility_axes(axes[2], truth, "truth visibility of that view")
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
+    scale_bar(axes[0], spacing)
+    if gsd:
+        scale_bar(axes[1], gsd, " (at the centre)")
+    scale_bar(axes[2], spacing)
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
     _save(fig, path)
 
 
 def ortho_comparison(
-    naive: np.ndarray, aware: np.ndarray, mosaic: np.ndarray, path: str | Path
+    naive: np.ndarray,
+    aware: np.ndarray,
+    mosaic: np.ndarray,
+    path: str | Path,
+    spacing: float | None = None,
 ) -> None:
-    """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps."""
+    """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps, with
+    a scale bar when the post ``spacing`` (metres) is given."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), constrained_layout=True)
     finite = np.concatenate([a[np.isfinite(a)] for a in (naive, aware, mosaic)])
@@ -86,6 +125,8 @@ def ortho_comparison(
         ax.set_title(title, fontsize=10)
         ax.set_xticks([])
         ax.set_yticks([])
+        if spacing:
+            scale_bar(ax, spacing)
     fig.text(0.5, 0.01, "red: nodata", ha="center", fontsize=9, color="#c0392b")
     _save(fig, path)
 
@@ -105,7 +146,9 @@ def height_error_maps(
         ax.set_facecolor("black")
         im = ax.imshow(np.ma.masked_invalid(err), cmap=ERROR_CMAP, vmin=-lim, vmax=lim)
         ax.set_title(f"{name}: error against truth, RMSE {rmse:.1f} m", fontsize=10)
-        ax.set_xlabel(f"columns ({spacing:g} m posts)")
-        ax.set_ylabel("rows")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlabel(f"{spacing:g} m posts")
+        scale_bar(ax, spacing)
     fig.colorbar(im, ax=list(axes), shrink=0.85, label="height error (m): red too high")
     _save(fig, path)

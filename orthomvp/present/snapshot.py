@@ -52,11 +52,16 @@ from orthomvp.present.viewpoint import (
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
+from orthomvp.validate import number, of_type
 
 if TYPE_CHECKING:
     import pyvista as pv
 
 DEFAULT_SIZE = (1024, 768)
+CROP_MARGIN = 12
+"""Pixels of background kept around the content of a cropped snapshot."""
+MAX_RAYS = 10_000
+"""Most rays drawn per camera (more only paint the snapshot over)."""
 CAMERA_COLOURS = ("#ffd21f", "#ff4fd8", "#4fc3ff", "#ffffff", "#a98bff", "#ff6b6b")
 """Colours of cameras (frusta, rays and their hits), in turn; green is kept for occlusion."""
 BACKGROUND = ("#15171c", "#3a4150")  # bottom, top
@@ -72,7 +77,7 @@ class SnapshotOptions:
     """How a snapshot is drawn; checked on construction (InputError).
 
     ``rays``: rays per camera, through pixels spread over its image, drawn to their first hits
-    on the DEM (>= 0). ``view`` (:class:`orthomvp.codes.View` or its string):
+    on the DEM (0 to :data:`MAX_RAYS`). ``view`` (:class:`orthomvp.codes.View` or its string):
     ``"oblique"`` looks at the DEM centre from ``elevation`` degrees (in (0, 90]), from
     ``azimuth`` degrees clockwise from grid north (default: opposite the first camera, so that
     the slopes it cannot see face the viewer, or 210); ``"top"`` looks straight down, grid
@@ -83,7 +88,8 @@ class SnapshotOptions:
     default 1024 x 768 (``from-camera``: the camera's aspect, 1024 on the long side).
     ``legend`` draws the legend or colour bar; ``title`` a caption. ``error_limit``: the height
     error colours saturate at +-this many metres (positive; default: the 99th percentile of
-    |error|).
+    |error|). ``crop`` cuts the empty background around what is drawn, to within
+    :data:`CROP_MARGIN` pixels (the image is then smaller than ``size``).
     """
 
     rays: int = 0
@@ -96,19 +102,34 @@ class SnapshotOptions:
     legend: bool = True
     title: str | None = None
     error_limit: float | None = None
+    crop: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "view", View(self.view))
-        if self.rays < 0:
-            raise InputError(f"the number of rays must be >= 0, got {self.rays}")
-        if not 0 < self.elevation <= 90:
-            raise InputError(f"the view elevation must be in (0, 90] degrees, got {self.elevation}")
-        if not (np.isfinite(self.exaggerate) and self.exaggerate > 0):
-            raise InputError(f"vertical exaggeration must be positive, got {self.exaggerate}")
+        object.__setattr__(
+            self, "rays", number(self.rays, "rays", minimum=0, maximum=MAX_RAYS, integer=True)
+        )
+        object.__setattr__(
+            self, "view_camera", number(self.view_camera, "view_camera", minimum=0, integer=True)
+        )
+        elevation = number(
+            self.elevation, "the view elevation (degrees)", minimum=0, maximum=90, min_open=True
+        )
+        object.__setattr__(self, "elevation", elevation)
+        if self.azimuth is not None:
+            object.__setattr__(self, "azimuth", number(self.azimuth, "the view azimuth (degrees)"))
+        exaggerate = number(self.exaggerate, "vertical exaggeration", minimum=0, min_open=True)
+        object.__setattr__(self, "exaggerate", exaggerate)
         if self.size is not None:
-            if len(self.size) != 2 or not all(16 <= int(n) <= 8192 for n in self.size):
-                raise InputError(f"snapshot size must be 16 to 8192 pixels a side, got {self.size}")
-            object.__setattr__(self, "size", (int(self.size[0]), int(self.size[1])))
+            if not (isinstance(self.size, (tuple, list)) and len(self.size) == 2):
+                raise InputError(f"snapshot size must be (width, height), got {self.size!r}")
+            size = tuple(
+                number(n, "snapshot size (pixels a side)", minimum=16, maximum=8192, integer=True)
+                for n in self.size
+            )
+            object.__setattr__(self, "size", size)
+        if self.title is not None:
+            of_type(self.title, str, "title")
         check_error_limit(self.error_limit)
 
 
@@ -117,11 +138,13 @@ class Snapshot:
     """A rendered scene: ``image`` (H, W, 3) uint8 RGB, top row first; ``plotter``, the pyvista
     Plotter, still open, for adding to the scene (in the local frame: world minus ``origin``)
     and rendering again with ``plotter.screenshot(return_img=True)``; ``origin`` (3,) float64,
-    world metres."""
+    world metres; ``box`` (left, top, right, bottom) the part of the plotter's window that
+    ``image`` shows (all of it unless the options asked to crop)."""
 
     image: np.ndarray
     plotter: pv.Plotter
     origin: np.ndarray
+    box: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     def save(self, path: str | Path) -> None:
         """Write ``image`` atomically; the format follows the suffix (.png, .jpg, ...)."""
@@ -191,7 +214,7 @@ def snapshot(
     centre = (verts.min(axis=0) + verts.max(axis=0)) / 2
     radius = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)) / 2)
     up, north = grid_frame(terrain, tmesh.origin)
-    rects = [image_rect(cam, tmesh) for cam in cameras]
+    rects = [image_rect(cam, tmesh, f"camera {i}") for i, cam in enumerate(cameras, start=1)]
     width, height = opts.size or _default_size(opts, cameras, rects)
 
     plotter = _plotter(width, height)
@@ -223,10 +246,43 @@ def snapshot(
         _add_light(plotter, centre, up)
         plotter.reset_camera_clipping_range()
         image = np.ascontiguousarray(plotter.screenshot(return_img=True)[..., :3])
+        box = (0, 0, width, height)
+        if opts.crop:
+            box = content_box(image, background_image(width, height), CROP_MARGIN)
+            left, top, right, bottom = box
+            image = np.ascontiguousarray(image[top:bottom, left:right])
     except BaseException:
         plotter.close()
         raise
-    return Snapshot(image, plotter, tmesh.origin.copy())
+    return Snapshot(image, plotter, tmesh.origin.copy(), box)
+
+
+def background_image(width: int, height: int) -> np.ndarray:
+    """The snapshot background alone, (height, width, 3) uint8, as a snapshot draws it."""
+    plotter = _plotter(width, height)
+    try:
+        return np.ascontiguousarray(plotter.screenshot(return_img=True)[..., :3])
+    finally:
+        plotter.close()
+
+
+def content_box(
+    image: np.ndarray, background: np.ndarray, margin: int = 0
+) -> tuple[int, int, int, int]:
+    """(left, top, right, bottom) pixel box, right and bottom exclusive, around the pixels of
+    ``image`` that differ from ``background`` (same shape), widened by ``margin`` pixels and
+    kept inside the image; the whole image when nothing differs."""
+    height, width = image.shape[:2]
+    drawn = np.abs(image.astype(np.int16) - background.astype(np.int16)).max(axis=-1) > 2
+    rows, cols = np.flatnonzero(drawn.any(axis=1)), np.flatnonzero(drawn.any(axis=0))
+    if not len(rows):
+        return 0, 0, width, height
+    return (
+        max(int(cols[0]) - margin, 0),
+        max(int(rows[0]) - margin, 0),
+        min(int(cols[-1]) + 1 + margin, width),
+        min(int(rows[-1]) + 1 + margin, height),
+    )
 
 
 def _default_size(

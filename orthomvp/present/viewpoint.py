@@ -42,16 +42,22 @@ def grid_frame(terrain: Terrain, origin: np.ndarray) -> tuple[np.ndarray, np.nda
     return up, north / np.linalg.norm(north)
 
 
-def image_rect(camera: PinholeCamera, tmesh: TerrainMesh) -> Rect:
+def image_rect(camera: PinholeCamera, tmesh: TerrainMesh, name: str = "the camera") -> Rect:
     """The image's outer pixel edges, or, without an image size, the pixel rectangle that holds
-    the projection of ``tmesh``."""
+    the projection of ``tmesh``; InputError naming ``name`` and the cause when the camera
+    does not see the DEM at all."""
     if camera.width is not None and camera.height is not None:
         return -0.5, -0.5, camera.width - 0.5, camera.height - 0.5
     verts = tmesh.world_vertices
-    uv, _ = camera.project(verts[:: max(1, len(verts) // 20000)])
+    uv, depth = camera.project(verts[:: max(1, len(verts) // 20000)])
     uv = uv[np.isfinite(uv).all(axis=1)]
+    if not (depth > 0).any():
+        raise InputError(
+            f"{name} looks away from the DEM: every post is behind it (check its rotation, or "
+            "that it belongs to this DEM)"
+        )
     if not len(uv):
-        raise InputError("a camera without an image size does not see the DEM at all")
+        raise InputError(f"{name} does not see the DEM: no post projects through its lens model")
     (u0, v0), (u1, v1) = uv.min(axis=0), uv.max(axis=0)
     return float(u0), float(v0), float(u1), float(v1)
 

@@ -10,9 +10,12 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic.surface import LocalSurface
 from orthomvp.terrain import Terrain
+from orthomvp.validate import number
 
 FINE_FACTOR = 3
 """Posts of the rendering surface per DEM post, along each axis."""
+MAX_SUPERSAMPLE = 16
+"""Most rays per pixel side (256 per pixel)."""
 FINE_MARGIN = 0.6
 """Extra width of the rendering surface on each side, as a fraction of the DEM's size."""
 
@@ -38,7 +41,13 @@ def render_image(
     ``surface``: per pixel the mean radiance of ``supersample`` x ``supersample`` rays cast on
     ``caster``'s mesh of the surface (0 where a ray hits nothing)."""
     w, h = camera.width, camera.height
-    k = supersample
+    k = number(
+        supersample,
+        "supersample (rays per pixel side)",
+        minimum=1,
+        maximum=MAX_SUPERSAMPLE,
+        integer=True,
+    )
     offs = (np.arange(k) + 0.5) / k - 0.5
     out = np.zeros(h * w, np.float64)
     rows_per = max(1, 200_000 // (w * k * k))

@@ -17,6 +17,7 @@ from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
+from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
@@ -26,7 +27,19 @@ from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, loca
 from orthomvp.synthetic.truth import visibility_truth
 from orthomvp.synthetic.writer import write_scene
 from orthomvp.terrain import Terrain
+from orthomvp.validate import number
 
+SPACING_RANGE = (0.01, 10_000.0)
+"""Post spacings a scene may have, metres: finer ones lose the analytic surface in float64
+rounding at lunar radius (and the truth marcher's steps with it), coarser ones wrap the tile
+around the Moon."""
+GSD_RATIO_RANGE = (0.05, 20.0)
+"""Image ground sample distance over post spacing that a scene may have."""
+SCENE_BYTES_PER_POST = 20_000
+"""Peak memory of making and writing a scene per DEM post (the finer rendering surface, its
+mesh and ray caster, the truth marcher; about 17,000 measured), bytes."""
+IMAGE_BYTES_PER_PIXEL = 100
+"""Memory of the rendered images per pixel (4 views), bytes."""
 SUN_ELEVATION = 40.0
 """Sun elevation above the horizon at the tile centre, degrees."""
 SUN_AZIMUTH = 120.0
@@ -106,14 +119,25 @@ def make_scene(
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings. The same arguments give the same scene."""
+    spacings. The same arguments give the same scene.
+
+    Ranges (InputError outside them, and for a scene too large for the memory): ``size`` an
+    integer >= 8, ``spacing`` :data:`SPACING_RANGE` metres, ``gsd_ratio``
+    :data:`GSD_RATIO_RANGE`, ``seed`` an integer >= 0; None takes the kind's default."""
     if kind not in KINDS:
         raise InputError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
     d_size, d_spacing = DEFAULTS[kind]
-    size = size or d_size
-    spacing = spacing or d_spacing
-    if size < 8 or spacing <= 0 or gsd_ratio <= 0:
-        raise InputError("scene size must be >= 8 posts, spacing and GSD ratio positive")
+    size = d_size if size is None else number(size, "scene size (posts)", minimum=8, integer=True)
+    lo, hi = SPACING_RANGE
+    spacing = (
+        d_spacing
+        if spacing is None
+        else number(spacing, "post spacing (metres)", minimum=lo, maximum=hi)
+    )
+    lo, hi = GSD_RATIO_RANGE
+    gsd_ratio = number(gsd_ratio, "GSD ratio", minimum=lo, maximum=hi)
+    seed = number(seed, "seed", minimum=0, integer=True)
+    check_scene_memory(size, gsd_ratio)
     rng = np.random.default_rng(seed)
     lon0, lat0 = np.radians(lonlat_deg[0]), np.radians(lonlat_deg[1])
     height, facts = relief(kind, size * spacing, lon0, lat0, rng)
@@ -139,3 +163,14 @@ def sun_direction(lon0: float, lat0: float) -> np.ndarray:
     up, east, north = local_frame(lon0, lat0)
     el, az = np.radians(SUN_ELEVATION), np.radians(SUN_AZIMUTH)
     return np.cos(el) * (np.sin(az) * east + np.cos(az) * north) + np.sin(el) * up
+
+
+def check_scene_memory(size: int, gsd_ratio: float, advice: str = "choose a smaller size") -> None:
+    """InputError, before any work, when a scene of ``size`` x ``size`` posts with images of
+    ``gsd_ratio`` cannot fit in memory."""
+    posts = float(size) * size
+    check_memory(
+        f"this scene is {count_text(posts)} posts ({size:,} x {size:,})",
+        posts * (SCENE_BYTES_PER_POST + IMAGE_BYTES_PER_PIXEL / gsd_ratio**2),
+        advice,
+    )

@@ -20,7 +20,9 @@ from tqdm import tqdm
 from orthomvp.camera import write_tsai
 from orthomvp.codes import Code
 from orthomvp.raster import atomic_path, write_geotiff
+from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
 from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS
+from orthomvp.validate import number
 
 if TYPE_CHECKING:
     from orthomvp.synthetic.scene import Scene
@@ -32,6 +34,13 @@ def write_scene(
     """Render ``scene`` (``supersample`` x ``supersample`` rays per pixel) and write its
     directory into ``outdir``, with a progress bar over the views if ``progress`` and on a
     terminal. Returns the summary written to scene.json."""
+    number(
+        supersample,
+        "supersample (rays per pixel side)",
+        minimum=1,
+        maximum=MAX_SUPERSAMPLE,
+        integer=True,
+    )
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     t = scene.terrain
