@@ -141,7 +141,7 @@ def scan_dem(
             block = np.ma.filled(band.astype(np.float64), np.nan)
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
-            parts.append(block[(-r0) % stride :: stride, ::stride])
+            parts.append(block[(-r0) % stride :: stride, ::stride].copy())  # not a view
             if progress:
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
