@@ -148,7 +148,7 @@ def scan_dem(
                 block[bad] = np.nan
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
-            parts.append(block[(-r0) % stride :: stride, ::stride])
+            parts.append(block[(-r0) % stride :: stride, ::stride].copy())  # not a view
             if progress:
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
