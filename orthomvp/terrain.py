@@ -90,7 +90,9 @@ class Terrain:
     """A DEM on a regular grid: values, georeference, body and conventions.
 
     ``values`` is float64 ``(rows, cols)``, NaN at nodata posts (holes). ``transform`` maps pixel
-    *corner* coordinates to CRS coordinates (GDAL convention).
+    *corner* coordinates to CRS coordinates (GDAL convention). ``wrap_lon``: the longitude
+    (radians) that :meth:`pixel_to_lonlat` keeps longitudes within pi of, default the grid
+    centre's (a window of a larger grid may take the larger grid's).
     """
 
     values: np.ndarray
@@ -99,6 +101,7 @@ class Terrain:
     radius_values: bool = False
     world: WorldFrame = WorldFrame.BODY
     name: str = field(default="dem", compare=False)
+    wrap_lon: float | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         vals = np.asarray(self.values, dtype=np.float64)
@@ -228,7 +231,10 @@ class Terrain:
 
     @cached_property
     def centre_lon(self) -> float:
-        """Longitude of the grid centre, radians; longitudes are returned within pi of it."""
+        """Longitude of the grid centre (or ``wrap_lon``), radians; longitudes are returned
+        within pi of it."""
+        if self.wrap_lon is not None:
+            return float(self.wrap_lon)
         rows, cols = self.shape
         mid = np.array([(cols - 1) / 2, (rows - 1) / 2])
         lon, _ = self.pixel_to_lonlat(mid[0], mid[1], wrap=False)
