@@ -32,6 +32,7 @@ the flatness thresholds) come from one pass over each image in blocks when plann
 
 from __future__ import annotations
 
+import gc
 import math
 import tempfile
 import time
@@ -70,7 +71,7 @@ from orthomvp.engine.run import (
     results,
     workers_of,
 )
-from orthomvp.engine.tile import GC_POSTS, _release, _timed
+from orthomvp.engine.tile import GC_POSTS, _has_cell, _release, _timed
 from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mesh import terrain_mesh
@@ -85,17 +86,19 @@ from orthomvp.world import detect_world
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""
 
-# Bytes of memory, from the peak resident set size of tiles of the hills scene (see
-# tests/test_fit_engine.py) rounded up: per post of the fit grid (the problem's and the
-# result's arrays, the deconvolution's moments), per post and view (the visibility test's
-# arrays, the masks), per pixel of an image window (the window, its fill and undistortion,
-# the pyramid of values and gradients, the exactness masks), and per thread for a batch of
-# BATCH x BATCH posts per sample of the patch and view (samples, their derivatives and the
-# normal equations' products, float32).
+# Bytes of memory, from the growth of the peak resident set size over single tiles of the
+# hills scene (200 x 200 posts, 4 views, tiles of 32 to 200 posts, hwin 3 and 10, 1 and 2
+# threads), rounded up: per post of the fit grid (the problem's and the result's arrays, the
+# deconvolution's moments: about 750 measured with the views' share and the DEM window's),
+# per post and view (the visibility test's arrays, the masks), per pixel of an image window
+# (the window, its fill and undistortion, the pyramid of values and gradients, the
+# exactness masks), and per thread for a batch of BATCH x BATCH posts per sample of the
+# patch and view (samples, their derivatives and the normal equations' products, float32,
+# with the heap they leave behind: about 170 MB a thread at hwin 10 with 4 views).
 FIT_POST_BYTES = 500
 FIT_VIEW_BYTES = 80
 PIXEL_BYTES = 48
-BATCH_SAMPLE_BYTES = 120
+BATCH_SAMPLE_BYTES = 170
 
 
 @dataclass(frozen=True)
@@ -434,8 +437,6 @@ def run_fit_tile(plan: FitPlan, index: int, threads: int = 1, progress: bool = F
         return _run_fit_tile(plan, index, threads, progress)
     finally:
         if plan.tiles[index].dem_posts >= GC_POSTS:
-            import gc
-
             gc.collect()
             _release()
 
@@ -454,12 +455,12 @@ def _run_fit_tile(plan: FitPlan, index: int, threads: int, progress: bool) -> Fi
     seconds = result.seconds
     with _timed(seconds, "read"):
         values = plan.dem.read(job.dem)
-    window = plan.dem.window_terrain(job.dem, values)
     ext = _grow(job.fit, 1, plan.grid.shape)
     assert ext is not None
-    terrain = plan.dem.window_terrain(ext, values[_sub(ext, job.dem)])
-    if not np.isfinite(terrain.values).any():
+    if not _has_cell(np.isfinite(values)) or not np.isfinite(values[_sub(ext, job.dem)]).any():
         return result
+    window = plan.dem.window_terrain(job.dem, values)
+    terrain = plan.dem.window_terrain(ext, values[_sub(ext, job.dem)])
     inner, fit = _sub(job.window, ext), _sub(job.fit, ext)
     with _timed(seconds, "mesh"):
         caster = RayCaster(terrain_mesh(window), threads=threads)
