@@ -210,6 +210,32 @@ def test_tiled_fit_equals_the_in_memory_fit(hills: dict, tmp_path: Path) -> None
     assert report.line("x.tif").startswith(f"wrote x.tif: {report.fitted:,} of 2,304 posts")
 
 
+@pytest.mark.slow
+def test_crater_tiled_fit_equals_the_in_memory_fit(crater_dir: Path, tmp_path: Path) -> None:
+    """The crater: posts hidden behind its rim (occluder halos wider than the tiles), three
+    pyramid levels; tiles of 16 posts give the in-memory fit's heights, views and converged
+    flags bit for bit."""
+    d = crater_dir
+    views = [(d / f"{n}.tif", d / f"{n}.tsai") for n in ("oblique", "nadir", "fore")]
+    options = FitOptions(hwin=4, reject_below=None)
+    terrain = Terrain.read(d / "dem.tif")
+    terrain.write(tmp_path / "start.tif", terrain.values + 10.0)
+    start = Terrain.read(tmp_path / "start.tif")
+    loaded = [load_view(*v) for v in views]
+    res = fit_dem(start, [v[0] for v in loaded], [v[1] for v in loaded], options, threads=2)
+    plan = plan_fit(tmp_path / "start.tif", views, options, tile=16, progress=False)
+    assert plan.levels == 3 and max(plan.reach) > 16
+    outputs = FitOutputs(
+        tmp_path / "h.tif", views=tmp_path / "v.tif", uncertainty=tmp_path / "u.tif"
+    )
+    report = run_fit(plan, outputs, threads=2, progress=False)
+    np.testing.assert_array_equal(read(tmp_path / "h.tif")[0], res.heights.astype(np.float32))
+    np.testing.assert_array_equal(read(tmp_path / "v.tif")[0], res.views)
+    converged = np.where(res.resolved, res.converged, np.nan).astype(np.float32)
+    np.testing.assert_array_equal(read(tmp_path / "u.tif")[1], converged)
+    assert report.fitted == res.resolved.sum() > 1000
+
+
 def test_windows_that_miss_samples_are_grown(hills: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
     """When the planned image windows are too small for where the planes move, the tile is
     fitted again with windows that hold every sample: the results do not change."""
@@ -226,6 +252,7 @@ def test_windows_that_miss_samples_are_grown(hills: dict, tmp_path: Path, monkey
     assert_same(got, hills["expected"])
 
 
+@pytest.mark.slow
 def test_processes_and_dask_equal_threads(hills: dict, tmp_path: Path) -> None:
     assert_same(fit(hills, tmp_path, "proc", tile=24, processes=2), hills["expected"])
     pytest.importorskip("distributed")
