@@ -109,6 +109,8 @@ class Terrain:
     holes too (they become NaN). ``transform`` maps pixel *corner* coordinates to CRS
     coordinates (GDAL convention); ``crs`` is a pyproj CRS or anything it reads. Construction
     checks all of this and raises :class:`~orthomvp.errors.InputError`.
+    ``wrap_lon``: the longitude (radians) that :meth:`pixel_to_lonlat` keeps longitudes within
+    pi of, default the grid centre's (a window of a larger grid may take the larger grid's).
     """
 
     values: np.ndarray
@@ -117,6 +119,7 @@ class Terrain:
     radius_values: bool = False
     world: WorldFrame = WorldFrame.BODY
     name: str = field(default="dem", compare=False)
+    wrap_lon: float | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         vals = _heights(self.values, self.name)
@@ -294,7 +297,10 @@ class Terrain:
 
     @cached_property
     def centre_lon(self) -> float:
-        """Longitude of the grid centre, radians; longitudes are returned within pi of it."""
+        """Longitude of the grid centre (or ``wrap_lon``), radians; longitudes are returned
+        within pi of it."""
+        if self.wrap_lon is not None:
+            return float(self.wrap_lon)
         rows, cols = self.shape
         mid = np.array([(cols - 1) / 2, (rows - 1) / 2])
         lon, _ = self.pixel_to_lonlat(mid[0], mid[1], wrap=False)

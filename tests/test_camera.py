@@ -244,6 +244,31 @@ def test_projected_pixel_ray_passes_through_point(camera: PinholeCamera) -> None
     np.testing.assert_allclose(back, direction, atol=1e-11)
 
 
+@pytest.mark.parametrize("offset", [(120, 45), (-30, 700)])
+def test_crop_is_the_camera_shifted_by_the_window(camera: PinholeCamera, offset) -> None:  # noqa: ANN001
+    """A window's camera projects every point to the full image's pixel minus the window
+    offset, and casts the same rays through the shifted pixels, lens distortion included."""
+    c0, r0 = offset
+    crop = camera.crop(c0, r0, 300, 200)
+    assert (crop.width, crop.height) == (300, 200)
+    rng = np.random.default_rng(7)
+    uv = rng.uniform([-0.5, -0.5], [999.5, 799.5], size=(2000, 2))
+    _, directions = camera.ray(uv)
+    pts = camera.center + directions * rng.uniform(100, 1e4, size=(len(uv), 1))
+    full, depth = camera.project(pts)
+    shifted, depth_crop = crop.project(pts)
+    np.testing.assert_allclose(shifted, full - [c0, r0], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(depth_crop, depth)
+    np.testing.assert_allclose(crop.ray(uv - [c0, r0])[1], directions, rtol=0, atol=1e-12)
+    back = crop.crop(-c0, -r0, 1000, 800)
+    assert_same_camera(replace(back, cu=camera.cu, cv=camera.cv), camera)
+    np.testing.assert_allclose([back.cu, back.cv], [camera.cu, camera.cv], rtol=1e-15)
+    with pytest.raises(InputError, match="integer"):
+        camera.crop(1.5, 0, 10, 10)
+    with pytest.raises(InputError, match="width"):
+        camera.crop(0, 0, 0, 10)
+
+
 def test_distortion_actually_moves_pixels() -> None:
     for lens in ("tsai", "brown"):
         plain, distorted = make_camera("null"), make_camera(lens)

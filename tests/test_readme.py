@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import rasterio
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -52,3 +53,13 @@ def test_readme_python_example(tmp_path: Path) -> None:
     assert outside.sum() > 50
     assert np.median(np.abs(fit.heights - dem.values)[outside]) < 15.0
     assert (tmp_path / "crater.ply").is_file()
+    # the engine's fit from files is the in-memory fit's (of the start as written), bit for bit
+    from orthomvp.mvp import FitOptions, fit_dem
+    from orthomvp.terrain import Terrain
+
+    n = namespace
+    start = Terrain.read(tmp_path / "start.tif")
+    again = fit_dem(start, [n["image"], n["nadir"]], [n["cam"], n["nadir_cam"]], FitOptions(hwin=8))
+    with rasterio.open(tmp_path / "fitted.tif") as src:
+        np.testing.assert_array_equal(src.read(1), again.heights.astype(np.float32))
+    assert n["report"].fitted == int(again.resolved.sum())

@@ -181,6 +181,24 @@ class PinholeCamera:
         """A copy with the image size (pixels) set."""
         return replace(self, width=width, height=height)
 
+    def crop(self, c0: int, r0: int, width: int, height: int) -> PinholeCamera:
+        """The camera of the ``width`` x ``height`` pixel window of this camera's image whose
+        first pixel is pixel (``c0``, ``r0``) here: the principal point moves by the offset,
+        nothing else changes (every lens distortion model is relative to the principal
+        point), so ``crop.project(x)`` is ``project(x) - (c0, r0)`` and ``crop.ray(uv)`` is
+        ``ray(uv + (c0, r0))``, to rounding. The offset may be negative or reach beyond the
+        image (a window partly off the image)."""
+        for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+        return replace(
+            self,
+            cu=self.cu - int(c0) * self.pitch,
+            cv=self.cv - int(r0) * self.pitch,
+            width=int(width),
+            height=int(height),
+        )
+
     def in_image(self, uv: np.ndarray) -> np.ndarray:
         """Whether pixel positions ``uv`` (..., 2) lie on the image: within half a pixel of the
         outermost pixel centres, ``-0.5 <= u <= width - 0.5`` and likewise for v. NaN is

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import numpy as np
 
 from orthomvp.cli.command import Command
 from orthomvp.cli.options import (
@@ -23,6 +22,7 @@ from orthomvp.cli.options import (
     overwrite_option,
     pairs_argument,
     quiet,
+    usage_error,
 )
 from orthomvp.cli.ortho import view_inputs
 
@@ -87,6 +87,43 @@ MAX_DECONVOLVE = 10
 @eps_option
 @overwrite_option
 @dem_options
+@click.option(
+    "--tile",
+    type=click.IntRange(min=2),
+    default=1024,
+    metavar="POSTS",
+    help="fit the DEM in tiles of POSTS x POSTS posts, each from windows of the DEM and the "
+    "images (memory grows with the tile, not with the DEM or the images)",
+)
+@click.option(
+    "--threads",
+    type=click.IntRange(min=1),
+    metavar="N",
+    show_default="one per core",
+    help="fit N tiles at a time in threads (fewer tiles than threads share them)",
+)
+@click.option(
+    "--processes", type=click.IntRange(min=1), metavar="N", help="fit tiles in N worker processes"
+)
+@click.option(
+    "--dask",
+    metavar="local:N|tcp://HOST:PORT",
+    help="fit tiles on a Dask cluster: a local one of N worker processes, or the scheduler at "
+    "HOST:PORT (every worker reads the inputs at the same paths)",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["cog", "gtiff"]),
+    default="cog",
+    help="outputs as Cloud-Optimized GeoTIFFs or tiled GeoTIFFs with internal overviews",
+)
+@click.option(
+    "--compress",
+    type=click.Choice(["deflate", "zstd", "lzw", "none"]),
+    default="deflate",
+    help="compression of the outputs",
+)
 def fit(
     dem: DemInput,
     pairs: list[tuple[Path, Path]],
@@ -103,16 +140,21 @@ def fit(
     deconvolve: int,
     eps: float | None,
     overwrite: bool,
+    tile: int,
+    threads: int | None,
+    processes: int | None,
+    dask: str | None,
+    fmt: str,
+    compress: str,
 ) -> None:
     """Fit a plane (height, normal) at every DEM post to the images in which the post is
     visible, so that the images projected onto it agree (MVP paper eqs. 11-21; coarse to
     fine, Levenberg-Marquardt, outlier views dropped). Writes the refined DEM (heights in the
     input's convention, NaN where fewer than 2 views see a post) and, on request, the other
-    per-post results, all on the DEM grid."""
-    from orthomvp.camera import load_view
-    from orthomvp.mvp import FitOptions, fit_dem
-    from orthomvp.mvp.fit import check_fit_memory
-    from orthomvp.raster import write_geotiff
+    per-post results, all on the DEM grid, tile by tile in bounded memory (the same results as
+    in one piece)."""
+    from orthomvp.engine import FitOutputs, dask_client, plan_fit, run_fit
+    from orthomvp.mvp import FitOptions
 
     outputs = [
         Output("-o", output),
@@ -122,6 +164,9 @@ def fit(
         Output("--uncertainty", uncertainty),
     ]
     check_outputs(outputs, view_inputs(dem, pairs), overwrite)
+    if sum(x is not None for x in (threads, processes, dask)) > 1:
+        raise usage_error("give one of --threads, --processes and --dask")
+    cluster = _dask_cluster(dask)
     options = FitOptions(
         hwin=hwin,
         sigma=sigma,
@@ -129,40 +174,45 @@ def fit(
         reject_below=None if no_reject else reject_below,
         deconvolve=deconvolve,
     )
-    loaded = [load_view(image, camera) for image, camera in pairs]
-    terrain = dem.read([v[1] for v in loaded])
-    check_fit_memory(terrain.shape, len(loaded), hwin, advice="choose a smaller --hwin")
-    res = fit_dem(
-        terrain,
-        [v[0] for v in loaded],
-        [v[1] for v in loaded],
-        options=options,
+    outputs = FitOutputs(
+        heights=output,
+        normals=normals,
+        cost=cost,
+        views=views,
+        uncertainty=uncertainty,
+        format=fmt,
+        compress=compress,
+    )
+    plan = plan_fit(
+        dem.path,
+        pairs,
+        options,
+        tile=tile,
         eps=eps,
+        dem_crs=dem.crs,
+        radius_values=dem.radius_values,
+        world=dem.world,
         progress=not quiet(),
     )
-    t, crs = terrain.transform, terrain.crs
-    write_geotiff(output, res.heights.astype(np.float32), t, crs, nodata=np.nan)
-    if normals:
-        up = terrain.up_vectors(terrain.world_points())
-        tilt = np.degrees(np.arccos(np.clip(np.sum(res.normals * up, axis=-1), -1, 1)))
-        bands = np.stack([res.n_theta, res.n_phi, tilt]).astype(np.float32)
-        names = ["n_theta_deg", "n_phi_deg", "tilt_deg"]
-        write_geotiff(normals, bands, t, crs, nodata=np.nan, band_names=names)
-    if cost:
-        write_geotiff(cost, res.cost.astype(np.float32), t, crs, nodata=np.nan)
-    if views:
-        write_geotiff(views, res.views.astype(np.uint8), t, crs)
-    if uncertainty:
-        bands = np.stack([res.sigma_h, np.where(res.resolved, res.converged, np.nan)])
-        names = ["sigma_h_m", "converged"]
-        write_geotiff(
-            uncertainty, bands.astype(np.float32), t, crs, nodata=np.nan, band_names=names
+    if cluster is None:
+        report = run_fit(plan, outputs, threads=threads, processes=processes, progress=not quiet())
+    else:
+        with dask_client(**cluster) as client:
+            report = run_fit(plan, outputs, client=client, progress=not quiet())
+    print(report.line(output))
+
+
+def _dask_cluster(spec: str | None) -> dict | None:
+    """:func:`~orthomvp.engine.dask_client` arguments from ``--dask`` (None without it)."""
+    if spec is None:
+        return None
+    if spec.startswith("local:"):
+        count = spec.removeprefix("local:")
+        if not count.isdigit() or int(count) < 1:
+            raise usage_error(f"--dask local:N needs a number of workers N >= 1, got {spec!r}")
+        return {"workers": int(count)}
+    if "://" not in spec:
+        raise usage_error(
+            f"--dask takes local:N or a scheduler address tcp://HOST:PORT, got {spec!r}"
         )
-    ok = res.resolved
-    shift = res.heights[ok] - res.initial[ok]
-    print(
-        f"wrote {output}: {int(ok.sum()):,} of {ok.size:,} posts fitted "
-        f"({int(res.converged.sum()):,} converged); change from the input: median "
-        f"{np.median(shift):+.2f}, RMS {np.sqrt(np.mean(shift**2)):.2f}; median uncertainty "
-        f"{np.nanmedian(res.sigma_h[ok]):.2f}"
-    )
+    return {"address": spec}

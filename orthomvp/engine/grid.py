@@ -81,6 +81,24 @@ class DemSource:
             name=str(self.path),
         )
 
+    def geometry(self) -> Terrain:
+        """The DEM's grid as a :class:`Terrain` without its values (a 2 x 2 stand-in): its
+        georeference, conventions and the longitude it wraps around (the whole grid's
+        centre), so that geometry at DEM pixel positions comes out exactly as on the whole
+        DEM read into memory."""
+        rows, cols = self.shape
+        grid = Terrain(
+            np.zeros((2, 2)),
+            self.transform,
+            self.crs,
+            self.radius_values,
+            self.world,
+            name=str(self.path),
+        )
+        mid = np.array([(cols - 1) / 2, (rows - 1) / 2])
+        lon, _ = grid.pixel_to_lonlat(mid[0], mid[1], wrap=False)
+        return replace(grid, wrap_lon=float(lon))
+
     def to_world(self, c: np.ndarray, r: np.ndarray, value: np.ndarray) -> np.ndarray:
         """World xyz (..., 3) of DEM pixel positions ``(c, r)`` with DEM ``value``."""
         s = self.stride

@@ -28,14 +28,16 @@ class ImageSource:
     bands: int
     camera: PinholeCamera
 
-    def read(self, window: tuple[int, int, int, int]) -> np.ndarray:
-        """Pixels of ``window`` (clipped to the image by the caller)."""
+    def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
+        """Pixels of ``window`` (clipped to the image by the caller), every band or only
+        ``band`` (1-based; still (1, rows, cols))."""
         if self.path.suffix.lower() == ".cub":
-            return _read_cube_window(self.path, window)
+            return _read_cube_window(self.path, window, band)
         r0, r1, c0, c1 = window
+        indexes = None if band is None else [band]
         with open_raster(self.path) as src:
             try:
-                data = src.read(window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
+                data = src.read(indexes, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
             except RasterioError as exc:
                 raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
         return np.ma.filled(data.astype(np.float32), np.nan)
@@ -58,9 +60,12 @@ def image_source(image: str | Path, camera: str | Path | PinholeCamera) -> Image
     return ImageSource(path, cols, rows, bands, check_image(shape_only, camera, str(path)))
 
 
-def _read_cube_window(path: Path, window: tuple[int, int, int, int]) -> np.ndarray:
-    """A window of an ISIS3 cube, through a memory map of its pixels (see
-    :func:`orthomvp.isis.read_cube` for the layout and the special pixels)."""
+def _read_cube_window(
+    path: Path, window: tuple[int, int, int, int], band: int | None = None
+) -> np.ndarray:
+    """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
+    map of its pixels (see :func:`orthomvp.isis.read_cube` for the layout and the special
+    pixels)."""
     layout = cube_layout(path, read_label(path))
     r0, r1, c0, c1 = window
     ts, tl = layout.tile_samples, layout.tile_lines
@@ -75,8 +80,9 @@ def _read_cube_window(path: Path, window: tuple[int, int, int, int]) -> np.ndarr
         ) from None
     tiles = raw.reshape(layout.bands, down, across, tl, ts)
     tr0, tr1, tc0, tc1 = r0 // tl, -(-r1 // tl), c0 // ts, -(-c1 // ts)
-    part = tiles[:, tr0:tr1, tc0:tc1].transpose(0, 1, 3, 2, 4)
-    part = part.reshape(layout.bands, (tr1 - tr0) * tl, (tc1 - tc0) * ts)
+    bands = slice(None) if band is None else slice(band - 1, band)
+    part = tiles[bands, tr0:tr1, tc0:tc1].transpose(0, 1, 3, 2, 4)
+    part = part.reshape(part.shape[0], (tr1 - tr0) * tl, (tc1 - tc0) * ts)
     values = part[:, r0 - tr0 * tl : r1 - tr0 * tl, c0 - tc0 * ts : c1 - tc0 * ts].astype(
         np.float32
     )

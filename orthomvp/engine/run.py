@@ -72,7 +72,12 @@ def available_memory() -> int:
 def preflight(plan: Plan, workers: int, processes: int, images: bool) -> int:
     """Expected peak memory of the run (:meth:`Plan.peak_memory`), bytes; InputError (one
     line, saying what to change) when it exceeds :func:`available_memory`."""
-    need = plan.peak_memory(workers, processes, images)
+    return check_memory(plan, plan.peak_memory(workers, processes, images), workers)
+
+
+def check_memory(plan: Any, need: int, workers: int) -> int:
+    """``need`` bytes for a run of ``plan`` with ``workers`` tiles at a time; InputError (one
+    line, saying what to change) when it exceeds :func:`available_memory`."""
     have = available_memory()
     if need > have:
         raise InputError(
@@ -83,51 +88,99 @@ def preflight(plan: Plan, workers: int, processes: int, images: bool) -> int:
     return need
 
 
-def _worker_init(plan: Plan) -> None:
+def _worker_init(plan: Any) -> None:
     global _PLAN
     _PLAN = plan
 
 
-_PLAN: Plan | None = None
+_PLAN: Any = None
 
 
-def _process_tile(index: int, kinds: frozenset[str], threads: int) -> TileResult:
-    """:func:`run_tile` on the plan that :func:`_worker_init` gave this worker process."""
+def _process_tile(work: Callable[..., Any], index: int, *args: Any) -> Any:
+    """``work`` (a module-level tile function such as :func:`run_tile`) on the plan that
+    :func:`_worker_init` gave this worker process."""
     assert _PLAN is not None
-    return run_tile(_PLAN, index, kinds, threads)
+    return work(_PLAN, index, *args)
+
+
+Submit = Callable[..., Any]
+"""``submit(index, *args)``: start a tile; returns its future."""
 
 
 @contextlib.contextmanager
-def _local_executor(
-    plan: Plan, workers: int, processes: int | None
-) -> Iterator[tuple[Callable[[int, frozenset[str], int], Any], Callable]]:
-    """(submit, wait) over a pool of ``workers`` threads, or of ``processes`` processes."""
+def executor(
+    plan: Any,
+    work: Callable[..., Any],
+    workers: int,
+    processes: int | None = None,
+    client: Any = None,
+) -> Iterator[tuple[Submit, Callable]]:
+    """(submit, wait) running ``work(plan, index, *args)`` (a module-level function, so that
+    worker processes can import it) in a pool of ``workers`` threads, of ``processes``
+    processes, or on a Dask ``client`` (the plan sent to every worker once); ``wait(futures)``
+    returns (done, pending) as soon as one is done."""
+    if client is not None:
+        from distributed import wait
+
+        shared = client.scatter(plan, broadcast=True)
+        try:
+            yield (
+                lambda i, *a: client.submit(work, shared, i, *a, pure=False),
+                lambda fs: wait(fs, return_when="FIRST_COMPLETED"),
+            )
+        finally:
+            client.cancel([shared])
+        return
     if processes:
         ctx = multiprocessing.get_context("spawn")
         pool: cf.Executor = cf.ProcessPoolExecutor(
             processes, mp_context=ctx, initializer=_worker_init, initargs=(plan,)
         )
-        submit = lambda i, k, t: pool.submit(_process_tile, i, k, t)  # noqa: E731
+        submit = lambda i, *a: pool.submit(_process_tile, work, i, *a)  # noqa: E731
     else:
         pool = cf.ThreadPoolExecutor(workers)
-        submit = lambda i, k, t: pool.submit(run_tile, plan, i, k, t)  # noqa: E731
+        submit = lambda i, *a: pool.submit(work, plan, i, *a)  # noqa: E731
     try:
         yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-@contextlib.contextmanager
-def _dask_executor(plan: Plan, client: Any) -> Iterator[tuple[Callable, Callable]]:
-    """(submit, wait) over a Dask client; the plan is sent to every worker once."""
-    from distributed import wait
+def results(
+    submit: Submit, wait: Callable, jobs: list[int], args: tuple, limit: int
+) -> Iterator[Any]:
+    """Run tiles ``jobs`` (indices, first ones first) with ``submit(index, *args)``, at most
+    ``limit`` at a time, and yield their results as they finish; WorkerError (one line) when
+    a worker dies under a tile, any other exception of a tile as it is."""
+    queue, pending = list(reversed(jobs)), set()
+    while queue or pending:
+        while queue and len(pending) < limit:
+            pending.add(submit(queue.pop(), *args))
+        done, pending = wait(pending)
+        for future in done:
+            try:
+                result = future.result()
+            except Exception as exc:
+                if _died(exc):
+                    raise WorkerError(
+                        f"a worker died while running a tile ({type(exc).__name__}: "
+                        f"{' '.join(str(exc).split())[:200]}); nothing was written"
+                    ) from None
+                raise
+            yield result
 
-    shared = client.scatter(plan, broadcast=True)
-    submit = lambda i, k, t: client.submit(run_tile, shared, i, k, t, pure=False)  # noqa: E731
-    try:
-        yield submit, lambda fs: wait(fs, return_when="FIRST_COMPLETED")
-    finally:
-        client.cancel([shared])
+
+def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
+    """Tiles that can run at once: threads (default one per core), processes, or the Dask
+    client's worker threads; InputError for several of them or counts under 1."""
+    if sum(x is not None for x in (threads, processes, client)) > 1:
+        raise InputError("give threads, processes or a Dask client, not several")
+    for name, value in (("threads", threads), ("processes", processes)):
+        if value is not None and value < 1:
+            raise InputError(f"{name} must be at least 1, got {value}")
+    if client is not None:
+        return max(sum(client.nthreads().values()), 1)
+    return processes or threads or os.cpu_count() or 1
 
 
 @contextlib.contextmanager
@@ -204,28 +257,18 @@ def run_plan(
     available, GeometryError (and writes nothing) when an image sees no post of the grid or
     only posts facing away, and WorkerError (writing nothing) when a worker dies.
     """
-    if sum(x is not None for x in (threads, processes, client)) > 1:
-        raise InputError("give threads, processes or a Dask client, not several")
-    for name, value in (("threads", threads), ("processes", processes), ("inflight", inflight)):
-        if value is not None and value < 1:
-            raise InputError(f"{name} must be at least 1, got {value}")
+    workers = workers_of(threads, processes, client)
+    if inflight is not None and inflight < 1:
+        raise InputError(f"inflight must be at least 1, got {inflight}")
     kinds = frozenset(outputs.paths())
     jobs = [job.index for job in plan.tiles if job.views]
-    if client is not None:
-        workers = max(sum(client.nthreads().values()), 1)
-    else:
-        workers = processes or threads or os.cpu_count() or 1
     at_once = min(workers, max(len(jobs), 1))
     peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
     n = len(plan.views)
     report = RunReport(inside=[0] * n, taken=[0] * n, counts=[[0] * len(Code) for _ in range(n)])
-    executor = (
-        _dask_executor(plan, client)
-        if client is not None
-        else _local_executor(plan, workers, processes)
-    )
-    with Progress("tiles", progress, len(plan.tiles)) as bar, executor as (submit, wait):
+    pool = executor(plan, run_tile, workers, processes, client)
+    with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
         inner = 1 if client is not None or processes else max(1, workers // max(len(jobs), 1))
         limit = inflight or 2 * workers
@@ -238,27 +281,13 @@ def run_plan(
                     _add_counts(report, empty)
                     report.tiles_skipped += 1
                     bar.update()
-            queue, pending = list(reversed(jobs)), set()
-            while queue or pending:
-                while queue and len(pending) < limit:
-                    pending.add(submit(queue.pop(), kinds, inner))
-                done, pending = wait(pending)
-                for future in done:
-                    try:
-                        result = future.result()
-                    except Exception as exc:
-                        if _died(exc):
-                            raise WorkerError(
-                                f"a worker died while running a tile ({type(exc).__name__}: "
-                                f"{' '.join(str(exc).split())[:200]}); nothing was written"
-                            ) from None
-                        raise
-                    t0 = time.perf_counter()
-                    writer.write(result)
-                    _account(report, result, time.perf_counter() - t0)
-                    seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
-                    bar.update()
-            _check_views(plan, report, seen)
+            for result in results(submit, wait, jobs, (kinds, inner), limit):
+                t0 = time.perf_counter()
+                writer.write(result)
+                _account(report, result, time.perf_counter() - t0)
+                seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
+                bar.update()
+            check_views(plan.views, report.inside, seen)
             t0 = time.perf_counter()
         report.phases["write"] = report.phases.get("write", 0.0) + time.perf_counter() - t0
     report.seconds = time.perf_counter() - start
@@ -288,16 +317,17 @@ def _add_counts(report: RunReport, result: TileResult) -> None:
             total[code] += count
 
 
-def _check_views(plan: Plan, report: RunReport, seen: list[int]) -> None:
-    """GeometryError when a view had no post inside its image in any tile, or only posts
-    facing away (as :func:`~orthomvp.visibility.compute_visibility` raises for a whole grid)."""
-    for view, inside, visible in zip(plan.views, report.inside, seen, strict=True):
-        if not inside:
+def check_views(views: Any, inside: list[int], seen: list[int]) -> None:
+    """GeometryError when a view had no post ``inside`` its image in any tile, or only posts
+    facing away (none ``seen``: visible or occluded), as
+    :func:`~orthomvp.visibility.compute_visibility` raises for a whole grid."""
+    for view, n_inside, n_seen in zip(views, inside, seen, strict=True):
+        if not n_inside:
             raise GeometryError(
                 f"{view.path}: the image ({view.width} x {view.height} px) does not cover the "
                 "output grid: none of its posts projects inside it"
             )
-        if not visible:
+        if not n_seen:
             raise GeometryError(
                 f"{view.path}: every post in the image faces away from the camera: it looks at "
                 "the surface from below (is the camera inside the body, or the DEM upside down?)"

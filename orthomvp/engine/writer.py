@@ -9,9 +9,10 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -19,8 +20,8 @@ import rasterio.shutil
 from rasterio.enums import Resampling
 from rasterio.windows import Window
 
+from orthomvp.engine.grid import OutputGrid
 from orthomvp.engine.plan import Plan
-from orthomvp.engine.tile import TileResult
 from orthomvp.errors import InputError
 from orthomvp.raster import atomic_path
 
@@ -115,39 +116,73 @@ def _overview_factors(shape: tuple[int, int], blocksize: int) -> list[int]:
     return factors
 
 
+@dataclass(frozen=True)
+class Layer:
+    """One output file of a run: ``path``, ``count`` bands of ``dtype`` with ``nodata`` (None:
+    none), band ``names``, the overview ``resampling``, and ``data(result)``: a finished
+    tile's arrays for it ((bands, rows, cols) or (rows, cols), already of ``dtype``)."""
+
+    path: Path
+    count: int
+    dtype: str
+    nodata: float | None
+    resampling: Resampling
+    data: Callable[[Any], np.ndarray]
+    names: tuple[str, ...] = ()
+
+
+def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
+    """The layers of :class:`Outputs` (orthophoto or mosaic, visibility codes, source)."""
+    n = len(plan.views)
+    source = "uint8" if n < 256 else "uint16"
+    fill = outputs.fill
+    make = {
+        "ortho": lambda path: Layer(
+            path,
+            plan.bands,
+            outputs.dtype,
+            fill,
+            Resampling.average,
+            lambda result: to_dtype(result.data, outputs.dtype, fill),
+        ),
+        "visibility": lambda path: Layer(
+            path, n, "uint8", 0, Resampling.nearest, lambda result: result.codes
+        ),
+        "source": lambda path: Layer(
+            path, 1, source, 0, Resampling.nearest, lambda result: result.source
+        ),
+    }
+    return [make[kind](path) for kind, path in outputs.paths().items()]
+
+
 class _Output:
     """One output being written: its dataset open for windowed writes."""
 
-    def __init__(self, kind: str, plan: Plan, outputs: Outputs, final: Path, work: Path):
-        self.kind, self.final, self.work, self.outputs = kind, final, work, outputs
-        n = len(plan.views)
-        self.dtype = {"ortho": outputs.dtype, "visibility": "uint8"}.get(
-            kind, "uint8" if n < 256 else "uint16"
-        )
-        self.nodata = outputs.fill if kind == "ortho" else 0
-        self.resampling = Resampling.average if kind == "ortho" else Resampling.nearest
-        rows, cols = plan.grid.shape
+    def __init__(self, layer: Layer, grid: OutputGrid, outputs: Any, final: Path, work: Path):
+        self.layer, self.final, self.work, self.outputs = layer, final, work, outputs
+        self.dtype, self.resampling = layer.dtype, layer.resampling
+        rows, cols = grid.shape
         self.profile = {
             "driver": "GTiff",
             "height": rows,
             "width": cols,
-            "count": {"ortho": plan.bands, "visibility": n}.get(kind, 1),
+            "count": layer.count,
             "dtype": self.dtype,
-            "crs": plan.grid.crs.to_wkt(),
-            "transform": plan.grid.transform,
-            "nodata": self.nodata,
+            "crs": grid.crs.to_wkt(),
+            "transform": grid.transform,
+            "nodata": layer.nodata,
             "tiled": True,
             "blockxsize": outputs.blocksize,
             "blockysize": outputs.blocksize,
             **_creation(outputs, self.dtype),
         }
         self.dataset = rasterio.open(work, "w", **self.profile)
+        for band, name in enumerate(layer.names, start=1):
+            self.dataset.set_band_description(band, name)
 
-    def write(self, result: TileResult) -> None:
+    def write(self, result: Any) -> None:
         r0, r1, c0, c1 = result.window
-        data = getattr(result, {"ortho": "data", "visibility": "codes"}.get(self.kind, self.kind))
-        if self.kind == "ortho":
-            data = to_dtype(data, self.dtype, self.nodata)
+        data = self.layer.data(result)
         data = data[None] if data.ndim == 2 else data
         self.dataset.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
 
@@ -174,12 +209,12 @@ class _Output:
 
 
 class Writer:
-    """Writes tiles into every output of a run (see :func:`output_set`)."""
+    """Writes tiles into every output of a run (see :func:`output_files`)."""
 
     def __init__(self, items: list[_Output]):
         self.items = items
 
-    def write(self, result: TileResult) -> None:
+    def write(self, result: Any) -> None:
         """Write one tile's arrays into their windows of every output."""
         for item in self.items:
             item.write(result)
@@ -187,12 +222,21 @@ class Writer:
 
 @contextlib.contextmanager
 def output_set(plan: Plan, outputs: Outputs) -> Iterator[Writer]:
-    """A :class:`Writer` for ``outputs``; when the block succeeds, overviews (and the COG
-    copies) are made and every output is renamed onto its target; when anything fails, no
-    target is touched and every temporary file is removed."""
+    """:func:`output_files` of :class:`Outputs` on the plan's grid."""
+    with output_files(plan.grid, ortho_layers(plan, outputs), outputs) as writer:
+        yield writer
+
+
+@contextlib.contextmanager
+def output_files(grid: OutputGrid, layers: list[Layer], outputs: Any) -> Iterator[Writer]:
+    """A :class:`Writer` of ``layers`` on ``grid``, in the ``format``, with the ``compress``
+    and ``blocksize`` of ``outputs``; when the block succeeds, overviews (and the COG copies)
+    are made and every output is renamed onto its target; when anything fails, no target is
+    touched and every temporary file is removed."""
     with contextlib.ExitStack() as stack:
         items = []
-        for kind, path in outputs.paths().items():
+        for layer in layers:
+            path = layer.path
             final = stack.enter_context(atomic_path(path))
             work = final
             if outputs.format == "cog":
@@ -202,7 +246,7 @@ def output_set(plan: Plan, outputs: Outputs) -> Iterator[Writer]:
                 os.close(fd)
                 work = Path(name)
                 stack.callback(work.unlink, missing_ok=True)
-            item = _Output(kind, plan, outputs, final, work)
+            item = _Output(layer, grid, outputs, final, work)
             stack.callback(item.dataset.close)
             items.append(item)
         yield Writer(items)

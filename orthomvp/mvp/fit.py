@@ -36,6 +36,7 @@ from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import Evaluation, ViewStack
 from orthomvp.mvp.plane import angles_from_normal
 from orthomvp.mvp.problem import FitProblem
+from orthomvp.mvp.views import ViewWindow
 from orthomvp.mvp.window import Window
 from orthomvp.terrain import Terrain
 from orthomvp.validate import number, of_type
@@ -120,6 +121,8 @@ class FitResult:
     ``n_theta``, ``n_phi`` eq. (11) angles, degrees; ``cost`` eq. (20) at the solution;
     ``views`` number of views used; ``converged``; ``sigma_h`` 1-sigma height uncertainty in
     the heights' units; ``initial`` the input values; ``resolved`` posts with >= 2 views.
+    ``extents``: on windows of the images, the sampled positions per level and view (see
+    :class:`~orthomvp.mvp.patches.ViewStack`), else None.
     """
 
     heights: np.ndarray
@@ -132,6 +135,7 @@ class FitResult:
     initial: np.ndarray
     view_mask: np.ndarray
     samples: int = 0
+    extents: list[np.ndarray] | None = None
 
     @property
     def resolved(self) -> np.ndarray:
@@ -236,6 +240,12 @@ def fit_dem(
     eps: float | None = None,
     progress: bool = False,
     threads: int | None = None,
+    *,
+    windows: list[ViewWindow] | None = None,
+    spacing: float | None = None,
+    origin: tuple[int, int] = (0, 0),
+    geometry: Terrain | None = None,
+    strict: bool = True,
 ) -> FitResult:
     """Refine every post of ``terrain`` from ``images`` (at least 2; each (bands, rows, cols)
     or (rows, cols); band 1 is used) seen through ``cameras``.
@@ -244,6 +254,13 @@ def fit_dem(
     :func:`orthomvp.visibility.compute_visibility` with ``eps`` in DEM posts, on this DEM's
     mesh); see :class:`~orthomvp.mvp.problem.FitProblem`. ``threads``: tiles fitted at once
     (default: one per core); ``progress``: a progress bar over tiles.
+
+    A window of a larger fit (what :mod:`orthomvp.engine.fit` runs per tile): ``terrain`` a
+    window of the DEM at ``origin`` on the grid of ``geometry``, ``images`` windows of the
+    images at ``windows``, ``visible`` given, ``spacing`` the whole DEM's and
+    ``options.levels`` the levels of the whole images (see :meth:`FitProblem.build`);
+    ``strict=False`` returns an unresolved result instead of raising GeometryError when no
+    post is fitted.
     """
     opts = FitOptions() if options is None else of_type(options, FitOptions, "options")
     of_type(terrain, Terrain, "terrain")
@@ -257,7 +274,17 @@ def fit_dem(
     check_fit_memory(terrain.shape, len(images), opts.hwin, threads or os.cpu_count() or 1)
     window = opts.window
     problem = FitProblem.build(
-        terrain, images, cameras, levels=opts.levels, eps=eps, visible=visible, min_views=2
+        terrain,
+        images,
+        cameras,
+        levels=opts.levels,
+        eps=eps,
+        visible=visible,
+        min_views=2,
+        windows=windows,
+        spacing=spacing,
+        origin=origin,
+        geometry=geometry,
     )
     stack = problem.stack
     rows, cols = terrain.shape
@@ -293,8 +320,9 @@ def fit_dem(
 
     run_tiles(work, terrain.shape, TILE, "fit", progress=progress, threads=threads)
     out.samples = stack.samples
+    out.extents = stack.extents
     out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
-    if not out.resolved.any():
+    if strict and not out.resolved.any():
         seen = problem.usable & (problem.visible.sum(axis=0) >= 2)
         if not seen.any():
             raise GeometryError("no post is visible in 2 or more images: nothing to fit")

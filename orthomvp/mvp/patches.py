@@ -21,37 +21,20 @@ around the post, |i|, |j| <= hwin; coarse pyramid levels use a larger step on a 
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
-from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
+from orthomvp.mvp.views import ViewWindow, level_size, undistorted_image
 from orthomvp.mvp.window import Window
 
+__all__ = ["MIN_STD", "Evaluation", "ViewStack", "evaluate", "sample_patches", "undistorted_image"]
+
 MIN_STD = 1e-6  # relative to the image's own standard deviation: flatter patches carry nothing
-
-
-def undistorted_image(image: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, PinholeCamera]:
-    """Resample a (rows, cols) image of a camera with lens distortion into the image of the
-    same camera without it (same size and intrinsics), so that homographies apply."""
-    if isinstance(camera.distortion, NullDistortion):
-        return image, camera
-    rows, cols = image.shape
-    v, u = np.mgrid[0:rows, 0:cols].astype(np.float64)
-    focal = np.array([camera.fu, camera.fv])
-    offset = np.array([camera.cu, camera.cv])
-    und = np.stack([u, v], axis=-1) * camera.pitch
-    src = camera.distortion.distort(und, focal, offset) / camera.pitch
-    out = cv2.remap(
-        image.astype(np.float32),
-        src[..., 0].astype(np.float32),
-        src[..., 1].astype(np.float32),
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )
-    return out, replace(camera, distortion=NullDistortion())
 
 
 DERIVATIVE = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], np.float32) / 12.0
@@ -75,7 +58,16 @@ class ViewStack:
     projection matrices (eq. 9) of the undistorted level-0 images; level L pixel = level-0 pixel
     / 2**L. ``sizes[L][k]`` = (cols, rows). ``flat[L]`` (K,): the patch standard deviation
     below which a view's patch is taken as flat (MIN_STD times the image's own), computed once.
+    The fill value of nodata pixels and the standard deviations are taken in float64, so that
+    windows of the image (which sum them in other orders) agree to float32 rounding.
     ``samples`` counts the bilinear samples taken.
+
+    Built from windows of the images (:mod:`orthomvp.mvp.views`), ``levels`` hold the windows,
+    ``origins[L]`` (K, 2) float32 their first pixels (c, r) in the whole images at level L,
+    and everything else is the whole images'; ``extents[L]`` (K, 4) then records the bounding
+    box (c_min, c_max, r_min, r_max) of the positions sampled at level L for views taking
+    part (whole-image pixels of that level; NaN once a position was not finite), to check
+    that they stayed where the windows are exact.
     """
 
     levels: list[list[np.ndarray]]
@@ -83,6 +75,8 @@ class ViewStack:
     sizes: list[list[tuple[int, int]]]
     flat: list[np.ndarray]
     samples: int = 0
+    origins: list[np.ndarray] | None = None
+    extents: list[np.ndarray] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def evaluate(
@@ -99,38 +93,93 @@ class ViewStack:
         (positions times channels) in ``samples``."""
         with self._lock:
             self.samples += H.shape[0] * H.shape[1] * len(window.offsets) * (1 if dH is None else 3)
+        origins = None if self.origins is None else self.origins[level]
+        track = None
+        if self.extents is not None:
+
+            def track(u: np.ndarray, v: np.ndarray) -> None:
+                self._track(level, u, v, W)
+
         return evaluate(
-            self.levels[level], self.flat[level], H, W, window, dH, extras, keep_patches
+            self.levels[level],
+            self.flat[level],
+            H,
+            W,
+            window,
+            dH,
+            extras,
+            keep_patches,
+            origins=origins,
+            track=track,
         )
+
+    def _track(self, level: int, u: np.ndarray, v: np.ndarray, W: np.ndarray) -> None:
+        """Widen ``extents[level]`` by the positions ``u``, ``v`` (B, K, S) of views taking
+        part (``W`` (B, K))."""
+        assert self.extents is not None
+        box = np.full((W.shape[1], 4), [np.inf, -np.inf, np.inf, -np.inf])
+        for k in np.nonzero(W.any(axis=0))[0]:
+            uk, vk = u[W[:, k], k], v[W[:, k], k]
+            box[k] = uk.min(), uk.max(), vk.min(), vk.max()
+        with self._lock:
+            ext = self.extents[level]
+            bad = np.isnan(box).any(axis=1) | np.isnan(ext).any(axis=1)
+            ext[:, 0::2] = np.minimum(ext[:, 0::2], box[:, 0::2])
+            ext[:, 1::2] = np.maximum(ext[:, 1::2], box[:, 1::2])
+            ext[bad] = np.nan
 
     @classmethod
     def build(
-        cls, images: list[np.ndarray], cameras: list[PinholeCamera], n_levels: int
+        cls,
+        images: list[np.ndarray],
+        cameras: list[PinholeCamera],
+        n_levels: int,
+        windows: list[ViewWindow] | None = None,
     ) -> ViewStack:
         """From single-band (rows, cols) images (NaN allowed: filled with the mean) and their
-        cameras; ``n_levels`` pyramid levels."""
+        cameras; ``n_levels`` pyramid levels. With ``windows``, each image is that window of
+        the camera's image (see :mod:`orthomvp.mvp.views`: its origin a multiple of
+        :func:`~orthomvp.mvp.views.alignment`), whose fill value and standard deviations
+        come from the window."""
         levels: list[list[np.ndarray]] = [[] for _ in range(n_levels)]
         sizes: list[list[tuple[int, int]]] = [[] for _ in range(n_levels)]
+        stds: list[list[float]] = [[] for _ in range(n_levels)]
         Fs = []
-        for image, camera in zip(images, cameras, strict=True):
+        for k, (image, camera) in enumerate(zip(images, cameras, strict=True)):
+            view = None if windows is None else windows[k]
             img = np.asarray(image, dtype=np.float32)
             finite = np.isfinite(img)
-            if not finite.any():
+            if view is None and not finite.any():
                 raise InputError("an image holds no valid pixels")
-            img = np.where(finite, img, np.float32(img[finite].mean()))
-            img, camera = undistorted_image(img, camera)
+            mean = img[finite].mean(dtype=np.float64) if view is None else view.fill
+            fill = np.float32(mean)
+            img = np.where(finite, img, fill)
+            origin = (0, 0) if view is None else view.origin
+            img, camera = undistorted_image(img, camera, origin)
             Fs.append(camera.F)
             for level in range(n_levels):
                 if level:
                     img = cv2.pyrDown(img)
                 gc, gr = image_gradients(img)
                 levels[level].append(np.ascontiguousarray(np.stack([img, gc, gr], axis=-1)))
-                sizes[level].append((img.shape[1], img.shape[0]))
-        flat = [
-            np.array([MIN_STD * max(float(np.std(img[..., 0])), 1e-30) for img in lv], np.float32)
-            for lv in levels
-        ]
-        return cls(levels, np.stack(Fs), sizes, flat)
+                if view is None:
+                    sizes[level].append((img.shape[1], img.shape[0]))
+                    stds[level].append(float(np.std(img, dtype=np.float64)))
+                else:
+                    sizes[level].append(level_size(view.size, level))
+                    stds[level].append(view.std[level])
+        flat = [np.array([MIN_STD * max(s, 1e-30) for s in lv], np.float32) for lv in stds]
+        stack = cls(levels, np.stack(Fs), sizes, flat)
+        if windows is not None:
+            stack.origins = [
+                np.array([[v.origin[0] >> L, v.origin[1] >> L] for v in windows], np.float32)
+                for L in range(n_levels)
+            ]
+            stack.extents = [
+                np.tile([np.inf, -np.inf, np.inf, -np.inf], (len(windows), 1))
+                for _ in range(n_levels)
+            ]
+        return stack
 
 
 @dataclass
@@ -153,11 +202,17 @@ class Evaluation:
 
 
 def sample_patches(
-    images: list[np.ndarray], H: np.ndarray, offsets: np.ndarray, channels: int = 3
+    images: list[np.ndarray],
+    H: np.ndarray,
+    offsets: np.ndarray,
+    channels: int = 3,
+    origins: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sample K ``images`` (rows, cols, 3) through homographies ``H`` (B, K, 3, 3) (patch
     offsets to pixels) at ``offsets`` (S, 2). Returns samples (B, K, S, channels) and the
-    pixel positions u, v and 1/w, each (B, K, S) float32."""
+    pixel positions u, v and 1/w, each (B, K, S) float32. ``origins`` (K, 2) float32: the
+    images are windows whose first pixels (c, r) are these whole-image pixels (integers:
+    positions shift exactly in float32)."""
     Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)
     xyw = Hf @ _homogeneous(offsets)  # (B, K, 3, S)
     iw = 1.0 / xyw[:, :, 2]
@@ -167,11 +222,12 @@ def sample_patches(
     out = np.empty((B, K, S, channels), np.float32)
     for k, img in enumerate(images):
         src = img if channels == img.shape[-1] else np.ascontiguousarray(img[..., :channels])
+        uk, vk = u[:, k], v[:, k]
+        if origins is not None:
+            uk, vk = uk - origins[k, 0], vk - origins[k, 1]
         for b0 in range(0, B, 32000):  # cv2.remap maps hold fewer than 32768 rows
             sl = slice(b0, b0 + 32000)
-            s = cv2.remap(
-                src, u[sl, k], v[sl, k], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-            )
+            s = cv2.remap(src, uk[sl], vk[sl], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             out[sl, k] = s.reshape(-1, S, channels)
     return out, u, v, iw
 
@@ -185,6 +241,9 @@ def evaluate(
     dH: np.ndarray | None = None,
     extras: bool = True,
     keep_patches: bool = False,
+    *,
+    origins: np.ndarray | None = None,
+    track: Callable[[np.ndarray, np.ndarray], None] | None = None,
 ) -> Evaluation:
     """The objective (eq. 20) at B planes seen through K views, sampled on ``window``.
 
@@ -193,10 +252,14 @@ def evaluate(
     ``W`` (B, K) bool: views allowed to take part; ``dH`` (B, K, P, 3, 3): derivatives of H
     with respect to P plane parameters, on the same scale as H, to get the normal equations.
     ``extras``: also ``loo`` and (with ``dH``) ``JgJ``, which the iterations do not need.
+    ``origins``: see :func:`sample_patches`; ``track(u, v)`` is called with the sampled
+    positions (B, K, S).
     """
     jac = dH is not None
     offsets, g = window.offsets, window.weights
-    smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1)
+    smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1, origins)
+    if track is not None:
+        track(u, v)
     It = smp[..., 0]
     m = It @ g
     c = It - m[..., None]

@@ -14,8 +14,9 @@ from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import PostLines, post_lines
+from orthomvp.mvp.views import ViewWindow
 from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
+from orthomvp.terrain import Terrain, grid_normals
 from orthomvp.visibility import Visibility, compute_visibility
 
 MIN_LEVEL_SIZE = 16  # pixels: no pyramid level whose smallest image is narrower
@@ -24,20 +25,36 @@ MIN_LEVEL_SIZE = 16  # pixels: no pyramid level whose smallest image is narrower
 def pyramid_levels(images: list[np.ndarray], wanted: int) -> int:
     """At most ``wanted`` levels, and none whose images would be under MIN_LEVEL_SIZE pixels
     across."""
-    smallest = min(min(img.shape[-2:]) for img in images)
+    return levels_for(min(min(img.shape[-2:]) for img in images), wanted)
+
+
+def levels_for(smallest: int, wanted: int) -> int:
+    """:func:`pyramid_levels` of images whose smallest side is ``smallest`` pixels."""
     return max(1, min(wanted, int(np.floor(np.log2(max(smallest / MIN_LEVEL_SIZE, 1)))) + 1))
 
 
 def first_bands(
-    images: list[np.ndarray], cameras: list[PinholeCamera], names: list[str]
+    images: list[np.ndarray],
+    cameras: list[PinholeCamera],
+    names: list[str],
+    windows: list[ViewWindow] | None = None,
 ) -> tuple[list[np.ndarray], list[PinholeCamera]]:
     """Band 1 of each image ((bands, rows, cols) or (rows, cols), see
     :func:`orthomvp.camera.as_image`) as float32, and each camera checked against its image and
-    given its size; ``names`` label errors."""
+    given its size; ``names`` label errors. With ``windows`` the images are those windows of
+    the cameras' images (of the windows' sizes)."""
     bands, cams = [], []
-    for image, camera, name in zip(images, cameras, names, strict=True):
+    for k, (image, camera, name) in enumerate(zip(images, cameras, names, strict=True)):
         img = as_image(image, name)
-        cams.append(check_image(img, camera, name))
+        if windows is None:
+            cams.append(check_image(img, camera, name))
+        else:
+            if img.shape[1:] != windows[k].shape:
+                raise InputError(
+                    f"{name}: the window is {windows[k].shape} px (rows, cols), the image "
+                    f"given {img.shape[1:]}"
+                )
+            cams.append(camera.with_image_size(*windows[k].size))
         bands.append(img[0])
     return bands, cams
 
@@ -63,6 +80,8 @@ class FitProblem:
     normals: np.ndarray
     usable: np.ndarray
     spacing: float
+    origin: tuple[int, int] = (0, 0)
+    geometry: Terrain | None = None
 
     @classmethod
     def build(
@@ -76,13 +95,27 @@ class FitProblem:
         visible: np.ndarray | None = None,
         names: list[str] | None = None,
         min_views: int = 1,
+        windows: list[ViewWindow] | None = None,
+        spacing: float | None = None,
+        origin: tuple[int, int] = (0, 0),
+        geometry: Terrain | None = None,
     ) -> FitProblem:
         """From ``images`` (each (bands, rows, cols) or (rows, cols); band 1 is used) seen
         through ``cameras``, at least ``min_views`` of them; ``levels``: pyramid levels wanted
         (fewer when the images are small, see :func:`pyramid_levels`). ``visible`` (K, rows,
         cols) bool overrides the visibility test (:func:`orthomvp.visibility.compute_visibility`
         with ``eps`` in DEM posts, on this DEM's mesh); ``names`` label the views (default
-        "image 1", ...)."""
+        "image 1", ...).
+
+        A window of a larger DEM and images: ``windows`` (one per view) say where the images
+        lie in the cameras' images (:mod:`orthomvp.mvp.views`; the visibility test needs the
+        whole images, so ``visible`` must then be given, and ``levels`` is taken as it is),
+        and ``spacing`` is the whole DEM's mean post spacing (metres), which scales the
+        fitted tilts and the convergence tests. ``terrain`` may be the window whose first post
+        is post ``origin`` (c, r) of the grid of ``geometry`` (the whole DEM, or a Terrain
+        with its georeference, conventions and ``wrap_lon``; its values are not read): posts'
+        geometry (height lines, normals) is then computed on that grid, exactly as for the
+        whole DEM."""
         if len(images) != len(cameras) or len(images) < min_views:
             plural = "s" if min_views > 1 else ""
             raise InputError(
@@ -90,8 +123,10 @@ class FitProblem:
                 f"{min_views} image{plural}, each with its camera"
             )
         names = names or [f"image {k + 1}" for k in range(len(images))]
-        bands, cams = first_bands(images, cameras, names)
+        bands, cams = first_bands(images, cameras, names, windows)
         visibility = None
+        if visible is None and windows is not None:
+            raise InputError("a fit on windows of the images needs the visibility masks")
         if visible is None:
             caster = RayCaster(terrain_mesh(terrain))
             visibility = [compute_visibility(terrain, cam, eps=eps, caster=caster) for cam in cams]
@@ -99,11 +134,22 @@ class FitProblem:
         visible = np.asarray(visible, bool)
         if visible.shape != (len(cams), *terrain.shape):
             raise InputError(f"visibility masks must be (K, rows, cols), got {visible.shape}")
-        stack = ViewStack.build(bands, cams, pyramid_levels(bands, levels))
-        normals = terrain.normals()
+        n_levels = pyramid_levels(bands, levels) if windows is None else levels
+        stack = ViewStack.build(bands, cams, n_levels, windows)
+        if geometry is None:
+            if origin != (0, 0):
+                raise InputError("a window of a DEM (origin) needs the DEM's geometry")
+            normals = terrain.normals()
+        else:
+            c, r = terrain.grid()
+            p = geometry.to_world(c + origin[0], r + origin[1], terrain.values)
+            normals = grid_normals(p, geometry.up_vectors(p))
         usable = terrain.valid & np.isfinite(normals).all(axis=-1)
-        spacing = float(np.mean(terrain.post_spacing()))
-        return cls(terrain, names, stack, visible, visibility, normals, usable, spacing)
+        if spacing is None:
+            spacing = float(np.mean(terrain.post_spacing()))
+        return cls(
+            terrain, names, stack, visible, visibility, normals, usable, spacing, origin, geometry
+        )
 
     @property
     def levels(self) -> int:
@@ -111,8 +157,15 @@ class FitProblem:
         return len(self.stack.levels)
 
     def lines(self, c: np.ndarray, r: np.ndarray) -> PostLines:
-        """Height lines of posts (``c``, ``r``) (B,) integers, at the DEM's values there."""
-        return post_lines(self.terrain, c.astype(float), r.astype(float), self.terrain.values[r, c])
+        """Height lines of posts (``c``, ``r``) (B,) integers, at the DEM's values there
+        (on the grid of ``geometry`` when given: its lines' ``c``, ``r`` are then that grid's)."""
+        c0, r0 = self.origin
+        return post_lines(
+            self.geometry or self.terrain,
+            (c + c0).astype(float),
+            (r + r0).astype(float),
+            self.terrain.values[r, c],
+        )
 
     def model(
         self,
