@@ -13,10 +13,10 @@ import pytest
 import rasterio
 from scipy import ndimage
 
-import orthomvp.engine.fit as engine_fit
+import orthomvp.engine.fit_plan as engine_fit_plan
 from orthomvp.camera import load_view
 from orthomvp.engine import FitOutputs, dask_client, plan_fit, run_fit
-from orthomvp.engine.fit import Median
+from orthomvp.engine.median import Median
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.mvp.patches import ViewStack
@@ -239,14 +239,14 @@ def test_crater_tiled_fit_equals_the_in_memory_fit(crater_dir: Path, tmp_path: P
 def test_windows_that_miss_samples_are_grown(hills: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
     """When the planned image windows are too small for where the planes move, the tile is
     fitted again with windows that hold every sample: the results do not change."""
-    real = engine_fit.patch_box
+    real = engine_fit_plan.patch_box
 
     def shrunk(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         c0, c1, r0, r1 = real(*args, **kwargs)
         cm, rm = (c0 + c1) / 2, (r0 + r1) / 2
         return cm - 4, cm + 4, rm - 4, rm + 4
 
-    monkeypatch.setattr(engine_fit, "patch_box", shrunk)
+    monkeypatch.setattr(engine_fit_plan, "patch_box", shrunk)
     got = fit(hills, tmp_path, "grown", tile=24, threads=2)
     assert got["report"].refits > 0
     assert_same(got, hills["expected"])

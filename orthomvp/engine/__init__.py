@@ -8,13 +8,14 @@ window it needs (its posts plus the occluder halo, see :mod:`orthomvp.engine.hal
     plan = plan_ortho("dem.tif", [("image.tif", "image.tsai")], tile=1024)
     report = run_plan(plan, Outputs(ortho="ortho.tif", visibility="vis.tif"), threads=2)
 
-The MVP fit runs the same way (:mod:`orthomvp.engine.fit`):
+The MVP fit runs the same way (:mod:`orthomvp.engine.fit_plan`, :mod:`orthomvp.engine.fit`):
 
     plan = plan_fit("dem.tif", [("a.tif", "a.tsai"), ("b.tif", "b.tsai")], FitOptions())
     report = run_fit(plan, FitOutputs(heights="fitted.tif", uncertainty="sigma.tif"))
 """
 
-from orthomvp.engine.fit import FitOutputs, FitPlan, FitReport, plan_fit, run_fit
+from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
+from orthomvp.engine.fit_plan import FitPlan, plan_fit
 from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
 from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
 from orthomvp.engine.writer import Outputs

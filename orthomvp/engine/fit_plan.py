@@ -1,0 +1,364 @@
+"""Planning the MVP fit through the engine: a plan of tiles on the DEM's own grid, each fitted from
+windows of the DEM and of the images, with the results of the in-memory fit
+(:func:`orthomvp.mvp.fit_dem`) bit for bit.
+
+What a tile of posts T needs (the bound, derived from the code of :mod:`orthomvp.mvp`):
+
+- Heights at T are the fitted plane heights after ``options.deconvolve`` Van Cittert steps
+  (:func:`orthomvp.mvp.deconvolve.deconvolve`), each of which reads the plane heights within
+  ``hwin`` posts of a post: so the planes of every post within ``deconvolve * hwin`` posts of T
+  are fitted (the *fit window* F; normals, cost, views and uncertainty at T need only T).
+- Fitting a post reads, from the DEM, its own value and its normal, central differences of its
+  neighbours: the *fit grid* is F and one post around. Its patch (``hwin`` posts at the finest
+  level, ``hwin * 2**(levels - 1)`` at the coarsest) lies on the fitted plane and reads image
+  pixels only, no DEM post.
+- The views that see a post come from the visibility test of F's posts, which needs the
+  occluder halo of F for each view (:mod:`orthomvp.engine.halo`).
+
+So the DEM window of a tile is T grown by ``deconvolve * hwin + 1`` posts, united with the
+occluder halos of F (clipped to the DEM). The image window of a view is where the patches of
+F's posts can fall: F grown by ``hwin * 2**(levels - 1)`` posts, at heights from the DEM's
+lowest minus to its highest plus that many post spacings (planes tilted up to 45 degrees),
+projected, grown by the pyramid's margin and aligned (:func:`orthomvp.mvp.views.window_for`).
+That is an estimate: planes move while they are fitted. After the fit, the positions actually
+sampled are checked against the pixels the windows compute exactly
+(:func:`orthomvp.mvp.views.exact_masks`), and a tile whose samples strayed is fitted again with
+its windows grown to hold them (at most :data:`RETRIES` times, then the whole image of the view
+in question), so the results never depend on the estimate.
+
+The image statistics that the fit takes from whole images (the fill value of nodata pixels and
+the flatness thresholds) come from one pass over each image in blocks when planning.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.codes import WorldFrame
+from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid, scan_dem
+from orthomvp.engine.grid import with_world as dem_with_world
+from orthomvp.engine.halo import footprint, image_box, perimeter, tile_halo
+from orthomvp.engine.images import ImageSource, image_source
+from orthomvp.engine.plan import (
+    BASE_BYTES,
+    MESH_BYTES,
+    WINDOW_BYTES,
+    HaloWarning,
+    _no_overlap,
+    _sees,
+    _union,
+)
+from orthomvp.engine.plan import _frame as world_frame
+from orthomvp.engine.progress import Progress
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.mvp import FitOptions
+from orthomvp.mvp.fit import TILE as BATCH
+from orthomvp.mvp.problem import levels_for
+from orthomvp.mvp.views import view_statistics, window_for
+from orthomvp.world import check_cameras_above, detect_world
+
+RETRIES = 3
+"""Times a tile is fitted again with grown image windows before it takes whole images."""
+
+# Bytes of memory, from the growth of the peak resident set size over single tiles of the
+# hills scene (200 x 200 posts, 4 views, tiles of 32 to 200 posts, hwin 3 and 10, 1 and 2
+# threads), rounded up: per post of the fit grid (the problem's and the result's arrays, the
+# deconvolution's moments: about 750 measured with the views' share and the DEM window's),
+# per post and view (the visibility test's arrays, the masks), per pixel of an image window
+# (the window, its fill and undistortion, the pyramid of values and gradients, the
+# exactness masks), and per thread for a batch of BATCH x BATCH posts per sample of the
+# patch and view (samples, their derivatives and the normal equations' products, float32,
+# with the heap they leave behind: about 170 MB a thread at hwin 10 with 4 views).
+FIT_POST_BYTES = 500
+FIT_VIEW_BYTES = 80
+PIXEL_BYTES = 48
+BATCH_SAMPLE_BYTES = 170
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """One tile of the fit: ``window`` the posts it writes (T); ``fit`` the posts whose planes
+    it fits (F, see the module docstring), ``dem`` the DEM window it reads, ``views`` the
+    images that see F, and ``images`` per view in ``views`` the image window it reads
+    (row0, row1, col0, col1); ``fit``, ``dem`` None (and no views) when fewer than two
+    images see F: nothing there can be fitted."""
+
+    index: int
+    window: WindowT
+    fit: WindowT | None
+    dem: WindowT | None
+    views: tuple[int, ...]
+    images: tuple[WindowT, ...]
+
+    @property
+    def dem_posts(self) -> int:
+        """Posts of the DEM window (0 without one)."""
+        return _posts(self.dem)
+
+    @property
+    def fit_posts(self) -> int:
+        """Posts whose planes the tile fits (0 without any)."""
+        return _posts(self.fit)
+
+
+def _posts(window: WindowT | None) -> int:
+    if window is None:
+        return 0
+    r0, r1, c0, c1 = window
+    return (r1 - r0) * (c1 - c0)
+
+
+@dataclass(frozen=True)
+class FitPlan:
+    """Everything a worker needs to fit tiles, by value or by path: the DEM, its grid (the
+    output grid), the views with per view the ``stats`` (fill value, standard deviation per
+    pyramid level) of the whole image, the tiles, the ``options`` (``levels`` the pyramid
+    levels of the whole images), ``eps`` of the visibility test, ``spacing`` the DEM's mean
+    post spacing in metres, ``margin`` the deconvolution's reach in posts, and per view
+    ``reach`` and ``elevation`` of the occluder halos (as :class:`~orthomvp.engine.Plan`)."""
+
+    dem: DemSource
+    grid: OutputGrid
+    views: tuple[ImageSource, ...]
+    stats: tuple[tuple[float, tuple[float, ...]], ...]
+    tiles: tuple[FitJob, ...]
+    tile: int
+    options: FitOptions
+    eps: float | None
+    spacing: float
+    margin: int
+    reach: tuple[float, ...]
+    elevation: tuple[float, ...]
+
+    @property
+    def levels(self) -> int:
+        return self.options.levels
+
+    def tile_bytes(self, job: FitJob, threads: int = 1) -> int:
+        """Expected peak memory of one tile in a worker with ``threads`` threads, bytes."""
+        if job.dem is None:
+            return 0
+        k = len(job.views)
+        posts = _posts(_grow(job.fit, 1, self.grid.shape))
+        pixels = sum(_posts(w) for w in job.images)
+        side = 2 * self.options.hwin + 1
+        batch = BATCH_SAMPLE_BYTES * BATCH * BATCH * k * side * side * max(threads, 1)
+        return (
+            (WINDOW_BYTES + MESH_BYTES) * job.dem_posts
+            + (FIT_POST_BYTES + FIT_VIEW_BYTES * k) * posts
+            + PIXEL_BYTES * pixels
+            + batch
+        )
+
+    def peak_memory(self, workers: int, processes: int = 0, threads: int = 1) -> int:
+        """Expected peak memory of a run with ``workers`` tiles at a time (each with
+        ``threads`` threads) and ``processes`` worker processes besides this one, bytes."""
+        sizes = sorted((self.tile_bytes(job, threads) for job in self.tiles), reverse=True)
+        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+
+    def summary(self, peak: int, workers: int) -> str:
+        """One line: grid size, tiles, images, the largest windows and the expected ``peak``
+        memory (bytes) with ``workers`` tiles at a time."""
+        rows, cols = self.grid.shape
+        run = [job for job in self.tiles if job.views]
+        biggest = max(run, key=lambda job: job.dem_posts, default=None)
+        windows = ""
+        if biggest is not None and biggest.dem is not None:
+            r0, r1, c0, c1 = biggest.dem
+            r0_, r1_, c0_, c1_ = max((w for job in run for w in job.images), key=_posts)
+            windows = (
+                f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts, image windows up to "
+                f"{c1_ - c0_:,} x {r1_ - r0_:,} px"
+            )
+        return (
+            f"plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
+            f"{self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "
+            f"pyramid level(s); tiles read {self.margin + 1} posts around them and an occluder "
+            f"halo up to {max(self.reach, default=0.0):.0f} posts{windows}; expected peak "
+            f"memory {peak / 2**30:.2f} GiB with {workers} tile(s) at a time"
+        )
+
+
+def _grow(window: WindowT | None, n: int, shape: tuple[int, int]) -> WindowT | None:
+    """``window`` grown by ``n`` posts on every side, clipped to ``shape``."""
+    if window is None:
+        return None
+    r0, r1, c0, c1 = window
+    rows, cols = shape
+    return max(r0 - n, 0), min(r1 + n, rows), max(c0 - n, 0), min(c1 + n, cols)
+
+
+def _undistorted(camera: PinholeCamera) -> PinholeCamera:
+    return replace(camera, distortion=NullDistortion())
+
+
+def patch_box(
+    dem: DemSource, window: WindowT, camera: PinholeCamera, reach: int, slack: float
+) -> tuple[float, float, float, float]:
+    """Where the patches of the posts of ``window`` may fall in the image without lens
+    distortion: the bounding box (c0, c1, r0, r1) of the projections of the window grown by
+    ``reach`` posts (not clipped to the DEM), at the DEM's lowest value minus ``slack`` and
+    its highest plus ``slack`` (metres); the whole plane when some point lies behind the
+    camera."""
+    r0, r1, c0, c1 = window
+    grown = (r0 - reach, r1 + reach, c0 - reach, c1 + reach)
+    pc, pr = perimeter(grown)
+    lc, lr = np.meshgrid(
+        np.linspace(grown[2], grown[3] - 1, 9), np.linspace(grown[0], grown[1] - 1, 9)
+    )
+    c = np.concatenate([pc, lc.ravel()] * 2)
+    r = np.concatenate([pr, lr.ravel()] * 2)
+    n = len(c) // 2
+    h = np.concatenate([np.full(n, dem.h_min - slack), np.full(n, dem.h_max + slack)])
+    uv, depth = _undistorted(camera).project(dem.to_world(c, r, h))
+    if not ((depth > 0) & np.isfinite(uv).all(axis=-1)).all():
+        return (-np.inf, np.inf, -np.inf, np.inf)
+    return (uv[:, 0].min(), uv[:, 0].max(), uv[:, 1].min(), uv[:, 1].max())
+
+
+def _job(
+    dem: DemSource,
+    views: tuple[ImageSource, ...],
+    index: int,
+    window: WindowT,
+    margin: int,
+    options: FitOptions,
+    spacing: float,
+) -> tuple[FitJob, list, list]:
+    """Plan one tile: the job, and per view the fit window's image box (where its posts
+    appear, for the error when a view sees nothing) and occluder halo (None where not
+    computed)."""
+    to_dem = _identity
+    fit = _grow(window, margin, dem.shape)
+    boxes: list = [None] * len(views)
+    halos: list = [None] * len(views)
+    need = footprint(dem, to_dem, fit, True)
+    seen = []
+    for k, view in enumerate(views):
+        boxes[k] = image_box(dem, to_dem, fit, view.camera)
+        if _sees(boxes[k], view):
+            seen.append(k)
+    if len(seen) < 2:
+        return FitJob(index, window, None, None, (), ()), boxes, halos
+    reach = options.hwin << (options.levels - 1)
+    images = []
+    for k in seen:
+        view = views[k]
+        halos[k] = tile_halo(dem, to_dem, fit, view.camera)
+        need = _union(need, halos[k].window)
+        box = patch_box(dem, fit, view.camera, reach, reach * spacing)
+        images.append(window_for(box, view.camera, (view.width, view.height), options.levels))
+    return FitJob(index, window, fit, need, tuple(seen), tuple(images)), boxes, halos
+
+
+def _identity(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The DEM's grid is the output grid."""
+    return np.asarray(c, dtype=np.float64), np.asarray(r, dtype=np.float64)
+
+
+def plan_fit(
+    dem: str | Path,
+    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+    options: FitOptions | None = None,
+    *,
+    tile: int = 1024,
+    eps: float | None = None,
+    dem_crs: object | None = None,
+    radius_values: bool = False,
+    world: WorldFrame | str = "auto",
+    progress: bool = True,
+) -> FitPlan:
+    """Plan the MVP fit (:func:`orthomvp.mvp.fit_dem` with ``options``) of the DEM at path
+    ``dem`` from ``views`` ((image path, camera or camera path) pairs, at least 2), in tiles
+    of ``tile`` x ``tile`` posts of the DEM's grid; ``eps`` (DEM posts), ``dem_crs``,
+    ``radius_values`` and ``world`` as for :func:`~orthomvp.engine.plan_ortho`.
+
+    Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
+    cameras. Raises InputError for bad options and GeometryError when an image sees none of
+    the DEM; warns (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is
+    larger than the DEM.
+    """
+    opts = options or FitOptions()
+    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
+        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    if eps is not None and not eps > 0:
+        raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
+    opts.window  # noqa: B018 - validates hwin and sigma
+    if opts.levels < 1 or opts.deconvolve < 0 or opts.max_iter < 1:
+        raise InputError("levels and max_iter must be at least 1, deconvolve at least 0")
+    if len(views) < 2:
+        raise InputError(
+            f"got {len(views)} images and {len(views)} cameras: this needs at least 2 images, "
+            "each with its camera"
+        )
+    frame = world_frame(world)
+    sources = tuple(image_source(image, camera) for image, camera in views)
+    with Progress("reading the DEM's heights", progress, unit="row") as bar:
+        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
+    if frame is None:
+        frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
+    source = dem_with_world(source, frame)
+    check_cameras_above(source.preview, np.array([v.camera.center for v in sources]))
+    grid = output_grid(source)
+    levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)
+    opts = replace(opts, levels=levels)
+    spacing = source.post_spacing()
+    margin = opts.deconvolve * opts.hwin
+    windows = grid.tiles(int(tile))
+    jobs, boxes = [], [[] for _ in sources]
+    reach, elevation = [0.0] * len(sources), [90.0] * len(sources)
+    with Progress("planning tiles", progress, len(windows)) as bar:
+        for index, window in enumerate(windows):
+            job, tile_boxes, halos = _job(source, sources, index, window, margin, opts, spacing)
+            jobs.append(job)
+            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
+                boxes[k].append(box)
+                if halo is not None:
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
+            bar.update()
+    for k, view in enumerate(sources):
+        if not any(_sees(box, view) for box in boxes[k]):
+            raise GeometryError(_no_overlap(view, boxes[k], source))
+        if reach[k] > max(source.shape):
+            warnings.warn(
+                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
+                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
+                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
+                "of the DEM, so memory grows with it (results stay correct)",
+                HaloWarning,
+                stacklevel=2,
+            )
+    used = sorted({k for job in jobs for k in job.views})
+    stats: list[tuple[float, tuple[float, ...]]] = [(0.0, (1.0,) * levels)] * len(sources)
+    rows = 2 * sum(sources[k].height for k in used)
+    with Progress("reading the images' statistics", progress, rows, unit="row") as bar:
+        for k in used:
+            view = sources[k]
+            stats[k] = view_statistics(
+                lambda w, v=view: v.read(w, band=1)[0],
+                view.camera,
+                (view.width, view.height),
+                levels,
+                progress=bar.update,
+            )
+    return FitPlan(
+        source,
+        grid,
+        sources,
+        tuple(stats),
+        tuple(jobs),
+        int(tile),
+        opts,
+        eps,
+        spacing,
+        margin,
+        tuple(reach),
+        tuple(elevation),
+    )
