@@ -35,9 +35,6 @@ class EngineInput:
     ``threads``/``processes``/``dask`` (at most one), output ``format``, ``compress`` and
     ``dtype``."""
 
-    res: tuple[float, float] | None
-    bounds: tuple[float, float, float, float] | None
-    crs: str | None
     tile: int
     threads: int | None
     processes: int | None
@@ -45,15 +42,23 @@ class EngineInput:
     format: str
     compress: str
     dtype: str = "float32"
+    res: tuple[float, float] | None = None
+    bounds: tuple[float, float, float, float] | None = None
+    crs: str | None = None
 
-    def run(self, plan: Plan, outputs: Outputs, *, progress: bool) -> RunReport:
-        """Run ``plan`` writing ``outputs`` on the executor these options ask for."""
+    def run(
+        self, plan: Plan, outputs: Outputs, *, progress: bool, runner: Callable | None = None
+    ) -> RunReport:
+        """Run ``plan`` writing ``outputs`` on the executor these options ask for, through
+        ``runner`` (:func:`orthomvp.engine.run_plan`, or :func:`~orthomvp.engine.run_fit` for
+        a fit plan)."""
         from orthomvp.engine import run_plan
 
+        runner = runner or run_plan
         with self._client() as client:
             if client is not None:
-                return run_plan(plan, outputs, client=client, progress=progress)
-            return run_plan(
+                return runner(plan, outputs, client=client, progress=progress)
+            return runner(
                 plan, outputs, threads=self.threads, processes=self.processes, progress=progress
             )
 
@@ -89,9 +94,11 @@ def _dask_address(ctx: click.Context, param: click.Parameter, value: str | None)
     return value
 
 
-def engine_options(*, dtype: bool) -> Callable[[F], F]:
+def engine_options(*, dtype: bool, grid: bool = True) -> Callable[[F], F]:
     """The engine's options; the command receives them as one :class:`EngineInput` named
-    ``engine``. ``dtype``: whether the command writes image values (``--dtype``)."""
+    ``engine``. ``dtype``: whether the command writes image values (``--dtype``); ``grid``:
+    whether it takes another output grid (``--res``, ``--bounds``, ``--crs``; the fit works on
+    the DEM's own grid)."""
 
     def decorate(f: F) -> F:
         @functools.wraps(f)
@@ -99,22 +106,24 @@ def engine_options(*, dtype: bool) -> Callable[[F], F]:
             given = [k for k in ("threads", "processes", "dask") if kwargs[k] is not None]
             if len(given) > 1:
                 names = " and ".join(f"--{k}" for k in given)
-                raise usage_error(f"{names} exclude each other: give one")
-            bounds = kwargs["bounds"]
+                raise usage_error(
+                    f"{names} exclude each other: give one of --threads, --processes and --dask"
+                )
+            bounds = kwargs.get("bounds")
             if bounds and not (bounds[0] < bounds[2] and bounds[1] < bounds[3]):
                 raise usage_error(
                     f"--bounds must be LEFT BOTTOM RIGHT TOP, got {' '.join(map(str, bounds))}"
                 )
             engine = EngineInput(
-                **{k: kwargs.pop(k) for k in ("res", "bounds", "crs", "tile")},
-                **{k: kwargs.pop(k) for k in ("threads", "processes", "dask")},
+                **{k: kwargs.pop(k) for k in ("res", "bounds", "crs") if grid},
+                **{k: kwargs.pop(k) for k in ("tile", "threads", "processes", "dask")},
                 format=kwargs.pop("format"),
                 compress=kwargs.pop("compress"),
                 **({"dtype": kwargs.pop("dtype")} if dtype else {}),
             )
             return f(engine=engine, **kwargs)
 
-        options = [
+        grid_options = [
             click.option(
                 "--res",
                 type=POSITIVE,
@@ -137,9 +146,12 @@ def engine_options(*, dtype: bool) -> Callable[[F], F]:
                 show_default="the DEM's",
                 help="output CRS (anything pyproj reads, on the DEM's body); needs --res",
             ),
+        ]
+        options = [
+            *(grid_options if grid else []),
             click.option(
                 "--tile",
-                type=click.IntRange(min=16),
+                type=click.IntRange(min=2),
                 default=1024,
                 metavar="POSTS",
                 help="output tile size: memory grows with it, not with the DEM or image",

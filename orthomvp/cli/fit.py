@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command
+from orthomvp.cli.engine_options import EngineInput, engine_options
 from orthomvp.cli.options import (
     PATH,
     POSITIVE,
@@ -22,7 +23,6 @@ from orthomvp.cli.options import (
     overwrite_option,
     pairs_argument,
     quiet,
-    usage_error,
 )
 from orthomvp.cli.ortho import view_inputs
 
@@ -87,43 +87,7 @@ MAX_DECONVOLVE = 10
 @eps_option
 @overwrite_option
 @dem_options
-@click.option(
-    "--tile",
-    type=click.IntRange(min=2),
-    default=1024,
-    metavar="POSTS",
-    help="fit the DEM in tiles of POSTS x POSTS posts, each from windows of the DEM and the "
-    "images (memory grows with the tile, not with the DEM or the images)",
-)
-@click.option(
-    "--threads",
-    type=click.IntRange(min=1),
-    metavar="N",
-    show_default="one per core",
-    help="fit N tiles at a time in threads (fewer tiles than threads share them)",
-)
-@click.option(
-    "--processes", type=click.IntRange(min=1), metavar="N", help="fit tiles in N worker processes"
-)
-@click.option(
-    "--dask",
-    metavar="local:N|tcp://HOST:PORT",
-    help="fit tiles on a Dask cluster: a local one of N worker processes, or the scheduler at "
-    "HOST:PORT (every worker reads the inputs at the same paths)",
-)
-@click.option(
-    "--format",
-    "fmt",
-    type=click.Choice(["cog", "gtiff"]),
-    default="cog",
-    help="outputs as Cloud-Optimized GeoTIFFs or tiled GeoTIFFs with internal overviews",
-)
-@click.option(
-    "--compress",
-    type=click.Choice(["deflate", "zstd", "lzw", "none"]),
-    default="deflate",
-    help="compression of the outputs",
-)
+@engine_options(dtype=False, grid=False)
 def fit(
     dem: DemInput,
     pairs: list[tuple[Path, Path]],
@@ -140,12 +104,7 @@ def fit(
     deconvolve: int,
     eps: float | None,
     overwrite: bool,
-    tile: int,
-    threads: int | None,
-    processes: int | None,
-    dask: str | None,
-    fmt: str,
-    compress: str,
+    engine: EngineInput,
 ) -> None:
     """Fit a plane (height, normal) at every DEM post to the images in which the post is
     visible, so that the images projected onto it agree (MVP paper eqs. 11-21; coarse to
@@ -153,7 +112,7 @@ def fit(
     input's convention, NaN where fewer than 2 views see a post) and, on request, the other
     per-post results, all on the DEM grid, tile by tile in bounded memory (the same results as
     in one piece)."""
-    from orthomvp.engine import FitOutputs, dask_client, plan_fit, run_fit
+    from orthomvp.engine import FitOutputs, plan_fit, run_fit
     from orthomvp.mvp import FitOptions
 
     outputs = [
@@ -164,9 +123,6 @@ def fit(
         Output("--uncertainty", uncertainty),
     ]
     check_outputs(outputs, view_inputs(dem, pairs), overwrite)
-    if sum(x is not None for x in (threads, processes, dask)) > 1:
-        raise usage_error("give one of --threads, --processes and --dask")
-    cluster = _dask_cluster(dask)
     options = FitOptions(
         hwin=hwin,
         sigma=sigma,
@@ -180,39 +136,19 @@ def fit(
         cost=cost,
         views=views,
         uncertainty=uncertainty,
-        format=fmt,
-        compress=compress,
+        format=engine.format,
+        compress=engine.compress,
     )
     plan = plan_fit(
         dem.path,
         pairs,
         options,
-        tile=tile,
+        tile=engine.tile,
         eps=eps,
         dem_crs=dem.crs,
         radius_values=dem.radius_values,
         world=dem.world,
         progress=not quiet(),
     )
-    if cluster is None:
-        report = run_fit(plan, outputs, threads=threads, processes=processes, progress=not quiet())
-    else:
-        with dask_client(**cluster) as client:
-            report = run_fit(plan, outputs, client=client, progress=not quiet())
+    report = engine.run(plan, outputs, progress=not quiet(), runner=run_fit)
     print(report.line(output))
-
-
-def _dask_cluster(spec: str | None) -> dict | None:
-    """:func:`~orthomvp.engine.dask_client` arguments from ``--dask`` (None without it)."""
-    if spec is None:
-        return None
-    if spec.startswith("local:"):
-        count = spec.removeprefix("local:")
-        if not count.isdigit() or int(count) < 1:
-            raise usage_error(f"--dask local:N needs a number of workers N >= 1, got {spec!r}")
-        return {"workers": int(count)}
-    if "://" not in spec:
-        raise usage_error(
-            f"--dask takes local:N or a scheduler address tcp://HOST:PORT, got {spec!r}"
-        )
-    return {"address": spec}
