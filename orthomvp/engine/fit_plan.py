@@ -32,7 +32,6 @@ the flatness thresholds) come from one pass over each image in blocks when plann
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -41,27 +40,25 @@ import numpy as np
 
 from orthomvp.camera import NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid, scan_dem
-from orthomvp.engine.grid import with_world as dem_with_world
+from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.halo import footprint, image_box, perimeter, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
     BASE_BYTES,
     MESH_BYTES,
     WINDOW_BYTES,
-    HaloWarning,
-    _no_overlap,
     _sees,
     _union,
+    check_plan,
+    plan_tiles,
+    read_source,
 )
-from orthomvp.engine.plan import _frame as world_frame
 from orthomvp.engine.progress import Progress
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import InputError
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
-from orthomvp.world import check_cameras_above, detect_world
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""
@@ -297,44 +294,21 @@ def plan_fit(
             f"got {len(views)} images and {len(views)} cameras: this needs at least 2 images, "
             "each with its camera"
         )
-    frame = world_frame(world)
     sources = tuple(image_source(image, camera) for image, camera in views)
-    with Progress("reading the DEM's heights", progress, unit="row") as bar:
-        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
-    if frame is None:
-        frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
-    source = dem_with_world(source, frame)
-    check_cameras_above(source.preview, np.array([v.camera.center for v in sources]))
+    source = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source)
     levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)
     opts = replace(opts, levels=levels)
     spacing = source.post_spacing()
     margin = opts.deconvolve * opts.hwin
-    windows = grid.tiles(int(tile))
-    jobs, boxes = [], [[] for _ in sources]
-    reach, elevation = [0.0] * len(sources), [90.0] * len(sources)
-    with Progress("planning tiles", progress, len(windows)) as bar:
-        for index, window in enumerate(windows):
-            job, tile_boxes, halos = _job(source, sources, index, window, margin, opts, spacing)
-            jobs.append(job)
-            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
-                boxes[k].append(box)
-                if halo is not None:
-                    reach[k] = max(reach[k], halo.reach)
-                    elevation[k] = min(elevation[k], halo.elevation)
-            bar.update()
-    for k, view in enumerate(sources):
-        if not any(_sees(box, view) for box in boxes[k]):
-            raise GeometryError(_no_overlap(view, boxes[k], source))
-        if reach[k] > max(source.shape):
-            warnings.warn(
-                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
-                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
-                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
-                "of the DEM, so memory grows with it (results stay correct)",
-                HaloWarning,
-                stacklevel=2,
-            )
+    jobs, boxes, reach, elevation = plan_tiles(
+        grid.tiles(int(tile)),
+        lambda index, window: _job(source, sources, index, window, margin, opts, spacing),
+        len(sources),
+        progress,
+    )
+    seen = [any(_sees(box, view) for box in boxes[k]) for k, view in enumerate(sources)]
+    check_plan(source, sources, boxes, seen, reach, elevation)
     used = sorted({k for job in jobs for k in job.views})
     stats: list[tuple[float, tuple[float, ...]]] = [(0.0, (1.0,) * levels)] * len(sources)
     rows = 2 * sum(sources[k].height for k in used)

@@ -8,9 +8,10 @@ only the headers of the images; everything else is geometry on the tiles' perime
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -267,41 +268,18 @@ def plan_ortho(
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
     if interp not in INTERPOLATION:
         raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
-    frame = _frame(world)
     sources = _views(views)
-    with Progress("reading the DEM's heights", progress, unit="row") as bar:
-        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
-    if frame is None:
-        frame = detect_world(source.preview, np.array([v.camera.center for v in sources]))
-    source = dem_with_world(source, frame)
-    check_cameras_above(source.preview, np.array([v.camera.center for v in sources]))
+    source = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source, res, bounds, crs)
     to_dem = grid_to_dem(grid, source)
-    windows = grid.tiles(int(tile))
-    jobs, boxes = [], [[] for _ in sources]
-    reach, elevation = [0.0] * len(sources), [90.0] * len(sources)
-    with Progress("planning tiles", progress, len(windows)) as bar:
-        for index, window in enumerate(windows):
-            job, tile_boxes, halos = _job(source, to_dem, grid, sources, index, window, occlusion)
-            jobs.append(job)
-            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
-                boxes[k].append(box)
-                if halo is not None:
-                    reach[k] = max(reach[k], halo.reach)
-                    elevation[k] = min(elevation[k], halo.elevation)
-            bar.update()
-    for k, view in enumerate(sources):
-        if not any(k in job.views for job in jobs):
-            raise GeometryError(_no_overlap(view, boxes[k], source))
-        if reach[k] > max(source.shape):
-            warnings.warn(
-                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
-                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
-                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
-                "of the DEM, so memory grows with it (results stay correct)",
-                HaloWarning,
-                stacklevel=2,
-            )
+    jobs, boxes, reach, elevation = plan_tiles(
+        grid.tiles(int(tile)),
+        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion),
+        len(sources),
+        progress,
+    )
+    seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
+    check_plan(source, sources, boxes, seen, reach, elevation)
     spacing = source.post_spacing()
     post_scale = 1.0 if grid.on_dem else _grid_spacing(grid, source) / spacing
     return Plan(
@@ -328,3 +306,73 @@ def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
     c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
     p = dem.to_world(c, r, np.full(3, np.nanmedian(dem.preview.values)))
     return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
+
+
+def read_source(
+    dem: str | Path,
+    sources: Sequence[ImageSource],
+    dem_crs: object | None,
+    radius_values: bool,
+    world: WorldFrame | str,
+    progress: bool,
+) -> DemSource:
+    """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
+    its cameras fit, :func:`~orthomvp.world.detect_world`), with every camera above it."""
+    frame = _frame(world)
+    centres = np.array([v.camera.center for v in sources])
+    with Progress("reading the DEM's heights", progress, unit="row") as bar:
+        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
+    if frame is None:
+        frame = detect_world(source.preview, centres)
+    source = dem_with_world(source, frame)
+    check_cameras_above(source.preview, centres)
+    return source
+
+
+def plan_tiles(
+    windows: list[WindowT],
+    job: Callable[[int, WindowT], tuple[Any, list[Box | None], list[Halo | None]]],
+    views: int,
+    progress: bool,
+) -> tuple[list[Any], list[list[Box | None]], list[float], list[float]]:
+    """Run ``job(index, window)`` for every tile window: the jobs, per view the image box of
+    every tile, and per view the farthest occluder track (DEM posts) and the lowest line of
+    sight (degrees) over all tiles."""
+    jobs: list[Any] = []
+    boxes: list[list[Box | None]] = [[] for _ in range(views)]
+    reach, elevation = [0.0] * views, [90.0] * views
+    with Progress("planning tiles", progress, len(windows)) as bar:
+        for index, window in enumerate(windows):
+            tile_job, tile_boxes, halos = job(index, window)
+            jobs.append(tile_job)
+            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
+                boxes[k].append(box)
+                if halo is not None:
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
+            bar.update()
+    return jobs, boxes, reach, elevation
+
+
+def check_plan(
+    source: DemSource,
+    sources: Sequence[ImageSource],
+    boxes: list[list[Box | None]],
+    seen: list[bool],
+    reach: list[float],
+    elevation: list[float],
+) -> None:
+    """GeometryError for a view that no tile sees (``seen``), saying why; a
+    :class:`HaloWarning` for a view whose occluder halo is larger than the DEM."""
+    for k, view in enumerate(sources):
+        if not seen[k]:
+            raise GeometryError(_no_overlap(view, boxes[k], source))
+        if reach[k] > max(source.shape):
+            warnings.warn(
+                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
+                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
+                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
+                "of the DEM, so memory grows with it (results stay correct)",
+                HaloWarning,
+                stacklevel=3,
+            )
