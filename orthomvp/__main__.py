@@ -2,4 +2,5 @@
 
 from orthomvp.cli import main_entry
 
-main_entry()
+if __name__ == "__main__":  # worker processes spawned by --processes import this module too
+    main_entry()
