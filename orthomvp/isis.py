@@ -21,14 +21,18 @@ from __future__ import annotations
 
 import re
 import sys
+import warnings
 from collections.abc import Generator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pvl
-from pvl.collections import PVLAggregation, PVLGroup, PVLModule, PVLObject
+
+with warnings.catch_warnings():  # pvl warns on import about an optional library and a rename
+    warnings.simplefilter("ignore")
+    import pvl
+    from pvl.collections import PVLAggregation, PVLGroup, PVLModule, PVLObject
 from pvl.exceptions import LexerError, ParseError
 from pvl.parser import OmniParser
 
