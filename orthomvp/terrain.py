@@ -81,6 +81,32 @@ def _heights(values: object, name: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
+def dem_georeference(
+    path: str | Path, file_crs: object | None, transform: Affine, crs: object | None
+) -> CRS:
+    """The CRS of the DEM at ``path``: ``crs`` when given, else the file's; InputError for a
+    DEM without CRS or without georeference (identity ``transform``)."""
+    if crs is not None:
+        the_crs = parse_crs(crs, str(path))
+    elif file_crs is None:
+        raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
+    else:
+        the_crs = parse_crs(file_crs.to_wkt(), str(path))
+    if transform == Affine.identity():
+        raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+    return the_crs
+
+
+def warn_infinite(path: str | Path, count: int) -> None:
+    """One warning when ``count`` infinite heights of the DEM at ``path`` became nodata."""
+    if count:
+        warnings.warn(
+            f"{path}: {count:,} infinite height{'s' if count > 1 else ''} taken as nodata",
+            OrthoMVPWarning,
+            stacklevel=3,
+        )
+
+
 def horizontal_crs(crs: CRS) -> CRS:
     """The horizontal part of a (possibly compound) CRS."""
     if crs.is_compound:
@@ -166,23 +192,9 @@ class Terrain:
                 raise InputError(f"{path}: corrupt raster data ({exc})") from exc
             file_crs = src.crs
             transform = src.transform
-        if crs is not None:
-            the_crs = parse_crs(crs, str(path))
-        elif file_crs is None:
-            raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
-        else:
-            the_crs = parse_crs(file_crs.to_wkt(), str(path))
-        if transform == Affine.identity():
-            raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+        the_crs = dem_georeference(path, file_crs, transform, crs)
         values = np.ma.filled(band.astype(np.float64), np.nan)
-        infinite = int(np.isinf(values).sum())
-        if infinite:
-            warnings.warn(
-                f"{path}: {infinite:,} infinite height{'s' if infinite > 1 else ''} taken as "
-                "nodata",
-                OrthoMVPWarning,
-                stacklevel=2,
-            )
+        warn_infinite(path, int(np.isinf(values).sum()))
         terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
         terrain.check_convention()
         return terrain

@@ -9,7 +9,6 @@ for the DEM wherever a whole-grid view is needed (frame detection, longitude wra
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -22,9 +21,9 @@ from rasterio.windows import Window
 
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
-from orthomvp.errors import InputError, OrthoMVPWarning
+from orthomvp.errors import InputError
 from orthomvp.raster import open_raster
-from orthomvp.terrain import Terrain, parse_crs
+from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
 
 PREVIEW = 256
 """Posts a side (at most) of the decimated DEM that :func:`scan_dem` keeps."""
@@ -140,14 +139,7 @@ def scan_dem(
     with open_raster(path) as src:
         rows, cols = src.height, src.width
         transform, file_crs = src.transform, src.crs
-        if crs is not None:
-            the_crs = parse_crs(crs, str(path))
-        elif file_crs is None:
-            raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
-        else:
-            the_crs = parse_crs(file_crs.to_wkt(), str(path))
-        if transform == Affine.identity():
-            raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+        the_crs = dem_georeference(path, file_crs, transform, crs)
         if min(rows, cols) < 2:
             raise InputError(f"{path}: a DEM needs at least 2 x 2 posts, got {(rows, cols)}")
         stride = max(1, -(-max(rows, cols) // PREVIEW))
@@ -171,12 +163,7 @@ def scan_dem(
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
         raise InputError(f"{path}: the DEM holds no valid heights")
-    if infinite:
-        warnings.warn(
-            f"{path}: {infinite:,} infinite height{'s' if infinite > 1 else ''} taken as nodata",
-            OrthoMVPWarning,
-            stacklevel=2,
-        )
+    warn_infinite(path, infinite)
     shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
     preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)
     values = np.concatenate(parts)
