@@ -763,3 +763,23 @@ def test_corrupt_pinhole_files(tmp_path: Path, case: str) -> None:
         read_camera(path)
     assert str(info.value).startswith(f"{path}: ")
     assert message in str(info.value)
+
+
+def test_camera_protocol_origins_and_gsd() -> None:
+    """A pinhole is a Camera; its ray origins are its centre and its GSD matches the pixel
+    footprint found by finite differences of project() at a point on the optical axis."""
+    from orthomvp.camera import Camera
+
+    rot = np.diag([1.0, -1.0, -1.0])  # looking straight down
+    cam = PinholeCamera(
+        800.0, 800.0, 400.0, 300.0, [10.0, 20.0, 1000.0], rot, width=800, height=600
+    )
+    assert isinstance(cam, Camera)
+    uv = np.array([[0.0, 0.0], [799.0, 599.0]])
+    np.testing.assert_array_equal(cam.origins(uv), np.broadcast_to(cam.center, (2, 3)))
+    np.testing.assert_allclose(cam.origins(uv), cam.ray(uv)[0])
+    x = np.array([10.0, 20.0, 0.0])  # 1000 m below the camera
+    step = 0.01
+    du = cam.project(x + [step, 0.0, 0.0])[0] - cam.project(x)[0]
+    np.testing.assert_allclose(cam.gsd(x), step / np.linalg.norm(du), rtol=1e-9)
+    assert cam.gsd(x) == pytest.approx(1000.0 / 800.0)

@@ -39,7 +39,13 @@ from orthomvp.camera.formats._common import CameraFile, CameraFormat
 from orthomvp.camera.formats.json import camera_to_dict, write_json
 from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
 from orthomvp.camera.formats.tsai import tsai_text, write_tsai
-from orthomvp.camera.model import ORTHONORMAL_TOLERANCE, PinholeCamera, as_image, check_image
+from orthomvp.camera.model import (
+    ORTHONORMAL_TOLERANCE,
+    Camera,
+    PinholeCamera,
+    as_image,
+    check_image,
+)
 from orthomvp.errors import FormatError
 from orthomvp.raster import read_image
 from orthomvp.validate import of_type
@@ -48,6 +54,7 @@ __all__ = [
     "FORMATS",
     "ORTHONORMAL_TOLERANCE",
     "BrownConradyDistortion",
+    "Camera",
     "Distortion",
     "FisheyeDistortion",
     "FovDistortion",

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -73,6 +74,57 @@ def _points(value: object, what: str, n: int) -> np.ndarray:
 def _default_axis(index: int) -> Callable[[], np.ndarray]:
     """A factory of the unit vector along axis ``index`` (VW's default u, v, w)."""
     return lambda: np.eye(3)[index]
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """What every camera model offers; visibility, orthophotos and the engine use only this.
+
+    World points are metres in the world frame the camera was read for; pixels are (u, v) =
+    (column, row) with integer values at pixel centres (readers convert other conventions,
+    e.g. CSM's (line, sample) with the first pixel's centre at (0.5, 0.5), once). A camera
+    need not have one centre: a line scanner images each line from the sensor position at
+    that line's time, an RPC camera's rays are lines between two heights.
+    """
+
+    width: int | None
+    height: int | None
+
+    def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels ``uv`` (..., 2) of world points ``xyz`` (..., 3), NaN where the point is not
+        imaged (behind the sensor, outside the time range, beyond the model's domain), and
+        ``depth`` (...), metres, > 0 in front of the sensor."""
+        ...
+
+    def ray(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``origins`` (..., 3), world metres, and unit ``directions`` (..., 3) into the scene
+        of the rays through pixels ``uv`` (..., 2); NaN where the model has no ray. Origins
+        lie above all terrain the camera sees (the sensor, or a point high on the ray)."""
+        ...
+
+    def origins(self, uv: np.ndarray) -> np.ndarray:
+        """The ``origins`` of :meth:`ray` alone (..., 3), often much cheaper."""
+        ...
+
+    def gsd(self, xyz: np.ndarray) -> np.ndarray:
+        """Ground sample distance (...), metres per pixel, at world points ``xyz`` (..., 3) on
+        a surface perpendicular to the line of sight (divide by the cosine of the emission
+        angle for a tilted surface)."""
+        ...
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """Whether pixels ``uv`` (..., 2) lie on the image (within half a pixel of the
+        outermost pixel centres); NaN is outside."""
+        ...
+
+    def with_image_size(self, width: int | None, height: int | None) -> Camera:
+        """A copy with the image size (pixels) set."""
+        ...
+
+    def crop(self, c0: int, r0: int, width: int, height: int) -> Camera:
+        """The camera of the ``width`` x ``height`` pixel window whose first pixel is pixel
+        (``c0``, ``r0``) here: ``crop.project(x)`` is ``project(x) - (c0, r0)``."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -251,6 +303,19 @@ class PinholeCamera:
         directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
         origins = np.broadcast_to(self.center, directions.shape).copy()
         return origins, directions
+
+    def origins(self, uv: np.ndarray) -> np.ndarray:
+        """The camera centre for every pixel ``uv`` (..., 2): (..., 3), world metres."""
+        uv = _points(uv, "origins", 2)
+        return np.broadcast_to(self.center, uv.shape[:-1] + (3,)).copy()
+
+    def gsd(self, xyz: np.ndarray) -> np.ndarray:
+        """Metres per pixel at world points ``xyz`` (..., 3) on a surface perpendicular to the
+        line of sight: range / focal length in pixels (the mean of fu and fv; lens distortion
+        left out)."""
+        xyz = _points(xyz, "gsd", 3)
+        focal = 0.5 * (self.fu + self.fv) / self.pitch
+        return np.linalg.norm(xyz - self.center, axis=-1) / focal
 
 
 def as_image(image: object, name: str = "image") -> np.ndarray:

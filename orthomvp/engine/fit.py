@@ -24,11 +24,10 @@ from orthomvp.engine.fit_plan import (
     FitPlan,
     _grow,
 )
-from orthomvp.engine.grid import WindowT
+from orthomvp.engine.grid import GDAL_CACHE, WindowT
 from orthomvp.engine.median import Median
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
-    GDAL_CACHE,
     check_memory,
     check_views,
     executor,

@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import rasterio
 from affine import Affine
 from pyproj import CRS, Transformer
 from rasterio.errors import RasterioError
@@ -28,8 +29,14 @@ from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
 PREVIEW = 256
 """Posts a side (at most) of the decimated DEM that :func:`scan_dem` keeps."""
 
-SCAN_POSTS = 1 << 24
-"""Posts (at most) read at a time by :func:`scan_dem`: 128 MiB of float64."""
+SCAN_POSTS = 1 << 22
+"""Posts (at most) read at a time by :func:`scan_dem`: 32 MiB of float64 (about 100 MiB with
+the masked read's copies)."""
+
+GDAL_CACHE = 256 << 20
+"""Bytes of GDAL's block cache while the engine scans the DEM and writes its outputs. GDAL's
+default, 5% of the machine's memory, would keep every block of a DEM read in one long pass
+(or of an output written in windows that do not align with its blocks) for the whole pass."""
 
 WindowT = tuple[int, int, int, int]
 """(row0, row1, col0, col1), half-open, in posts."""
@@ -136,7 +143,7 @@ def scan_dem(
     height range and a preview; ``crs`` overrides the file's CRS. ``progress`` counts rows.
     InputError for a DEM without CRS, georeference or valid heights."""
     path = Path(path)
-    with open_raster(path) as src:
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), open_raster(path) as src:
         rows, cols = src.height, src.width
         transform, file_crs = src.transform, src.crs
         the_crs = dem_georeference(path, file_crs, transform, crs)

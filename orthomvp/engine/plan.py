@@ -47,7 +47,7 @@ TILE_BYTES = 100
 VIEW_BYTES = 50
 BASE_BYTES = 300 << 20
 """An interpreter with numpy, rasterio, pyproj, trimesh and Embree loaded, and GDAL's block
-cache (bounded by :data:`orthomvp.engine.run.GDAL_CACHE` in the writer)."""
+cache (bounded by :data:`orthomvp.engine.grid.GDAL_CACHE`)."""
 
 
 class HaloWarning(UserWarning):

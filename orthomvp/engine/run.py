@@ -24,15 +24,12 @@ import numpy as np
 import rasterio
 
 from orthomvp.codes import Code
+from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
-
-GDAL_CACHE = 256 << 20
-"""Bytes of GDAL's block cache in the writer (GDAL's default, 5% of the memory, would hold
-the blocks of tiles that do not align with the output's blocks for the whole run)."""
 
 
 class WorkerError(OrthoMVPError):
