@@ -32,8 +32,14 @@ class FormatError(InputError):
     def __init__(self, path: str | Path, message: str, line: int | None = None) -> None:
         self.path = str(path)
         self.line = line
+        self.reason = message
         where = f"{self.path}, line {line}" if line is not None else self.path
         super().__init__(f"{where}: {message}")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, int | None]]:
+        """Pickle by the constructor's arguments (errors cross process boundaries in the
+        engine's worker pools)."""
+        return type(self), (self.path, self.reason, self.line)
 
 
 class GeometryError(OrthoMVPError, ValueError):

@@ -47,6 +47,38 @@ def test_the_family_is_also_the_builtins() -> None:
         FitOptions(hwin=0)
 
 
+def test_the_family_crosses_process_boundaries(tmp_path: Path) -> None:
+    """Errors raised in the engine's worker processes reach the parent as themselves (a
+    FormatError once failed to unpickle there and surfaced as a dead worker)."""
+    import pickle
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from orthomvp.camera.model import FieldError
+
+    cases = [
+        FormatError("a/b.tsai", "bad focal length", line=3),
+        FormatError("a/b.cub", "truncated"),
+        FieldError("fu", "fu must be positive"),
+        InputError("x"),
+        GeometryError("y"),
+        OutputError("cannot write o.tif: no space left on device"),
+    ]
+    for exc in cases:
+        back = pickle.loads(pickle.dumps(exc))
+        assert type(back) is type(exc) and str(back) == str(exc)
+        assert getattr(back, "line", None) == getattr(exc, "line", None)
+        assert getattr(back, "field", None) == getattr(exc, "field", None)
+    bad = tmp_path / "bad.tsai"
+    bad.write_text("VERSION_4\nPINHOLE\nfu = nonsense\n")
+    with pytest.raises(FormatError) as local:
+        read_camera(bad)
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+        with pytest.raises(FormatError) as remote:
+            pool.submit(read_camera, bad).result()
+    assert str(remote.value) == str(local.value) and remote.value.line == local.value.line
+
+
 @pytest.fixture(scope="module")
 def view(crater_dir: Path) -> tuple[Terrain, np.ndarray, object]:
     dem = Terrain.read(crater_dir / "dem.tif")

@@ -41,6 +41,10 @@ class FieldError(InputError):
         self.field = field_name
         super().__init__(message)
 
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        """Pickle by the constructor's arguments (see :class:`orthomvp.errors.FormatError`)."""
+        return type(self), (self.field, str(self))
+
 
 def _orthonormality_error(m: np.ndarray) -> float:
     """Largest entry of |M^T M - I|."""
