@@ -308,6 +308,53 @@ def test_dask_local_cluster_equals_threads(crater: dict, tmp_path: Path) -> None
     assert "\n" not in str(err.value)
 
 
+class DyingOnceCamera(PinholeCamera):
+    """A camera whose first projection in a worker process kills that process; the marker
+    file named by $ORTHOMVP_TEST_DIED (inherited by the workers) records the death."""
+
+    def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        marker = Path(os.environ["ORTHOMVP_TEST_DIED"])
+        if multiprocessing.parent_process() is not None and not marker.exists():
+            marker.touch()
+            os._exit(3)
+        return super().project(xyz)
+
+
+@pytest.mark.slow
+def test_dask_retries_a_dead_workers_tile_or_fails_cleanly(
+    crater: dict, tmp_path: Path, monkeypatch
+) -> None:  # noqa: ANN001
+    """A Dask worker that dies under a tile: its tile is retried on a restarted worker and
+    the output equals the threaded one; a tile that kills every worker it runs on ends the
+    run with one WorkerError line and no output."""
+    pytest.importorskip("distributed")
+    import dask
+
+    view = crater["views"]["oblique"]
+    camera = load_view(*view)[1]
+    fields = {k: getattr(camera, k) for k in camera.__dataclass_fields__}
+    a = run(plan_ortho(crater["dem"], [view], tile=16, progress=False), tmp_path, "thr", threads=2)
+    marker = tmp_path / "died"
+    monkeypatch.setenv("ORTHOMVP_TEST_DIED", str(marker))
+    once = plan_ortho(
+        crater["dem"], [(view[0], DyingOnceCamera(**fields))], tile=16, progress=False
+    )
+    always = plan_ortho(crater["dem"], [(view[0], DyingCamera(**fields))], tile=16, progress=False)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        with dask_client(workers=2) as client:
+            b = run(once, tmp_path, "retried", client=client)
+            assert marker.exists()  # a worker did die
+            before = set(tmp_path.iterdir())
+            with pytest.raises(WorkerError, match="worker died") as err:
+                run_plan(
+                    always, Outputs(ortho=tmp_path / "dead.tif"), client=client, progress=False
+                )
+    assert "\n" not in str(err.value)
+    assert set(tmp_path.iterdir()) == before
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])
+    np.testing.assert_array_equal(a["ortho"], b["ortho"])
+
+
 def test_preflight_and_progress(crater: dict, tmp_path: Path, monkeypatch, capfd) -> None:  # noqa: ANN001
     view = crater["views"]["oblique"]
     monkeypatch.setattr("orthomvp.engine.progress.LOG_AFTER", 0.0)  # log even short phases

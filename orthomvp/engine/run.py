@@ -119,7 +119,10 @@ def executor(
     if client is not None:
         from distributed import wait
 
-        shared = client.scatter(plan, broadcast=True)
+        # The plan goes to the workers as the result of a task rather than scattered data:
+        # a worker that dies takes its scattered copies with it for good (the tiles that need
+        # them are then cancelled), while a task's result is computed again where needed.
+        shared = client.submit(_identity, plan, pure=False)
         try:
             yield (
                 lambda i, *a: client.submit(work, shared, i, *a, pure=False),
@@ -226,11 +229,17 @@ def _warm_up(client: Any, where: str) -> None:
         raise InputError(f"the Dask workers at {where} cannot import orthomvp ({exc})") from None
 
 
+def _identity(value: Any) -> Any:
+    """``value`` itself (a Dask task whose result is its argument)."""
+    return value
+
+
 def _died(exc: BaseException) -> bool:
-    """Whether ``exc`` says that a worker died under a tile."""
+    """Whether ``exc`` says that a worker died under a tile (Dask's KilledWorker after its
+    retries, or a future cancelled because the data it needed died with a worker)."""
     if isinstance(exc, BrokenProcessPool):
         return True
-    return type(exc).__name__ == "KilledWorker"
+    return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")
 
 
 def run_plan(
