@@ -477,3 +477,21 @@ def test_bench_scale_command(tmp_path: Path, capsys) -> None:  # noqa: ANN001
     assert row["us_per_post"] > 0 and row["peak_rss_mb"] > 0
     assert abs(sum(row["shares"].values()) - 1) < 1e-9
     assert "us/post" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("compress", ["deflate", "none"])
+def test_outputs_switch_to_bigtiff_when_they_may_pass_4_gib(tmp_path: Path, compress: str) -> None:
+    """The engine's creation options give a classic TIFF (version 42) for a small output and
+    a BigTIFF (version 43) for one that may pass 4 GiB (here 6.4 GB of float32 before
+    compression); GDAL writes the header at creation, so no data needs writing."""
+    from orthomvp.engine.writer import _creation
+
+    opts = _creation(Outputs(ortho=tmp_path / "o.tif", compress=compress), "float32")
+    versions = {}
+    for side in (1000, 40000):
+        path = tmp_path / f"{side}.tif"
+        profile = dict(driver="GTiff", width=side, height=side, count=1, dtype="float32")
+        with rasterio.open(path, "w", tiled=True, sparse_ok=True, **profile, **opts):
+            pass
+        versions[side] = int.from_bytes(path.read_bytes()[2:4], "little")
+    assert versions == {1000: 42, 40000: 43}
