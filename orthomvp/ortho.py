@@ -19,7 +19,7 @@ import numpy as np
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp.camera import PinholeCamera, as_image, check_image
+from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
@@ -105,7 +105,7 @@ def sample_image(
 def orthorectify(
     terrain: Terrain,
     image: np.ndarray,
-    camera: PinholeCamera,
+    camera: Camera,
     *,
     occlusion: bool = True,
     eps: float | None = None,
@@ -152,7 +152,7 @@ def orthorectify(
 
 def mosaic(
     terrain: Terrain,
-    views: list[tuple[np.ndarray, PinholeCamera]],
+    views: list[tuple[np.ndarray, Camera]],
     *,
     eps: float | None = None,
     interp: Interp | str = Interp.BILINEAR,

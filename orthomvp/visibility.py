@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
 from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
@@ -123,7 +123,7 @@ def _tile_normals(terrain: Terrain, rs: slice, cs: slice) -> tuple[np.ndarray, n
 
 def compute_visibility(
     terrain: Terrain,
-    camera: PinholeCamera,
+    camera: Camera,
     *,
     eps: float | None = None,
     caster: RayCaster | None = None,
@@ -148,7 +148,7 @@ def compute_visibility(
     GeometryError when no post is seen (a tile of a larger grid).
     """
     of_type(terrain, Terrain, "terrain")
-    of_type(camera, PinholeCamera, "camera", " (orthomvp.camera.read_camera)")
+    of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
     if camera.width is None or camera.height is None:
         raise InputError("the camera needs its image size (width, height) for visibility")
     if eps is not None:
@@ -170,8 +170,8 @@ def compute_visibility(
     emission = np.full((rows, cols), np.nan)
     gsd = np.full((rows, cols), np.nan)
     eps_out = np.full((rows, cols), np.nan)
-    focal = 0.5 * (camera.fu + camera.fv) / camera.pitch
     spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
+    fixed_origin = camera.center if isinstance(camera, PinholeCamera) else None
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -179,10 +179,15 @@ def compute_visibility(
         ok = np.isfinite(p).all(axis=-1) & np.isfinite(n).all(axis=-1)
         t_uv, depth = camera.project(p)
         inside = ok & (depth > 0) & camera.in_image(t_uv)
-        to_cam = camera.center - p
+        if fixed_origin is not None:  # the same for every pixel (frame cameras)
+            origin = np.broadcast_to(fixed_origin, p.shape)
+        else:  # where each post is imaged from (NaN where it is not imaged)
+            origin = camera.origins(np.where(inside[..., None], t_uv, np.nan))
+        to_cam = origin - p
         rng = np.linalg.norm(to_cam, axis=-1)
-        cos_e = np.einsum("...i,...i->...", n, to_cam) / rng
-        t_gsd = rng / focal / np.maximum(cos_e, 0.1)
+        with np.errstate(invalid="ignore"):
+            cos_e = np.einsum("...i,...i->...", n, to_cam) / rng
+        t_gsd = camera.gsd(p) / np.maximum(cos_e, 0.1)
         t_eps = np.full(p.shape[:-1], float(eps)) if eps else default_eps(t_gsd / spacing)
         facing = cos_e > 0
         cast = inside & facing & occlusion
@@ -191,14 +196,15 @@ def compute_visibility(
         ).astype(np.uint8)
         t_miss = np.full(p.shape[:-1], np.nan)
         if cast.any():
-            if isinstance(camera.distortion, NullDistortion):
-                d = p[cast] - camera.center  # the pinhole's own ray through the post's pixel
+            o = origin[cast] if fixed_origin is None else fixed_origin
+            if _pinhole_ray(camera):
+                d = p[cast] - o  # the pinhole's own ray through the post's pixel
             else:
-                _, d = camera.ray(t_uv[cast])
-            hits = caster.first_hit(camera.center, d)
+                o, d = camera.ray(t_uv[cast])  # the model's own ray through that pixel
+            hits = caster.first_hit(o, d)
             # A first hit more than one post beyond the post means that the ray slipped past
             # the post's own vertex (a crest it grazes) with nothing in front of it: no hit.
-            along = np.einsum("ij,ij->i", p[cast] - camera.center, d) / np.linalg.norm(d, axis=1)
+            along = np.einsum("ij,ij->i", p[cast] - o, d) / np.linalg.norm(d, axis=1)
             front = hits.mask & (hits.distance <= along + spacing)
             dist = np.full(len(d), np.inf)
             if front.any():
@@ -227,10 +233,17 @@ def compute_visibility(
     return Visibility(codes, uv, miss, emission, gsd, eps_out)
 
 
-def _no_overlap_reason(terrain: Terrain, camera: PinholeCamera) -> str:
+def _pinhole_ray(camera: Camera) -> bool:
+    """Whether the ray through a post's pixel is the line from the camera centre to the post
+    (a pinhole without lens distortion), so that no ray needs computing."""
+    return isinstance(camera, PinholeCamera) and isinstance(camera.distortion, NullDistortion)
+
+
+def _no_overlap_reason(terrain: Terrain, camera: Camera) -> str:
     """Why no post of the DEM can be seen by the camera, in one line."""
+    sensor = sensor_positions(camera)
     try:
-        check_cameras_above(terrain, camera.center)
+        check_cameras_above(terrain, sensor)
     except GeometryError as exc:
         return str(exc)
     c, r = terrain.grid()
@@ -240,7 +253,7 @@ def _no_overlap_reason(terrain: Terrain, camera: PinholeCamera) -> str:
         return "the camera looks away from the DEM: every post is behind it"
     centre = p.mean(axis=0)
     up = terrain.up_vectors(centre)
-    if np.dot(camera.center - centre, up) < 0:
+    if (np.dot(sensor - centre, up) < 0).all():
         return "the camera is below the surface of the DEM"
     return (
         f"the image ({camera.width} x {camera.height} px) does not cover the DEM: its posts "

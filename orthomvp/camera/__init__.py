@@ -45,6 +45,7 @@ from orthomvp.camera.model import (
     PinholeCamera,
     as_image,
     check_image,
+    sensor_positions,
 )
 from orthomvp.errors import FormatError
 from orthomvp.raster import read_image
@@ -71,6 +72,7 @@ __all__ = [
     "orthority_rotation",
     "read_camera",
     "read_orthority_cameras",
+    "sensor_positions",
     "tsai_text",
     "write_json",
     "write_tsai",

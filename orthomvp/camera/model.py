@@ -348,13 +348,13 @@ def as_image(image: object, name: str = "image") -> np.ndarray:
     return img if img.dtype == np.float32 else img.astype(np.float32)
 
 
-def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
+def check_image(image: np.ndarray, camera: Camera, name: str = "image") -> Camera:
     """Validate an image (as :func:`as_image` takes it) against ``camera`` and return the camera
     with the image's size."""
     img = as_image(image, name)
-    if not isinstance(camera, PinholeCamera):
+    if not isinstance(camera, Camera):
         raise InputError(
-            f"{name}: its camera must be a PinholeCamera (orthomvp.camera.read_camera), got "
+            f"{name}: its camera must be a camera model (orthomvp.camera.read_camera), got "
             f"{type(camera).__name__}"
         )
     rows, cols = img.shape[1:]
@@ -363,3 +363,18 @@ def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -
             f"{name} is {cols} x {rows} px but its camera says {camera.width} x {camera.height}"
         )
     return camera.with_image_size(cols, rows)
+
+
+def sensor_positions(camera: Camera, lattice: int = 3) -> np.ndarray:
+    """Where ``camera`` images from: the ray origins (k, 3), world metres, of a ``lattice`` x
+    ``lattice`` grid of pixels spanning the image (its centre alone without an image size),
+    NaN rows dropped. One point for a frame camera; along the track for a line scanner."""
+    if camera.width is None or camera.height is None:
+        uv = np.zeros((1, 2))
+    else:
+        u, v = np.meshgrid(
+            np.linspace(0, camera.width - 1, lattice), np.linspace(0, camera.height - 1, lattice)
+        )
+        uv = np.column_stack([u.ravel(), v.ravel()])
+    points = camera.origins(uv)
+    return np.unique(points[np.isfinite(points).all(axis=1)], axis=0)

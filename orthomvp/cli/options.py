@@ -18,7 +18,7 @@ import click
 from orthomvp.codes import Interp, WorldFrame
 
 if TYPE_CHECKING:
-    from orthomvp.camera import PinholeCamera
+    from orthomvp.camera import Camera
     from orthomvp.terrain import Terrain
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -109,7 +109,7 @@ class DemInput:
     world: str = "auto"
     """"auto", or a :class:`WorldFrame` value"""
 
-    def read(self, cameras: Sequence[PinholeCamera] = ()) -> Terrain:
+    def read(self, cameras: Sequence[Camera] = ()) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
         :func:`orthomvp.world.detect_world`), body-fixed when there are none. In the body frame
         every camera must sit above the DEM (:func:`orthomvp.world.check_cameras_above`)."""
@@ -125,7 +125,9 @@ class DemInput:
             self.path, radius_values=self.radius_values, world=world, crs=self.crs
         )
         if cameras:
-            centres = np.array([camera.center for camera in cameras])
+            from orthomvp.camera import sensor_positions
+
+            centres = np.concatenate([sensor_positions(camera) for camera in cameras])
             if self.world == "auto":
                 terrain = replace(terrain, world=detect_world(terrain, centres))
             check_cameras_above(terrain, centres)

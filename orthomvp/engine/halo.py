@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera, PinholeCamera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, WindowT
 
@@ -39,6 +39,9 @@ TRACK_SAMPLES = 9
 
 HALO_MARGIN = 2
 """Posts added around every window."""
+
+DENSE = 33
+"""Lattice points a side where a camera does not image part of a tile (:func:`image_box`)."""
 
 BISECTIONS = 40
 """Bisection steps for the exit from O on an ellipsoid (the exit to 2^-40 of its bracket)."""
@@ -95,11 +98,12 @@ def perimeter(window: WindowT) -> tuple[np.ndarray, np.ndarray]:
     return c, r
 
 
-def tile_halo(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: PinholeCamera) -> Halo:
+def tile_halo(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera) -> Halo:
     """The occluder window of the output-grid ``tile`` for ``camera`` (module docstring)."""
     c, r = to_dem(*perimeter(tile))
     p = dem.to_world(c, r, np.full(c.shape, dem.h_min))
-    to_cam = camera.center - p
+    c, r, p, sensor = _lines_of_sight(camera, c, r, p)
+    to_cam = sensor - p
     dist = np.linalg.norm(to_cam, axis=-1)
     d = to_cam / dist[:, None]
     t_end = np.minimum(exit_distance(dem, p, d), dist)
@@ -116,6 +120,28 @@ def tile_halo(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: PinholeCamer
         min(int(np.ceil(np.nanmax(tc))) + HALO_MARGIN + 1, cols),
     )
     return Halo(box, reach, float(np.degrees(np.arcsin(np.clip(sin_e.min(), -1, 1)))))
+
+
+def _lines_of_sight(
+    camera: Camera, c: np.ndarray, r: np.ndarray, p: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Posts ``(c, r)`` at world points ``p`` (n, 3) paired with where the camera sees them
+    from: its centre for a frame camera; else the origin of the ray through each post's pixel
+    (a line scanner's position when it images the post), and for posts it does not image
+    every one of :func:`~orthomvp.camera.sensor_positions` (any could matter)."""
+    if isinstance(camera, PinholeCamera):
+        return c, r, p, np.broadcast_to(camera.center, p.shape)
+    uv, _ = camera.project(p)
+    origin = camera.origins(uv)
+    known = np.isfinite(origin).all(axis=1)
+    others = sensor_positions(camera)
+    k = len(others)
+    return (
+        np.concatenate([c[known], np.repeat(c[~known], k)]),
+        np.concatenate([r[known], np.repeat(r[~known], k)]),
+        np.concatenate([p[known], np.repeat(p[~known], k, axis=0)]),
+        np.concatenate([origin[known], np.tile(others, ((~known).sum(), 1))]),
+    )
 
 
 def footprint(dem: DemSource, to_dem: ToDem, tile: WindowT, on_dem: bool) -> WindowT:
@@ -136,22 +162,48 @@ def footprint(dem: DemSource, to_dem: ToDem, tile: WindowT, on_dem: bool) -> Win
 
 
 def image_box(
-    dem: DemSource, to_dem: ToDem, tile: WindowT, camera: PinholeCamera
+    dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera
 ) -> tuple[float, float, float, float] | None:
     """Where the tile can appear in the image: the bounding box (c0, c1, r0, r1) in pixels of
     the projections of its perimeter and a 9 x 9 lattice of its posts at the DEM's lowest and
     highest values, or None when the camera sees none of them in front of it.
 
-    Points behind the camera make the box the whole image plane (conservative)."""
-    r0, r1, c0, c1 = tile
-    pc, pr = perimeter(tile)
-    lc, lr = np.meshgrid(np.linspace(c0, c1 - 1, 9), np.linspace(r0, r1 - 1, 9))
-    c, r = to_dem(np.concatenate([pc, lc.ravel()]), np.concatenate([pr, lr.ravel()]))
-    c, r = np.concatenate([c, c]), np.concatenate([r, r])
-    h = np.concatenate([np.full(len(c) // 2, dem.h_min), np.full(len(c) // 2, dem.h_max)])
-    uv, depth = camera.project(dem.to_world(c, r, h))
+    Points behind the camera make the box the whole image plane (conservative). Points that a
+    camera does not image (NaN depth: a line scanner's ground beyond its first or last line)
+    are left out after sampling the tile on a :data:`DENSE` x :data:`DENSE` lattice, the box
+    growing by the largest pixel step between neighbouring samples: the imaged part of the
+    tile ends within one step of the last imaged sample."""
+    uv, depth = _box_samples(dem, to_dem, tile, camera, 9)
     if not (depth > 0).any():
         return None
-    if not ((depth > 0) & np.isfinite(uv).all(axis=-1)).all():
+    if (depth <= 0).any() or (np.isfinite(depth) & ~np.isfinite(uv).all(axis=-1)).any():
         return (-np.inf, np.inf, -np.inf, np.inf)
+    if not np.isfinite(depth).all():
+        uv, depth = _box_samples(dem, to_dem, tile, camera, DENSE)
+        grid = uv.reshape(2, DENSE, DENSE, 2)
+        with np.errstate(invalid="ignore"):
+            steps = [np.abs(np.diff(grid, axis=a)) for a in (1, 2)]
+        step = max(float(np.nanmax(s)) if np.isfinite(s).any() else 0.0 for s in steps)
+        uv = uv[np.isfinite(uv).all(axis=-1)]
+        if not len(uv):
+            return None
+        lo, hi = uv.min(axis=0) - step, uv.max(axis=0) + step
+        return (lo[0], hi[0], lo[1], hi[1])
     return (uv[:, 0].min(), uv[:, 0].max(), uv[:, 1].min(), uv[:, 1].max())
+
+
+def _box_samples(
+    dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and depths of the tile's perimeter (only for ``n`` = 9) and an ``n`` x ``n``
+    lattice of its posts, at the DEM's lowest then highest values."""
+    r0, r1, c0, c1 = tile
+    lc, lr = np.meshgrid(np.linspace(c0, c1 - 1, n), np.linspace(r0, r1 - 1, n))
+    c, r = lc.ravel(), lr.ravel()
+    if n == 9:
+        pc, pr = perimeter(tile)
+        c, r = np.concatenate([pc, c]), np.concatenate([pr, r])
+    c, r = to_dem(c, r)
+    c, r = np.concatenate([c, c]), np.concatenate([r, r])
+    h = np.concatenate([np.full(len(c) // 2, dem.h_min), np.full(len(c) // 2, dem.h_max)])
+    return camera.project(dem.to_world(c, r, h))

@@ -12,7 +12,7 @@ import numpy as np
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
-from orthomvp.camera import PinholeCamera, check_image, read_camera
+from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
 from orthomvp.isis import cube_layout, read_label
 from orthomvp.raster import open_raster
@@ -26,7 +26,7 @@ class ImageSource:
     width: int
     height: int
     bands: int
-    camera: PinholeCamera
+    camera: Camera
 
     def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
         """Pixels of ``window`` (clipped to the image by the caller), every band or only
@@ -43,7 +43,7 @@ class ImageSource:
         return np.ma.filled(data.astype(np.float32), np.nan)
 
 
-def image_source(image: str | Path, camera: str | Path | PinholeCamera) -> ImageSource:
+def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     """An image and its camera (a path, read with :func:`read_camera`, the image's name picking
     its row in multi-camera files; or a camera), checked against each other from the image's
     header alone: no pixel is read."""
@@ -54,7 +54,7 @@ def image_source(image: str | Path, camera: str | Path | PinholeCamera) -> Image
     else:
         with open_raster(path) as src:
             bands, rows, cols = src.count, src.height, src.width
-    if not isinstance(camera, PinholeCamera):
+    if not isinstance(camera, Camera):
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     return ImageSource(path, cols, rows, bands, check_image(shape_only, camera, str(path)))

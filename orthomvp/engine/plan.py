@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
@@ -138,7 +138,7 @@ class Plan:
 
 
 def _views(
-    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+    views: Sequence[tuple[str | Path, str | Path | Camera]],
 ) -> tuple[ImageSource, ...]:
     if not views:
         raise InputError("give at least one image and its camera")
@@ -165,7 +165,7 @@ def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> s
     preview = dem.preview
     points = preview.world_points()[preview.valid]
     centre = points.mean(axis=0)
-    if np.dot(view.camera.center - centre, preview.up_vectors(centre)) < 0:
+    if (np.dot(sensor_positions(view.camera) - centre, preview.up_vectors(centre)) < 0).all():
         return f"{view.path}: the camera is below the surface of the DEM"
     seen = [b for b in boxes if b is not None]
     if not seen:
@@ -234,7 +234,7 @@ def _job(
 
 def plan_ortho(
     dem: str | Path,
-    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+    views: Sequence[tuple[str | Path, str | Path | Camera]],
     *,
     tile: int = 1024,
     res: tuple[float, float] | None = None,
@@ -319,7 +319,7 @@ def read_source(
     """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
     its cameras fit, :func:`~orthomvp.world.detect_world`), with every camera above it."""
     frame = _frame(world)
-    centres = np.array([v.camera.center for v in sources])
+    centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
         source = scan_dem(dem, dem_crs, radius_values, progress=bar)
     if frame is None:

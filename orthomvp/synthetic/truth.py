@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera
 from orthomvp.codes import Code
 
 Below = Callable[[np.ndarray], np.ndarray]
@@ -17,7 +17,8 @@ Below = Callable[[np.ndarray], np.ndarray]
 def march(
     points: np.ndarray, centre: np.ndarray, step: float, max_radius: float, below: Below
 ) -> np.ndarray:
-    """Whether the segment from each surface point (n, 3) to ``centre`` (3,) dips below the
+    """Whether the segment from each surface point (n, 3) to ``centre`` ((3,), or (n, 3): one
+    sensor position per point, as for a line scanner) dips below the
     surface: (n,) bool. Samples lie ``step`` metres apart from ``step / 2`` on, up to where the
     segment leaves the sphere of ``max_radius`` (metres from the body centre; no surface point
     lies beyond it) for good, or reaches ``centre``."""
@@ -40,7 +41,7 @@ def march(
 
 
 def visibility_truth(
-    camera: PinholeCamera,
+    camera: Camera,
     points: np.ndarray,
     normals: np.ndarray,
     below: Below,
@@ -50,13 +51,17 @@ def visibility_truth(
     """Truth :class:`~orthomvp.codes.Code` (uint8, the shape of ``points`` without its last
     axis) of surface ``points`` (..., 3) with outward unit ``normals`` (..., 3) for ``camera``
     (with its image size): NODATA outside the image or behind the camera, FACING_AWAY where
-    the normal points away from the camera, else OCCLUDED or VISIBLE by :func:`march`."""
+    the normal points away from the camera, else OCCLUDED or VISIBLE by :func:`march` towards
+    where the camera images each point from (a line scanner: its position at the point's
+    line time)."""
     uv, depth = camera.project(points)
     inside = (depth > 0) & camera.in_image(uv)
-    facing = np.einsum("...i,...i->...", normals, camera.center - points) > 0
+    sensor = camera.origins(np.where(inside[..., None], uv, np.nan))
+    with np.errstate(invalid="ignore"):
+        facing = np.einsum("...i,...i->...", normals, sensor - points) > 0
     codes = np.full(inside.shape, Code.NODATA, np.uint8)
     codes[inside & ~facing] = Code.FACING_AWAY
     cast = inside & facing
-    hidden = march(points[cast], camera.center, step, max_radius, below)
+    hidden = march(points[cast], sensor[cast], step, max_radius, below)
     codes[cast] = np.where(hidden, Code.OCCLUDED, Code.VISIBLE)
     return codes
