@@ -152,3 +152,21 @@ def test_engine_plans_and_runs_generic_cameras(
     np.testing.assert_allclose(ortho, expected, rtol=1e-6, equal_nan=True)
     unseen = [job for job in plan.tiles if not job.views]
     assert unseen, "some tiles lie beyond the strip"
+
+
+def test_what_needs_a_frame_camera_says_so(crater_dir: Path, oblique: tuple) -> None:
+    """The MVP fit (plane homographies) and snapshot frusta need pinholes: one clear error."""
+    from orthomvp.engine.fit_plan import plan_fit
+    from orthomvp.errors import InputError
+    from orthomvp.mvp import fit_dem
+    from orthomvp.present.snapshot import snapshot
+
+    terrain, image, camera = oblique
+    generic = Generic(camera)
+    with pytest.raises(InputError, match="MVP fit .* needs frame .pinhole. cameras; .* Generic"):
+        fit_dem(terrain, [image, image], [camera, generic])
+    views = [(crater_dir / "oblique.tif", camera), (crater_dir / "oblique.tif", generic)]
+    with pytest.raises(InputError, match="oblique.tif: the MVP fit"):
+        plan_fit(crater_dir / "dem.tif", views, progress=False)
+    with pytest.raises(InputError, match="camera 0: drawing cameras in snapshots needs frame"):
+        snapshot(terrain, cameras=[generic])

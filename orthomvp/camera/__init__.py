@@ -45,6 +45,7 @@ from orthomvp.camera.model import (
     PinholeCamera,
     as_image,
     check_image,
+    require_pinhole,
     sensor_positions,
 )
 from orthomvp.errors import FormatError
@@ -72,6 +73,7 @@ __all__ = [
     "orthority_rotation",
     "read_camera",
     "read_orthority_cameras",
+    "require_pinhole",
     "sensor_positions",
     "tsai_text",
     "write_json",

@@ -365,6 +365,16 @@ def check_image(image: np.ndarray, camera: Camera, name: str = "image") -> Camer
     return camera.with_image_size(cols, rows)
 
 
+def require_pinhole(camera: Camera, name: str, needs: str) -> PinholeCamera:
+    """``camera`` when it is a frame (pinhole) camera; else InputError naming ``name`` and what
+    ``needs`` one."""
+    if not isinstance(camera, PinholeCamera):
+        raise InputError(
+            f"{name}: {needs} needs frame (pinhole) cameras; this one is a {type(camera).__name__}"
+        )
+    return camera
+
+
 def sensor_positions(camera: Camera, lattice: int = 3) -> np.ndarray:
     """Where ``camera`` images from: the ray origins (k, 3), world metres, of a ``lattice`` x
     ``lattice`` grid of pixels spanning the image (its centre alone without an image size),

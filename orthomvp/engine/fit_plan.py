@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.camera import Camera, NullDistortion, PinholeCamera, require_pinhole
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.halo import footprint, image_box, perimeter, tile_halo
@@ -261,7 +261,7 @@ def _identity(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def plan_fit(
     dem: str | Path,
-    views: Sequence[tuple[str | Path, str | Path | PinholeCamera]],
+    views: Sequence[tuple[str | Path, str | Path | Camera]],
     options: FitOptions | None = None,
     *,
     tile: int = 1024,
@@ -295,6 +295,8 @@ def plan_fit(
             "each with its camera"
         )
     sources = tuple(image_source(image, camera) for image, camera in views)
+    for view in sources:
+        require_pinhole(view.camera, str(view.path), "the MVP fit (plane homographies)")
     source = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source)
     levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, as_image, check_image
+from orthomvp.camera import PinholeCamera, as_image, check_image, require_pinhole
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
@@ -46,6 +46,7 @@ def first_bands(
     bands, cams = [], []
     for k, (image, camera, name) in enumerate(zip(images, cameras, names, strict=True)):
         img = as_image(image, name)
+        require_pinhole(camera, name, "the MVP fit (plane homographies)")
         if windows is None:
             cams.append(check_image(img, camera, name))
         else:

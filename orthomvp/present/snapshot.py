@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import PinholeCamera, require_pinhole
 from orthomvp.codes import CODE_RGB, Code, View
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh, terrain_mesh
@@ -197,6 +197,8 @@ def snapshot(
     opts = options or SnapshotOptions()
     colouring = _colouring(terrain.shape, ortho, visibility, heights, truth)
     cameras = list(cameras)
+    for k, camera in enumerate(cameras):
+        require_pinhole(camera, f"camera {k}", "drawing cameras in snapshots")
     if opts.view == View.FROM_CAMERA and not 0 <= opts.view_camera < len(cameras):
         n = len(cameras)
         raise InputError(
