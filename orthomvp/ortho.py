@@ -114,6 +114,7 @@ def orthorectify(
     caster: RayCaster | None = None,
     progress: bool = False,
     post_scale: float = 1.0,
+    dem: Terrain | None = None,
 ) -> Ortho:
     """Orthophoto of ``image`` (bands, rows, cols) through ``camera`` onto ``terrain``'s grid.
 
@@ -121,8 +122,8 @@ def orthorectify(
     projects inside the image does (the naive orthophoto, facing-away and occluded included).
     ``interp`` is an :class:`~orthomvp.codes.Interp` or its name. ``visibility`` reuses a
     visibility of this camera on this grid; otherwise it is computed (see
-    :func:`~orthomvp.visibility.compute_visibility` for ``eps``, ``caster``, ``progress`` and
-    ``post_scale``).
+    :func:`~orthomvp.visibility.compute_visibility` for ``eps``, ``caster``, ``progress``,
+    ``post_scale`` and ``dem``).
 
     ``image`` may also be (rows, cols) (one band); integer images are taken as float32 with
     their values (see :func:`orthomvp.camera.as_image`). Wrong types, shapes and ranges raise
@@ -143,6 +144,7 @@ def orthorectify(
         progress=progress,
         post_scale=post_scale,
         occlusion=occlusion,
+        dem=dem,
     )
     data = sample_image(image, vis.uv, interp)
     keep = vis.codes == Code.VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)

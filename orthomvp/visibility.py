@@ -16,9 +16,10 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from affine import Affine
 from tqdm import tqdm
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
@@ -133,6 +134,7 @@ def compute_visibility(
     occlusion: bool = True,
     spacing: float | None = None,
     strict: bool = True,
+    dem: Terrain | None = None,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -146,6 +148,17 @@ def compute_visibility(
     this grid's post spacing at its centre over ``post_scale``; the tiled engine passes the
     whole DEM's, so that tiles agree). ``strict=False`` returns the codes instead of raising
     GeometryError when no post is seen (a tile of a larger grid).
+
+    ``dem``: the DEM that ``terrain`` was resampled from (whose mesh ``caster`` holds). When
+    the grid's posts are finer than the DEM's (``post_scale`` < 1), the DEM posts under the
+    grid are classified first, and a grid post inside the image and facing the camera whose
+    four surrounding DEM posts are all visible, or all occluded, takes that code without a
+    ray of its own (its ``miss`` and ``eps`` stay NaN); only posts near a class boundary (or
+    next to a post facing away, outside the image or without a height) are cast. The rule
+    gives the per-post result away from class boundaries (an occluder would have to fit
+    between four DEM posts that all see past it) and casts every post where classes meet, so
+    no ghost appears at a boundary; it makes the rays cast scale with the DEM's posts, not the
+    output grid's.
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
@@ -163,7 +176,7 @@ def compute_visibility(
         "use a smaller or coarser DEM",
     )
     if caster is None and occlusion:
-        caster = RayCaster(terrain_mesh(terrain))
+        caster = RayCaster(terrain_mesh(terrain if dem is None else dem))
     codes = np.zeros((rows, cols), np.uint8)
     uv = np.full((rows, cols, 2), np.nan)
     miss = np.full((rows, cols), np.nan)
@@ -172,6 +185,10 @@ def compute_visibility(
     eps_out = np.full((rows, cols), np.nan)
     spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
     fixed_origin = camera.center if isinstance(camera, PinholeCamera) else None
+    carry = None
+    if dem is not None and occlusion and post_scale < 1:
+        of_type(dem, Terrain, "dem")
+        carry = _DemCodes.of(terrain, dem, camera, eps, caster, threads, spacing)
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -194,6 +211,10 @@ def compute_visibility(
         t_codes = np.where(
             inside, np.where(facing, Code.VISIBLE, Code.FACING_AWAY), Code.NODATA
         ).astype(np.uint8)
+        if carry is not None:
+            known = carry.at(terrain, rs, cs, p) & cast
+            t_codes[known != 0] = known[known != 0]
+            cast &= known == 0
         t_miss = np.full(p.shape[:-1], np.nan)
         if cast.any():
             o = origin[cast] if fixed_origin is None else fixed_origin
@@ -231,6 +252,102 @@ def compute_visibility(
             "from below (is the camera inside the body, or the DEM upside down?)"
         )
     return Visibility(codes, uv, miss, emission, gsd, eps_out)
+
+
+@dataclass(frozen=True)
+class _DemCodes:
+    """Visibility codes of the DEM posts under a finer grid (see :func:`compute_visibility`'s
+    ``dem``): ``codes`` of the DEM window whose first post is DEM post (``r0``, ``c0``)."""
+
+    dem: Terrain
+    codes: np.ndarray
+    r0: int
+    c0: int
+
+    @classmethod
+    def of(
+        cls,
+        grid: Terrain,
+        dem: Terrain,
+        camera: Camera,
+        eps: float | None,
+        caster: RayCaster | None,
+        threads: int | None,
+        spacing: float,
+    ) -> _DemCodes:
+        """Classify the DEM posts under ``grid``, with two posts around them: the posts next
+        to a grid post then have the central-difference normals of the whole DEM, so their
+        codes do not depend on the window (or on how a larger grid was tiled)."""
+        c, r = _perimeter(grid.shape)
+        dc, dr = _dem_pixels(grid, dem, c, r, grid.values[r.astype(int), c.astype(int)])
+        rows, cols = dem.shape
+        r0 = int(np.clip(np.floor(np.nanmin(dr, initial=np.inf)) - 2, 0, rows))
+        r1 = int(np.clip(np.floor(np.nanmax(dr, initial=-np.inf)) + 4, 0, rows))
+        c0 = int(np.clip(np.floor(np.nanmin(dc, initial=np.inf)) - 2, 0, cols))
+        c1 = int(np.clip(np.floor(np.nanmax(dc, initial=-np.inf)) + 4, 0, cols))
+        codes = np.zeros((max(r1 - r0, 0), max(c1 - c0, 0)), np.uint8)
+        if min(codes.shape) >= 2:
+            sub = _crop(dem, r0, r1, c0, c1)
+            codes = compute_visibility(
+                sub, camera, eps=eps, caster=caster, threads=threads, spacing=spacing, strict=False
+            ).codes
+        return cls(dem, codes, r0, c0)
+
+    def at(self, grid: Terrain, rs: slice, cs: slice, p: np.ndarray) -> np.ndarray:
+        """Codes carried to the grid posts of tile (``rs``, ``cs``) at world points ``p``:
+        VISIBLE or OCCLUDED where all four surrounding DEM posts agree on it, else 0."""
+        r, c = np.mgrid[rs, cs].astype(np.float64)
+        dc, dr = _dem_pixels(grid, self.dem, c, r, p=p)
+        out = np.zeros(dc.shape, np.uint8)
+        rows, cols = self.codes.shape
+        with np.errstate(invalid="ignore"):
+            i, j = np.floor(dr) - self.r0, np.floor(dc) - self.c0
+            ok = (i >= 0) & (i < rows - 1) & (j >= 0) & (j < cols - 1)
+        i, j = i[ok].astype(np.intp), j[ok].astype(np.intp)
+        corners = np.stack(
+            [self.codes[i, j], self.codes[i + 1, j], self.codes[i, j + 1], self.codes[i + 1, j + 1]]
+        )
+        agree = (corners == corners[0]).all(axis=0) & np.isin(
+            corners[0], (Code.VISIBLE, Code.OCCLUDED)
+        )
+        out[ok] = np.where(agree, corners[0], 0)
+        return out
+
+
+def _perimeter(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions (c, r) of the posts on the border of a grid of ``shape``."""
+    rows, cols = shape
+    cc, rr = np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64)
+    c = np.concatenate([cc, cc, np.zeros(rows), np.full(rows, cols - 1.0)])
+    r = np.concatenate([np.zeros(cols), np.full(cols, rows - 1.0), rr, rr])
+    return c, r
+
+
+def _dem_pixels(
+    grid: Terrain,
+    dem: Terrain,
+    c: np.ndarray,
+    r: np.ndarray,
+    values: np.ndarray | None = None,
+    p: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """DEM pixel positions (c, r) of grid posts (``c``, ``r``): through the CRS when both
+    grids share it, else through their world points ``p`` (or those of ``values``)."""
+    if grid.crs == dem.crs:
+        return dem.crs_to_pixel(*grid.pixel_to_crs(c, r))
+    if p is None:
+        p = grid.to_world(c, r, values)
+    dc, dr, _ = dem.from_world(p)
+    return dc, dr
+
+
+def _crop(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> Terrain:
+    """The posts ``[r0:r1, c0:c1]`` of ``terrain`` as a Terrain of their own."""
+    return replace(
+        terrain,
+        values=terrain.values[r0:r1, c0:c1],
+        transform=terrain.transform @ Affine.translation(c0, r0),
+    )
 
 
 def _pinhole_ray(camera: Camera) -> bool:

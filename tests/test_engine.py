@@ -112,7 +112,7 @@ def test_other_grid_and_crs(crater: dict, tmp_path: Path) -> None:
     scale = float(np.mean(grid.post_spacing()) / np.mean(terrain.post_spacing()))
     image, camera = load_view(*view)
     caster = RayCaster(terrain_mesh(terrain))
-    ortho = orthorectify(grid, image, camera, caster=caster, post_scale=scale)
+    ortho = orthorectify(grid, image, camera, caster=caster, post_scale=scale, dem=terrain)
     assert tiled.grid.shape == grid.shape and tiled.grid.transform == grid.transform
     np.testing.assert_array_equal(a["visibility"][0], ortho.visibility.codes)
     np.testing.assert_allclose(a["ortho"], ortho.data, rtol=1e-5, equal_nan=True)

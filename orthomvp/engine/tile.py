@@ -199,6 +199,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
                 occlusion=plan.occlusion,
                 spacing=plan.spacing,
                 strict=False,
+                dem=window,
             )
         codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
         result.inside[k] = int((codes != Code.NODATA).sum())

@@ -1,0 +1,71 @@
+"""Visibility on a grid finer than the DEM: the DEM's posts are classified, their codes are
+carried to grid posts between four agreeing DEM posts, and only posts near class boundaries
+are cast. The oracle is casting every grid post; the truth is marched on the analytic crater."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from orthomvp.codes import Code
+from orthomvp.mesh import terrain_mesh
+from orthomvp.raycast import RayCaster
+from orthomvp.synthetic import make_scene
+from orthomvp.synthetic.truth import visibility_truth
+from orthomvp.visibility import compute_visibility
+
+
+class CountingCaster(RayCaster):
+    """A ray caster that counts the rays it casts."""
+
+    rays = 0
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN201
+        self.rays += len(np.atleast_2d(directions))
+        return super().first_hit(origins, directions)
+
+
+@pytest.fixture(scope="module")
+def scene():  # noqa: ANN201
+    return make_scene("crater", size=64, spacing=80.0)
+
+
+@pytest.mark.parametrize("factor", [3, 5])
+def test_carried_codes_equal_casting_every_post_with_fewer_rays(scene, factor: int) -> None:  # noqa: ANN001
+    dem, camera = scene.terrain, scene.cameras["oblique"]
+    grid = dem.regrid((abs(dem.transform.a) / factor, abs(dem.transform.e) / factor))
+    scale = float(np.mean(grid.post_spacing()) / np.mean(dem.post_spacing()))
+    caster = CountingCaster(terrain_mesh(dem))
+    every = compute_visibility(grid, camera, caster=caster, post_scale=scale)
+    rays_every, caster.rays = caster.rays, 0
+    carried = compute_visibility(grid, camera, caster=caster, post_scale=scale, dem=dem)
+    assert (every.codes == Code.OCCLUDED).sum() > 1000  # the rim hides terrain
+    np.testing.assert_array_equal(carried.codes, every.codes)
+    np.testing.assert_array_equal(carried.uv, every.uv)
+    assert caster.rays * 4 < rays_every  # DEM posts plus boundary posts only
+    cast = np.isfinite(carried.miss)
+    assert cast.sum() < 0.5 * np.isfinite(every.miss).sum()
+    np.testing.assert_array_equal(carried.miss[cast], every.miss[cast])
+    # against marched truth on the analytic surface: no ghost that casting avoids
+    x, y = scene.surface.lonlat_to_local(*grid.pixel_to_lonlat(*grid.grid()))
+    spacing = float(np.mean(dem.post_spacing()))
+    truth = visibility_truth(
+        camera,
+        scene.surface.surface_point(x, y),
+        scene.surface.surface_normal(x, y),
+        scene.surface.below,
+        scene.max_radius,
+        spacing / 4,
+    )
+    ghosts = (carried.codes == Code.VISIBLE) & (truth == Code.OCCLUDED)
+    assert ghosts.sum() <= ((every.codes == Code.VISIBLE) & (truth == Code.OCCLUDED)).sum()
+    assert ghosts.sum() < 0.05 * (truth == Code.OCCLUDED).sum()
+
+
+def test_the_dem_grid_itself_is_cast_as_before(scene) -> None:  # noqa: ANN001
+    """On the DEM's own grid (post_scale 1) ``dem`` changes nothing."""
+    dem, camera = scene.terrain, scene.cameras["oblique"]
+    a = compute_visibility(dem, camera)
+    b = compute_visibility(dem, camera, dem=dem)
+    np.testing.assert_array_equal(a.codes, b.codes)
+    np.testing.assert_array_equal(a.miss, b.miss)
