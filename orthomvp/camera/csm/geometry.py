@@ -26,6 +26,9 @@ from orthomvp.camera.csm.distortion import CsmDistortion
 from orthomvp.camera.csm.ephemeris import lagrange, lagrange_weights, xyzw_matrix
 from orthomvp.errors import InputError
 
+EDGE = 1e-6
+"""Lines by which a projected point may pass the first or last line's edge (rounding) and
+still count as imaged."""
 CHUNK = 1 << 16
 """Points per block in vectorised projections (bounds the memory of the interpolation)."""
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from orthomvp.camera.csm.geometry import (
     CHUNK,
+    EDGE,
     CsmImage,
     Ellipsoid,
     FocalPlane,
@@ -94,7 +95,7 @@ class LineScanCamera(CsmImage):
         return self.trajectory.velocity(t.ravel()).reshape(t.shape + (3,))
 
     def _valid_line(self, line: np.ndarray) -> np.ndarray:
-        return (line >= 0) & (line <= self.lines)
+        return (line >= -EDGE) & (line <= self.lines + EDGE)
 
     @cached_property
     def look_sign(self) -> int:

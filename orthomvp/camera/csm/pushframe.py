@@ -16,6 +16,7 @@ import numpy as np
 
 from orthomvp.camera.csm.geometry import (
     CHUNK,
+    EDGE,
     CsmImage,
     Ellipsoid,
     FocalPlane,
@@ -90,7 +91,7 @@ class PushFrameCamera(CsmImage):
         return self._framelet_time(framelet)
 
     def _valid_line(self, line: np.ndarray) -> np.ndarray:
-        return (line >= 0) & (line <= self.reduced_lines)
+        return (line >= -EDGE) & (line <= self.reduced_lines + EDGE)
 
     @cached_property
     def look_sign(self) -> int:
