@@ -37,14 +37,14 @@ def lagrange_weights(
         sel = order == n
         if not sel.any():
             continue
-        sn = s[sel][:, None]
         k = np.arange(n)
-        w = np.ones((sn.shape[0], n))
-        for j in range(n):
-            other = k != j
-            w[:, other] *= (sn - j) / (k[other] - j)
+        d = s[sel][:, None] - k  # (M, n): s - j
+        ones = np.ones((d.shape[0], 1))
+        before = np.cumprod(np.hstack([ones, d[:, :-1]]), axis=1)  # prod over j < k
+        after = np.cumprod(np.hstack([ones, d[:, :0:-1]]), axis=1)[:, ::-1]  # over j > k
+        denominator = np.array([np.prod([kk - j for j in k if j != kk]) for kk in k])
         nodes[sel, :n] = first[sel][:, None] + k
-        weights[sel, :n] = w
+        weights[sel, :n] = before * after / denominator
     return nodes, weights
 
 

@@ -145,13 +145,17 @@ class LineScanCamera(CsmImage):
         )
 
     def _approximate_line(self, xyz: np.ndarray) -> np.ndarray:
-        """A first line for every point: the line whose exposure sees it closest to the
-        detector line, among 17 lines spread over the image."""
-        candidates = np.linspace(0.0, float(self.lines), 17)
+        """A first line for every point: of 33 lines spread over the image, the one whose
+        exposure sees the point closest to the detector line (sensor states computed once)."""
+        candidates = np.linspace(0.0, float(self.lines), 33)
+        t = self.image_time(candidates)
+        positions, rotations = self.trajectory.position(t), self.trajectory.rotation(t)
         best, best_err = np.full(len(xyz), self.lines / 2.0), np.full(len(xyz), np.inf)
-        for c in candidates:
-            err = np.abs(self._line_error(np.full(len(xyz), c), xyz)[0])
-            better = err < best_err
+        for c, p, r in zip(candidates, positions, rotations, strict=True):
+            cam = (xyz - p) @ r
+            dx, dy = self.focal_plane.view(cam)
+            err = np.abs(self.focal_plane.detector_line(dx, dy))
+            better = (err < best_err) & (self.look_sign * cam[:, 2] > 0)
             best, best_err = np.where(better, c, best), np.where(better, err, best_err)
         return best
 
