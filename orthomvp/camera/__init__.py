@@ -9,9 +9,10 @@ binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
 (:mod:`.formats.orthority`), USGS CSM ISDs and model states (:mod:`.formats.csm`, the line-scan,
 frame and push-frame models of :mod:`orthomvp.camera.csm`) and our JSON (:mod:`.formats.json`).
 Each format module lists the formats it reads (name, file name extensions, reader, content
-test); a file goes to the first format that names its extension and recognises its content, else to the last one naming its
-extension (whose reader reports what is wrong); a file whose extension no format names goes to
-the first format that recognises its content. A new reader (USGS CSM ISD JSON, RPC) is a module
+test); a file goes to the first format that names its extension and recognises its content,
+else to the last one naming its extension (whose reader reports what is wrong); a file whose
+extension no format names goes to the first format that recognises its content. A new reader
+(RPC) is a module
 in ``formats`` with its ``FORMATS``, added to the tuple below (ahead of ours, with a content
 test, where it shares the ``.json`` extension). Writers replace the destination atomically.
 """

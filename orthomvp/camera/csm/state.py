@@ -47,7 +47,7 @@ def _numbers(path: Path, state: dict[str, Any], key: str, size: int | None = Non
 
 
 def _number(path: Path, state: dict[str, Any], key: str) -> float:
-    return float(_numbers(path, state, key, 1)[0])
+    return float(_numbers(path, state, key, 1).ravel()[0])
 
 
 def _focal_plane(path: Path, s: dict[str, Any], origin: tuple[float, float]) -> FocalPlane:
