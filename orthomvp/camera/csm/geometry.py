@@ -18,7 +18,6 @@ pixels (u, v) = (column, row) put it at (0, 0): u = sample - 0.5, v = line - 0.5
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Self
 
 import numpy as np
 
@@ -268,11 +267,11 @@ class CsmImage:
         u, v = uv[..., 0], uv[..., 1]
         return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
 
-    def with_image_size(self, width: int | None, height: int | None) -> Self:
+    def with_image_size(self, width: int | None, height: int | None) -> CsmImage:
         """A copy with the image (window) size set, pixels."""
         return replace(self, width=width, height=height)
 
-    def crop(self, c0: int, r0: int, width: int, height: int) -> Self:
+    def crop(self, c0: int, r0: int, width: int, height: int) -> CsmImage:
         """The camera of the ``width`` x ``height`` window whose first pixel is (``c0``,
         ``r0``) here: ``crop.project(x)`` is ``project(x) - (c0, r0)``."""
         for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):

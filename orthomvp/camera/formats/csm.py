@@ -46,6 +46,6 @@ def is_state(file: CameraFile) -> bool:
 
 FORMATS = (
     CameraFormat("USGS CSM ISD", (".json",), read_isd_file, is_isd),
-    CameraFormat("USGS CSM model state", (".json", ".txt"), read_state_file, is_state),
+    CameraFormat("USGS CSM model state", (".json",), read_state_file, is_state),
 )
 """The formats this module reads, for :mod:`orthomvp.camera`'s registry."""
