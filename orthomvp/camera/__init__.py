@@ -6,11 +6,13 @@ pitch, pixels (u, v) = (column, row) with integer values at pixel centres) are i
 
 :func:`read_camera` reads any file of the registry :data:`FORMATS`: ASP/VW ``.tsai`` text and
 binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
-(:mod:`.formats.orthority`) and our JSON (:mod:`.formats.json`). Each format module lists the
-formats it reads (name, file name extensions, reader, content test); a file goes to the first
-format that names its extension and recognises its content, else to the last one naming its
-extension (whose reader reports what is wrong); a file whose extension no format names goes to
-the first format that recognises its content. A new reader (USGS CSM ISD JSON, RPC) is a module
+(:mod:`.formats.orthority`), USGS CSM ISDs and model states (:mod:`.formats.csm`, the line-scan,
+frame and push-frame models of :mod:`orthomvp.camera.csm`) and our JSON (:mod:`.formats.json`).
+Each format module lists the formats it reads (name, file name extensions, reader, content
+test); a file goes to the first format that names its extension and recognises its content,
+else to the last one naming its extension (whose reader reports what is wrong); a file whose
+extension no format names goes to the first format that recognises its content. A new reader
+(RPC) is a module
 in ``formats`` with its ``FORMATS``, added to the tuple below (ahead of ours, with a content
 test, where it shares the ``.json`` extension). Writers replace the destination atomically.
 """
@@ -33,6 +35,7 @@ from orthomvp.camera.distortion import (
     TsaiDistortion,
     distortion_class,
 )
+from orthomvp.camera.formats import csm as csm_format
 from orthomvp.camera.formats import json as json_format
 from orthomvp.camera.formats import orthority, tsai
 from orthomvp.camera.formats._common import CameraFile, CameraFormat
@@ -80,14 +83,21 @@ __all__ = [
     "write_tsai",
 ]
 
-FORMATS: tuple[CameraFormat, ...] = (*orthority.FORMATS, *json_format.FORMATS, *tsai.FORMATS)
+FORMATS: tuple[CameraFormat, ...] = (
+    *orthority.FORMATS,
+    *csm_format.FORMATS,
+    *json_format.FORMATS,
+    *tsai.FORMATS,
+)
 """Every camera file format :func:`read_camera` knows, in the order they are tried."""
 
 
 def read_camera(
     path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
-) -> PinholeCamera:
-    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, or Orthority files.
+) -> Camera:
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority files, or a
+    USGS CSM ISD or model state (a line-scan, frame or push-frame model of
+    :mod:`orthomvp.camera.csm`).
 
     Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
     their content) ignore ``image`` and ``interior``.
