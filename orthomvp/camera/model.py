@@ -344,14 +344,14 @@ def as_image(image: object, name: str = "image") -> np.ndarray:
     return img if img.dtype == np.float32 else img.astype(np.float32)
 
 
-def check_image(image: np.ndarray, camera: PinholeCamera, name: str = "image") -> PinholeCamera:
+def check_image(image: np.ndarray, camera: Camera, name: str = "image") -> Camera:
     """Validate an image (as :func:`as_image` takes it) against ``camera`` and return the camera
     with the image's size."""
     img = as_image(image, name)
-    if not isinstance(camera, PinholeCamera):
+    if not isinstance(camera, Camera):
         raise InputError(
-            f"{name}: its camera must be a PinholeCamera (orthomvp.camera.read_camera), got "
-            f"{type(camera).__name__}"
+            f"{name}: its camera must be a PinholeCamera, RpcCamera or another "
+            f"orthomvp.camera.Camera (orthomvp.camera.read_camera), got {type(camera).__name__}"
         )
     rows, cols = img.shape[1:]
     if camera.width is not None and (camera.width, camera.height) != (cols, rows):

@@ -14,7 +14,7 @@ from functools import cached_property
 from pathlib import Path
 
 from orthomvp.camera.distortion import Distortion, distortion_class
-from orthomvp.camera.model import FieldError, PinholeCamera
+from orthomvp.camera.model import Camera, FieldError, PinholeCamera
 from orthomvp.errors import FormatError, InputError
 from orthomvp.raster import atomic_path
 
@@ -50,7 +50,7 @@ class CameraFile:
             return ""
 
 
-Reader = Callable[[CameraFile], PinholeCamera]
+Reader = Callable[[CameraFile], Camera]
 """Reads the camera of a file."""
 Sniff = Callable[[CameraFile], bool]
 """Whether a file's content is of a format."""
