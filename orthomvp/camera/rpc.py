@@ -371,6 +371,16 @@ class RpcCamera:
             raise FieldError("margin", f"margin must be >= 0, got {self.margin!r}")
         if not self.top > self.bottom:
             raise FieldError("top", f"top ({self.top} m) must lie above bottom ({self.bottom} m)")
+        for name in ("top", "bottom"):
+            if not self._in_domain(rpc.long_off, rpc.lat_off, getattr(self, name)):
+                low, high = (
+                    rpc.height_off + k * abs(rpc.height_scale) * (1 + self.margin) for k in (-1, 1)
+                )
+                raise FieldError(
+                    name,
+                    f"{name} ({getattr(self, name)} m) lies beyond the RPC's heights "
+                    f"({low:g} to {high:g} m with the margin)",
+                )
 
     def __getstate__(self) -> dict[str, object]:
         """Pickled without the cached pyproj transformer."""

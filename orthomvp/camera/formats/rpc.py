@@ -62,18 +62,23 @@ _TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 
 
 def _build(
-    path: Path, values: dict[str, object], names: dict[str, str], lines: dict[str, int]
+    path: Path,
+    values: dict[str, object],
+    names: dict[str, str],
+    lines: dict[str, int],
+    where: str = "",
 ) -> Rpc:
     """The RPC of parsed ``values`` (by RPC key); ``names`` and ``lines`` give each key's name
-    and line in the file, for FormatError."""
+    and line in the file, ``where`` a prefix for messages, for FormatError."""
     missing = [names[key] for key in RPC_KEYS if key not in values]
     if missing:
-        raise FormatError(path, f"no RPC coefficients: missing {', '.join(missing)}")
+        raise FormatError(path, f"{where}no RPC coefficients: missing {', '.join(missing)}")
     try:
         return Rpc(**values)
     except FieldError as exc:
         key = exc.field.split("[")[0]
-        raise FormatError(path, f"{names[key]}: {exc}", lines.get(key)) from None
+        label = "" if names[key] == key else f"{names[key]}: "  # the message names the key
+        raise FormatError(path, f"{where}{label}{exc}", lines.get(key)) from None
 
 
 def _coefficients(path: Path, name: str, tokens: list[str], line: int | None) -> list[float]:
@@ -107,8 +112,8 @@ def read_geotiff(file: CameraFile) -> RpcCamera:
             tokens = upper[names[key]].split()
             if key in COEFFICIENTS:
                 values[key] = _coefficients(path, names[key], tokens, None)
-            else:
-                values[key] = number(path, " ".join(tokens), names[key], None)
+            else:  # the first word, as GDAL reads it (an _RPC.TXT beside it keeps its units)
+                values[key] = number(path, tokens[0] if tokens else "", names[key], None)
     return RpcCamera(_build(path, values, names, {}), width=width, height=height)
 
 
@@ -200,9 +205,9 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
                 f"{path}: no camera for image {stem!r} (it has {', '.join(map(repr, cameras))})"
             )
         name, entry = cameras[stem]
-    where = f"image {name!r}"
+    where = f"image {name!r}: "
     if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
-        raise FormatError(path, f"{where}: no RPC coefficients (missing rpc)")
+        raise FormatError(path, f"{where}no RPC coefficients (missing rpc)")
     size = entry.get("im_size")
     if not (
         isinstance(size, list)
@@ -213,7 +218,7 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
             path, f"{where}: im_size must be [width, height] in whole pixels, got {size!r}"
         )
     rpc = {str(key): value for key, value in entry["rpc"].items()}
-    names = {key: f"{where}: rpc: {key}" for key in RPC_KEYS}
+    names = {key: key for key in RPC_KEYS}
     values: dict[str, object] = {}
     for key in RPC_KEYS:
         if key not in rpc:
@@ -222,7 +227,7 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
         if key in COEFFICIENTS:
             if not isinstance(value, list) or len(value) != 20:
                 got = len(value) if isinstance(value, list) else repr(value)
-                raise FormatError(path, f"{names[key]} must be 20 coefficients, got {got}")
+                raise FormatError(path, f"{where}{key} must be 20 coefficients, got {got}")
             items = value
         else:
             items = [value]
@@ -230,9 +235,9 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
             if not (
                 isinstance(item, int | float) and not isinstance(item, bool) and math.isfinite(item)
             ):
-                raise FormatError(path, f"{names[key]}: {item!r} is not a number")
+                raise FormatError(path, f"{where}{key}: {item!r} is not a number")
         values[key] = items if key in COEFFICIENTS else items[0]
-    return RpcCamera(_build(path, values, names, {}), width=size[0], height=size[1])
+    return RpcCamera(_build(path, values, names, {}, where), width=size[0], height=size[1])
 
 
 def is_tiff(file: CameraFile) -> bool:
@@ -255,8 +260,8 @@ def is_rpb(file: CameraFile) -> bool:
 
 
 def is_orthority_rpc(file: CameraFile) -> bool:
-    """Whether the YAML file has an indented ``rpc:`` key (Orthority's RPC parameters)."""
-    return re.search(r"^[ \t]+rpc[ \t]*:", file.head, re.MULTILINE) is not None
+    """Whether the YAML file has an ``rpc:`` key (Orthority's RPC parameters)."""
+    return re.search(r"(?:^|[\s{,])[\"']?rpc[\"']?[ \t]*:", file.head) is not None
 
 
 FORMATS = (
