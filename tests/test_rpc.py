@@ -491,3 +491,10 @@ def test_check_image_takes_any_camera() -> None:
         check_image(np.zeros((30, 40)), camera.with_image_size(4, 5))
     with pytest.raises(InputError, match="must be a PinholeCamera, RpcCamera"):
         check_image(np.zeros((30, 40)), "camera")  # type: ignore[arg-type]
+
+
+def test_no_single_centre() -> None:
+    """Code still written for frame cameras (camera.center) gets a clear InputError, which the
+    command line reports as one line with exit status 2, not an internal error."""
+    with pytest.raises(InputError, match="an RPC camera has no single centre"):
+        _ = RpcCamera(Rpc.from_mapping(synthetic_rpc())).center

@@ -14,7 +14,10 @@ Conventions:
   taken as Cartesian (the map frame). A compound CRS's vertical part is ignored: world heights
   are ellipsoidal heights minus ``height_offset``, so that a DEM of orthometric heights is
   served by ``height_offset`` = the geoid undulation N (ellipsoidal = orthometric + N), taken
-  constant over the scene.
+  constant over the scene. (PROJ applies a geoid only with its grid, e.g. EGM2008's
+  ``us_nga_egm08_25.tif``, which pyproj's wheels do not ship; without it PROJ falls back to a
+  "ballpark" transformation that leaves heights unchanged, so this model never asks PROJ for
+  one.)
 - Rays are straight lines in the world frame between the ground points of a pixel at two
   ellipsoidal heights, ``top`` (the ray's origin; default height_off + height_scale, which must
   lie above all terrain the camera sees) and ``bottom`` (default height_off - height_scale).
@@ -325,7 +328,8 @@ class RpcCamera:
     heights (m) between which rays run, ``top`` their origin (defaults height_off +- height_scale;
     ``top`` must lie above all terrain the camera sees); ``margin``: points whose normalised
     longitude, latitude or height exceeds 1 + ``margin`` in magnitude (beyond the RPC's fitted
-    domain, where the polynomials may fold) are not imaged (NaN pixels).
+    domain, where the polynomials may fold) are not imaged (NaN pixels); ``top`` and ``bottom``
+    must lie within that domain too.
     Construction raises InputError (a FieldError naming the parameter) for bad values.
     """
 
@@ -389,6 +393,16 @@ class RpcCamera:
     @cached_property
     def _to_geodetic(self) -> Transformer:
         return Transformer.from_crs(_horizontal_3d(self.crs), GEODETIC, always_xy=True)
+
+    @property
+    def center(self) -> np.ndarray:
+        """A frame camera's single centre, which an RPC camera does not have: raises
+        InputError, so that code still written for frame cameras only says so (until every
+        command takes any :class:`~orthomvp.camera.model.Camera`; use :meth:`origins`)."""
+        raise InputError(
+            "an RPC camera has no single centre: this command takes only frame (pinhole) "
+            "cameras so far"
+        )
 
     def bind(self, terrain: Terrain) -> RpcCamera:
         """A copy in ``terrain``'s world frame (:func:`world_crs`)."""
