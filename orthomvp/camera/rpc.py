@@ -240,8 +240,8 @@ class Rpc:
         (metres, broadcast to ``uv[..., 0]``): Newton's method on (L, P) with the analytic
         Jacobian, vectorised, from ``start`` (lon, lat degrees; default the RPC's offsets)
         until a step is below 1e-10 normalised units (about 1e-11 degrees; the error after
-        it, Newton converging quadratically, is far smaller). NaN where it
-        does not converge within 30 steps, or where ``uv`` or ``height`` is not finite."""
+        it, Newton converging quadratically, is far smaller). NaN where it does not converge
+        within 30 steps, or where ``uv`` or ``height`` is not finite. No domain check."""
         uv = np.asarray(uv, np.float64)
         u, v, height = np.broadcast_arrays(uv[..., 0], uv[..., 1], np.asarray(height, np.float64))
         shape = u.shape
