@@ -1,20 +1,24 @@
-"""Cameras: the frame (pinhole) model, its lens distortions, and reading and writing their files.
+"""Cameras: the frame (pinhole) model, its lens distortions, RPC cameras, and reading and
+writing their files.
 
 The model and its conventions (world metres, R camera-to-world, intrinsics in units of the
 pitch, pixels (u, v) = (column, row) with integer values at pixel centres) are in
-:mod:`orthomvp.camera.model`, the lens distortion models in :mod:`orthomvp.camera.distortion`.
+:mod:`orthomvp.camera.model`, the lens distortion models in :mod:`orthomvp.camera.distortion`,
+RPC cameras in :mod:`orthomvp.camera.rpc`.
 
 :func:`read_camera` reads any file of the registry :data:`FORMATS`: ASP/VW ``.tsai`` text and
 binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
 (:mod:`.formats.orthority`), USGS CSM ISDs and model states (:mod:`.formats.csm`, the line-scan,
-frame and push-frame models of :mod:`orthomvp.camera.csm`) and our JSON (:mod:`.formats.json`).
-Each format module lists the formats it reads (name, file name extensions, reader, content
-test); a file goes to the first format that names its extension and recognises its content,
-else to the last one naming its extension (whose reader reports what is wrong); a file whose
-extension no format names goes to the first format that recognises its content. A new reader
-(RPC) is a module
+frame and push-frame models of :mod:`orthomvp.camera.csm`), RPCs (GeoTIFF metadata,
+``_RPC.TXT``, ``.RPB``, Orthority's RPC YAML: :mod:`.formats.rpc`) and our JSON
+(:mod:`.formats.json`). Each format module lists the formats it reads (name, file name
+extensions, reader, content test); a file goes to the first format that names its extension and
+recognises its content, else to the last one naming its extension (whose reader reports what is
+wrong); a file whose extension no format names goes to the first format that recognises its
+content. A new reader is a module
 in ``formats`` with its ``FORMATS``, added to the tuple below (ahead of ours, with a content
-test, where it shares the ``.json`` extension). Writers replace the destination atomically.
+test, where it shares the ``.json`` extension; the RPC formats come first, their YAML sharing
+``.yaml`` with Orthority's interior files). Writers replace the destination atomically.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from orthomvp.camera.distortion import (
 from orthomvp.camera.formats import csm as csm_format
 from orthomvp.camera.formats import json as json_format
 from orthomvp.camera.formats import orthority, tsai
+from orthomvp.camera.formats import rpc as rpc_format
 from orthomvp.camera.formats._common import CameraFile, CameraFormat
 from orthomvp.camera.formats.json import camera_to_dict, write_json
 from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
@@ -51,6 +56,7 @@ from orthomvp.camera.model import (
     require_pinhole,
     sensor_positions,
 )
+from orthomvp.camera.rpc import Rpc, RpcCamera, world_crs
 from orthomvp.errors import FormatError
 from orthomvp.raster import read_image
 from orthomvp.validate import of_type
@@ -67,6 +73,8 @@ __all__ = [
     "OpenCVDistortion",
     "PhotometrixDistortion",
     "PinholeCamera",
+    "Rpc",
+    "RpcCamera",
     "TsaiDistortion",
     "as_image",
     "camera_to_dict",
@@ -79,11 +87,13 @@ __all__ = [
     "require_pinhole",
     "sensor_positions",
     "tsai_text",
+    "world_crs",
     "write_json",
     "write_tsai",
 ]
 
 FORMATS: tuple[CameraFormat, ...] = (
+    *rpc_format.FORMATS,
     *orthority.FORMATS,
     *csm_format.FORMATS,
     *json_format.FORMATS,
@@ -95,9 +105,9 @@ FORMATS: tuple[CameraFormat, ...] = (
 def read_camera(
     path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
 ) -> Camera:
-    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority files, or a
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority files, a
     USGS CSM ISD or model state (a line-scan, frame or push-frame model of
-    :mod:`orthomvp.camera.csm`).
+    :mod:`orthomvp.camera.csm`), or an RPC camera (:class:`RpcCamera`).
 
     Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
     their content) ignore ``image`` and ``interior``.
@@ -109,6 +119,12 @@ def read_camera(
     else from the one ``.yaml``/``.yml`` file in the exterior file's directory. CSV angles are
     in degrees (see :func:`read_orthority_cameras`). An interior ``.yaml`` alone holds no camera
     pose and raises InputError.
+
+    RPC cameras come from a raster's RPC metadata (the camera file can be the image itself;
+    ``.tif``, ``.tiff``, or any raster whose content is TIFF), ``_RPC.TXT`` (``.txt``), ``.RPB``,
+    or Orthority's RPC parameter YAML (``image`` picks the entry by stem, as for the exterior
+    files); see :mod:`orthomvp.camera.formats.rpc`. They live in WGS84 geocentric metres;
+    :meth:`RpcCamera.bind` moves them to a terrain's world frame.
 
     A missing or unreadable file raises InputError; a file that breaks its format raises
     FormatError naming it (and the line, for text formats).
@@ -131,7 +147,7 @@ def _format_of(file: CameraFile) -> CameraFormat:
     raise FormatError(file.path, f"not a camera file: not {tried}")
 
 
-def load_view(image_path: str | Path, camera_path: str | Path) -> tuple[np.ndarray, PinholeCamera]:
+def load_view(image_path: str | Path, camera_path: str | Path) -> tuple[np.ndarray, Camera]:
     """Read an image (float32 (bands, rows, cols), see :func:`orthomvp.raster.read_image`) and
     its camera (:func:`read_camera`, the image's name picking its row in multi-camera files),
     checked against each other; the camera carries the image's size."""

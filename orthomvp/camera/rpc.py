@@ -1,0 +1,517 @@
+"""RPC cameras: rational polynomial coefficients (RPC00B) bound to a Cartesian world frame.
+
+Conventions:
+
+- An :class:`Rpc` maps WGS84 geodetic longitude and latitude (degrees) and ellipsoidal height
+  (metres) to pixels with the RPC00B polynomials, in the 20-term order of the GeoTIFF RPC
+  extension, NITF RPC00B and GDAL: with L, P, H the normalised longitude, latitude and height,
+  1, L, P, H, LP, LH, PH, L^2, P^2, H^2, PLH, L^3, LP^2, LH^2, L^2P, P^3, PH^2, L^2H, P^2H, H^3.
+  sample = samp_off + samp_scale * SAMP_NUM / SAMP_DEN, line likewise.
+- RPC (sample, line) has the first pixel's centre at (0, 0), as orthomvp's (u, v) = (column,
+  row): no shift. (GDAL's RPC transformer reports pixel corners: its (col, row) are ours + 0.5.)
+- An :class:`RpcCamera` lives in a Cartesian world frame named by a pyproj CRS: geocentric
+  (orthomvp's body frame; default WGS84, EPSG:4978) or projected, (easting, northing, height)
+  taken as Cartesian (the map frame). A compound CRS's vertical part is ignored: world heights
+  are ellipsoidal heights minus ``height_offset``, so that a DEM of orthometric heights is
+  served by ``height_offset`` = the geoid undulation N (ellipsoidal = orthometric + N), taken
+  constant over the scene. (PROJ applies a geoid only with its grid, e.g. EGM2008's
+  ``us_nga_egm08_25.tif``, which pyproj's wheels do not ship; without it PROJ falls back to a
+  "ballpark" transformation that leaves heights unchanged, so this model never asks PROJ for
+  one.)
+- Rays are straight lines in the world frame between the ground points of a pixel at two
+  ellipsoidal heights, ``top`` (the ray's origin; default height_off + height_scale, which must
+  lie above all terrain the camera sees) and ``bottom`` (default height_off - height_scale).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import KW_ONLY, dataclass, field, replace
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+import numpy as np
+from pyproj import CRS, Transformer
+from pyproj.exceptions import CRSError
+
+from orthomvp.camera.model import FieldError, _points
+from orthomvp.codes import WorldFrame
+from orthomvp.errors import InputError
+
+if TYPE_CHECKING:
+    from orthomvp.terrain import Terrain
+
+OFFSETS_SCALES = (
+    "line_off",
+    "samp_off",
+    "lat_off",
+    "long_off",
+    "height_off",
+    "line_scale",
+    "samp_scale",
+    "lat_scale",
+    "long_scale",
+    "height_scale",
+)
+"""The RPC's scalar parameters, named as in GDAL's RPC metadata (lower case) and Orthority."""
+COEFFICIENTS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
+"""The RPC's four 20-coefficient polynomials, in that order."""
+RPC_KEYS = OFFSETS_SCALES + COEFFICIENTS
+"""Every key an :class:`Rpc` needs."""
+
+GEODETIC = CRS.from_epsg(4979)
+"""The RPCs' own coordinates: WGS84 longitude, latitude (degrees), ellipsoidal height (m)."""
+
+_CHUNK = 1 << 16  # points per polynomial evaluation (bounds the (n, 20) term matrices)
+_TOLERANCE = 1e-10  # image to ground: last Newton step, normalised lon/lat units
+_ITERATIONS = 30  # image to ground: most Newton steps before a point is given up (NaN)
+_GSD_STEP = 1.0  # metres, finite-difference step of gsd()
+
+
+def _poly(c: np.ndarray, lon: np.ndarray, lat: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The RPC00B polynomial with coefficients ``c`` (20,) at normalised (L, P, H), in Horner
+    form."""
+    out = c[0] + lon * (
+        c[1]
+        + lat * (c[4] + h * c[10])
+        + h * c[5]
+        + lon * (c[7] + lon * c[11] + lat * c[14] + h * c[17])
+    )
+    out += lat * (c[2] + h * c[6] + lat * (c[8] + lon * c[12] + lat * c[15] + h * c[18]))
+    out += h * (c[3] + h * (c[9] + lon * c[13] + lat * c[16] + h * c[19]))
+    return out
+
+
+def _poly_gradient(
+    c: np.ndarray, lon: np.ndarray, lat: np.ndarray, h: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The derivatives of :func:`_poly` by L and by P."""
+    d_lon = (
+        c[1]
+        + lat * (c[4] + h * c[10] + lat * c[12] + 2 * lon * c[14])
+        + h * (c[5] + h * c[13] + 2 * lon * c[17])
+        + lon * (2 * c[7] + 3 * lon * c[11])
+    )
+    d_lat = (
+        c[2]
+        + lon * (c[4] + h * c[10] + 2 * lat * c[12] + lon * c[14])
+        + h * (c[6] + h * c[16] + 2 * lat * c[18])
+        + lat * (2 * c[8] + 3 * lat * c[15])
+    )
+    return d_lon, d_lat
+
+
+def _number(key: str, value: object) -> float:
+    """``value`` as a finite float; FieldError naming ``key`` otherwise."""
+    if isinstance(value, bool | str | bytes):
+        raise FieldError(key, f"{key} must be a number, got {value!r}")
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise FieldError(key, f"{key} must be a number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise FieldError(key, f"{key} must be finite, got {value!r}")
+    return number
+
+
+def _coefficients(key: str, value: object) -> np.ndarray:
+    """``value`` as a read-only (20,) float64 array; FieldError naming ``key`` otherwise."""
+    items = list(value) if isinstance(value, list | tuple | np.ndarray) else None
+    if items is None or len(items) != 20:
+        got = f"{len(items)}" if items is not None else repr(value)
+        raise FieldError(key, f"{key} must be 20 coefficients, got {got}")
+    arr = np.array([_number(f"{key}[{i}]", v) for i, v in enumerate(items)], dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Rpc:
+    """RPC00B rational polynomial coefficients (see the module docstring).
+
+    Offsets and scales: ``line_off``, ``samp_off``, ``line_scale``, ``samp_scale`` in pixels;
+    ``lat_off``, ``long_off``, ``lat_scale``, ``long_scale`` in degrees; ``height_off``,
+    ``height_scale`` in metres (ellipsoidal). The four polynomials (20,) each. Construction
+    raises FieldError (an InputError naming the key) for a missing, non-numeric or non-finite
+    value, a zero scale, a wrong number of coefficients or a denominator with all zeros.
+    """
+
+    line_off: float
+    samp_off: float
+    lat_off: float
+    long_off: float
+    height_off: float
+    line_scale: float
+    samp_scale: float
+    lat_scale: float
+    long_scale: float
+    height_scale: float
+    line_num_coeff: np.ndarray
+    line_den_coeff: np.ndarray
+    samp_num_coeff: np.ndarray
+    samp_den_coeff: np.ndarray
+
+    def __post_init__(self) -> None:
+        for key in OFFSETS_SCALES:
+            value = _number(key, getattr(self, key))
+            if key.endswith("_scale") and value == 0:
+                raise FieldError(key, f"{key} must not be 0")
+            object.__setattr__(self, key, value)
+        for key in COEFFICIENTS:
+            value = _coefficients(key, getattr(self, key))
+            if key.endswith("_den_coeff") and not value.any():
+                raise FieldError(key, f"{key} is all zeros (division by zero)")
+            object.__setattr__(self, key, value)
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, object]) -> Rpc:
+        """The RPC of a mapping with the keys :data:`RPC_KEYS` (any case; others ignored), such
+        as rasterio's ``RPC.to_dict()`` or Orthority's ``rpc``; FieldError for a missing key."""
+        lower = {str(k).lower(): v for k, v in values.items()}
+        missing = [key for key in RPC_KEYS if key not in lower]
+        if missing:
+            raise FieldError(missing[0], f"missing {', '.join(missing)}")
+        return cls(**{key: lower[key] for key in RPC_KEYS})
+
+    def to_dict(self) -> dict[str, float | list[float]]:
+        """The parameters by their :data:`RPC_KEYS` (floats, lists of 20 floats)."""
+        out: dict[str, float | list[float]] = {k: getattr(self, k) for k in OFFSETS_SCALES}
+        out.update({k: getattr(self, k).tolist() for k in COEFFICIENTS})
+        return out
+
+    def normalise(
+        self, lon: np.ndarray, lat: np.ndarray, height: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Normalised (L, P, H) of degrees and metres."""
+        return (
+            (np.asarray(lon, np.float64) - self.long_off) / self.long_scale,
+            (np.asarray(lat, np.float64) - self.lat_off) / self.lat_scale,
+            (np.asarray(height, np.float64) - self.height_off) / self.height_scale,
+        )
+
+    def _ratios(
+        self, lon: np.ndarray, lat: np.ndarray, h: np.ndarray, jacobian: bool = False
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Normalised (sample, line) (n, 2) of normalised (L, P, H) (n,), and with ``jacobian``
+        their derivatives (n, 2, 2) by (L, P)."""
+        n = lon.shape[0]
+        out = np.empty((n, 2))
+        jac = np.empty((n, 2, 2)) if jacobian else None
+        pairs = (
+            (self.samp_num_coeff, self.samp_den_coeff),
+            (self.line_num_coeff, self.line_den_coeff),
+        )
+        for s in range(0, n, _CHUNK):
+            part = slice(s, s + _CHUNK)
+            args = lon[part], lat[part], h[part]
+            for i, (num_c, den_c) in enumerate(pairs):
+                num, den = _poly(num_c, *args), _poly(den_c, *args)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    out[part, i] = num / den
+                    if jac is not None:
+                        for k, (d_num, d_den) in enumerate(
+                            zip(
+                                _poly_gradient(num_c, *args),
+                                _poly_gradient(den_c, *args),
+                                strict=True,
+                            )
+                        ):
+                            jac[part, i, k] = (d_num * den - num * d_den) / (den * den)
+        return out, jac
+
+    def project(self, lon: np.ndarray, lat: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """Pixels (..., 2), (u, v) = (sample, line), of WGS84 ``lon``, ``lat`` (degrees) and
+        ellipsoidal ``height`` (metres), broadcast together; no domain check."""
+        lon, lat, height = np.broadcast_arrays(*self.normalise(lon, lat, height))
+        shape = lon.shape
+        ratios, _ = self._ratios(lon.ravel(), lat.ravel(), height.ravel())
+        scale = np.array([self.samp_scale, self.line_scale])
+        offset = np.array([self.samp_off, self.line_off])
+        return (ratios * scale + offset).reshape(shape + (2,))
+
+    def ground(
+        self,
+        uv: np.ndarray,
+        height: np.ndarray,
+        *,
+        start: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """WGS84 (lon, lat), degrees, imaged at pixels ``uv`` (..., 2) at ellipsoidal ``height``
+        (metres, broadcast to ``uv[..., 0]``): Newton's method on (L, P) with the analytic
+        Jacobian, vectorised, from ``start`` (lon, lat degrees; default the RPC's offsets)
+        until a step is below 1e-10 normalised units (about 1e-11 degrees; the error after
+        it, Newton converging quadratically, is far smaller). NaN where it does not converge
+        within 30 steps, or where ``uv`` or ``height`` is not finite. No domain check."""
+        uv = np.asarray(uv, np.float64)
+        u, v, height = np.broadcast_arrays(uv[..., 0], uv[..., 1], np.asarray(height, np.float64))
+        shape = u.shape
+        target = np.stack(
+            [
+                (u.ravel() - self.samp_off) / self.samp_scale,
+                (v.ravel() - self.line_off) / self.line_scale,
+            ],
+            axis=-1,
+        )
+        h = (height.ravel() - self.height_off) / self.height_scale
+        x = np.zeros((h.size, 2))
+        if start is not None:
+            lon0, lat0, _ = self.normalise(start[0], start[1], 0.0)
+            x[:, 0], x[:, 1] = (
+                np.broadcast_to(lon0, shape).ravel(),
+                np.broadcast_to(lat0, shape).ravel(),
+            )
+        active = np.flatnonzero(
+            np.isfinite(target).all(axis=-1) & np.isfinite(h) & np.isfinite(x).all(axis=-1)
+        )
+        done = np.zeros(h.size, bool)
+        for _ in range(_ITERATIONS):
+            if not active.size:
+                break
+            xa = x[active]
+            ratios, jac = self._ratios(xa[:, 0], xa[:, 1], h[active], jacobian=True)
+            assert jac is not None
+            residual = ratios - target[active]
+            det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                step = (
+                    np.stack(
+                        [
+                            jac[:, 1, 1] * residual[:, 0] - jac[:, 0, 1] * residual[:, 1],
+                            jac[:, 0, 0] * residual[:, 1] - jac[:, 1, 0] * residual[:, 0],
+                        ],
+                        axis=-1,
+                    )
+                    / det[:, None]
+                )
+            x[active] = xa - step
+            size = np.abs(step).max(axis=-1)
+            converged = size <= _TOLERANCE
+            done[active[converged]] = True
+            active = active[np.isfinite(size) & ~converged]
+        x[~done] = np.nan
+        lon = x[:, 0] * self.long_scale + self.long_off
+        lat = x[:, 1] * self.lat_scale + self.lat_off
+        return lon.reshape(shape), lat.reshape(shape)
+
+
+def world_crs(terrain: Terrain) -> CRS:
+    """The CRS of ``terrain``'s world frame: its own (projected) CRS in the map frame, else
+    geocentric metres on its ellipsoid (what :meth:`Terrain.to_world` gives)."""
+    if terrain.world == WorldFrame.MAP:
+        return terrain.crs
+    a, b = terrain.radii
+    return CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
+
+
+def _horizontal_3d(crs: CRS) -> CRS:
+    """``crs`` with ellipsoidal heights: a compound CRS's horizontal part, made 3D; InputError
+    unless it is geocentric or projected (a Cartesian world frame)."""
+    horizontal = crs.sub_crs_list[0] if crs.is_compound else crs
+    if horizontal.is_geocentric:
+        return horizontal
+    if horizontal.is_projected:
+        return horizontal.to_3d()
+    raise FieldError(
+        "crs", f"the world CRS must be geocentric or projected (Cartesian), got {crs.name!r}"
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class RpcCamera:
+    """An RPC camera in a Cartesian world frame (see the module docstring for conventions).
+
+    ``rpc``: the :class:`Rpc`. Keyword-only: ``width``, ``height``, image size in pixels (or
+    None); ``crs``: the world frame, anything pyproj reads, geocentric or projected (default
+    WGS84 geocentric, EPSG:4978; :meth:`bind` takes a terrain's); ``height_offset``, metres:
+    ellipsoidal height = world height + ``height_offset`` (the geoid undulation for
+    orthometric world heights; 0 for ellipsoidal ones); ``top``, ``bottom``: the ellipsoidal
+    heights (m) between which rays run, ``top`` their origin (defaults height_off +- height_scale;
+    ``top`` must lie above all terrain the camera sees); ``margin``: points whose normalised
+    longitude, latitude or height exceeds 1 + ``margin`` in magnitude (beyond the RPC's fitted
+    domain, where the polynomials may fold) are not imaged (NaN pixels); ``top`` and ``bottom``
+    must lie within that domain too.
+    Construction raises InputError (a FieldError naming the parameter) for bad values.
+    """
+
+    rpc: Rpc
+    _: KW_ONLY
+    width: int | None = None
+    height: int | None = None
+    crs: CRS = field(default_factory=lambda: CRS.from_epsg(4978))
+    height_offset: float = 0.0
+    top: float | None = None
+    bottom: float | None = None
+    margin: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.rpc, Rpc):
+            raise FieldError("rpc", f"rpc must be an Rpc, got {type(self.rpc).__name__}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0
+            ):
+                raise FieldError(name, f"{name} must be a positive integer or None, got {value!r}")
+            object.__setattr__(self, name, None if value is None else int(value))
+        try:
+            crs = CRS.from_user_input(self.crs)
+        except CRSError as exc:
+            raise FieldError(
+                "crs", f"cannot understand the world CRS {self.crs!r}: {exc}"
+            ) from None
+        _horizontal_3d(crs)
+        object.__setattr__(self, "crs", crs)
+        rpc = self.rpc
+        defaults = {
+            "top": rpc.height_off + abs(rpc.height_scale),
+            "bottom": rpc.height_off - abs(rpc.height_scale),
+        }
+        for name in ("height_offset", "margin", "top", "bottom"):
+            value = getattr(self, name)
+            object.__setattr__(
+                self, name, _number(name, defaults[name] if value is None else value)
+            )
+        if self.margin < 0:
+            raise FieldError("margin", f"margin must be >= 0, got {self.margin!r}")
+        if not self.top > self.bottom:
+            raise FieldError("top", f"top ({self.top} m) must lie above bottom ({self.bottom} m)")
+        for name in ("top", "bottom"):
+            if not self._in_domain(rpc.long_off, rpc.lat_off, getattr(self, name)):
+                low, high = (
+                    rpc.height_off + k * abs(rpc.height_scale) * (1 + self.margin) for k in (-1, 1)
+                )
+                raise FieldError(
+                    name,
+                    f"{name} ({getattr(self, name)} m) lies beyond the RPC's heights "
+                    f"({low:g} to {high:g} m with the margin)",
+                )
+
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled without the cached pyproj transformer."""
+        return {k: v for k, v in self.__dict__.items() if k != "_to_geodetic"}
+
+    @cached_property
+    def _to_geodetic(self) -> Transformer:
+        return Transformer.from_crs(_horizontal_3d(self.crs), GEODETIC, always_xy=True)
+
+    def bind(self, terrain: Terrain) -> RpcCamera:
+        """A copy in ``terrain``'s world frame (:func:`world_crs`)."""
+        return replace(self, crs=world_crs(terrain))
+
+    def with_image_size(self, width: int | None, height: int | None) -> RpcCamera:
+        """A copy with the image size (pixels) set."""
+        return replace(self, width=width, height=height)
+
+    def crop(self, c0: int, r0: int, width: int, height: int) -> RpcCamera:
+        """The camera of the ``width`` x ``height`` pixel window whose first pixel is pixel
+        (``c0``, ``r0``) here: the RPC's sample and line offsets move by the offset, so
+        ``crop.project(x)`` is ``project(x) - (c0, r0)``."""
+        for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer):
+                raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+        rpc = replace(
+            self.rpc, samp_off=self.rpc.samp_off - int(c0), line_off=self.rpc.line_off - int(r0)
+        )
+        return replace(self, rpc=rpc, width=int(width), height=int(height))
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """Whether pixels ``uv`` (..., 2) lie within half a pixel of the outermost pixel
+        centres; NaN is outside. Needs the image size."""
+        if self.width is None or self.height is None:
+            raise InputError("the camera needs its image size (width, height)")
+        u, v = uv[..., 0], uv[..., 1]
+        return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
+
+    def to_geodetic(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """WGS84 (lon, lat) in degrees and ellipsoidal height in metres of world points
+        ``xyz`` (..., 3) (``height_offset`` added); NaN where ``xyz`` is not finite."""
+        xyz = _points(xyz, "to_geodetic", 3)
+        if xyz.shape[-1:] != (3,):
+            raise InputError(f"to_geodetic needs points of shape (..., 3), got {xyz.shape}")
+        ok = np.isfinite(xyz).all(axis=-1)
+        out = np.full(xyz.shape, np.nan)
+        lon, lat, h = self._to_geodetic.transform(*xyz[ok].T)
+        out[ok] = np.stack([lon, lat, np.asarray(h) + self.height_offset], axis=-1)
+        return out[..., 0], out[..., 1], out[..., 2]
+
+    def to_world(self, lon: np.ndarray, lat: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """World points (..., 3) of WGS84 ``lon``, ``lat`` (degrees) and ellipsoidal ``height``
+        (metres), broadcast together; NaN where they are not finite."""
+        lon, lat, height = np.broadcast_arrays(
+            *(np.asarray(a, np.float64) for a in (lon, lat, height))
+        )
+        ok = np.isfinite(lon) & np.isfinite(lat) & np.isfinite(height)
+        out = np.full(lon.shape + (3,), np.nan)
+        xyz = self._to_geodetic.transform(
+            lon[ok], lat[ok], height[ok] - self.height_offset, direction="INVERSE"
+        )
+        out[ok] = np.stack(xyz, axis=-1)
+        return out
+
+    def _in_domain(self, lon: np.ndarray, lat: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """Whether normalised |L|, |P|, |H| are all within 1 + margin (False for NaN)."""
+        limit = 1.0 + self.margin
+        lon, lat, height = self.rpc.normalise(lon, lat, height)
+        return (np.abs(lon) <= limit) & (np.abs(lat) <= limit) & (np.abs(height) <= limit)
+
+    def _ray_point(
+        self, uv: np.ndarray, height: float, start: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(lon, lat) degrees (...) and world point (..., 3) imaged at ``uv`` at ellipsoidal
+        ``height``; NaN outside the domain."""
+        lon, lat = self.rpc.ground(uv, height, start=start)
+        inside = self._in_domain(lon, lat, height)
+        lon, lat = np.where(inside, lon, np.nan), np.where(inside, lat, np.nan)
+        return np.stack([lon, lat], axis=-1), self.to_world(lon, lat, height)
+
+    def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels ``uv`` (..., 2) of world points ``xyz`` (..., 3), metres, NaN beyond the RPC's
+        domain (see ``margin``), and ``depth`` (...), metres: the distance from the ray's
+        origin (the point at height ``top`` imaged at the same pixel), positive below ``top``;
+        NaN where ``uv`` is."""
+        xyz = _points(xyz, "project", 3)
+        lon, lat, height = self.to_geodetic(xyz)
+        uv = self.rpc.project(lon, lat, height)
+        uv[~self._in_domain(lon, lat, height)] = np.nan
+        _, origin = self._ray_point(uv, self.top, start=(lon, lat))
+        depth = np.linalg.norm(xyz - origin, axis=-1)
+        depth = np.where(height <= self.top, depth, -depth)
+        return uv, depth
+
+    def ray(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rays through pixels ``uv`` (..., 2): ``origins`` (..., 3), the world points imaged at
+        ``uv`` at height ``top``, and unit ``directions`` (..., 3) towards the points at height
+        ``bottom``; NaN where a point lies beyond the domain or the iteration fails."""
+        uv = self._pixels(uv, "ray")
+        lonlat, origins = self._ray_point(uv, self.top)
+        _, low = self._ray_point(uv, self.bottom, start=(lonlat[..., 0], lonlat[..., 1]))
+        d = low - origins
+        return origins, d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def origins(self, uv: np.ndarray) -> np.ndarray:
+        """The ``origins`` of :meth:`ray` alone (..., 3), world metres."""
+        return self._ray_point(self._pixels(uv, "origins"), self.top)[1]
+
+    def gsd(self, xyz: np.ndarray) -> np.ndarray:
+        """Metres per pixel (...) at world points ``xyz`` (..., 3) on a plane perpendicular to
+        the ray: 1 / sqrt(|det J|) with J (pixels per metre) by central differences of 1 m
+        along two axes of that plane; NaN where the point is not imaged."""
+        xyz = _points(xyz, "gsd", 3)
+        _, d = self.ray(self.project(xyz)[0])
+        helper = np.where(np.abs(d[..., :1]) < 0.9, np.eye(3)[0], np.eye(3)[1])
+        e1 = np.cross(d, helper)
+        e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+        e2 = np.cross(d, e1)
+        step = _GSD_STEP * np.stack([e1, e2])  # (2, ..., 3)
+        ahead, _ = self.project(xyz + step)
+        behind, _ = self.project(xyz - step)
+        jac = (ahead - behind) / (2 * _GSD_STEP)  # (2 axes, ..., 2 pixel coordinates)
+        det = jac[0, ..., 0] * jac[1, ..., 1] - jac[0, ..., 1] * jac[1, ..., 0]
+        return 1.0 / np.sqrt(np.abs(det))
+
+    @staticmethod
+    def _pixels(uv: np.ndarray, what: str) -> np.ndarray:
+        uv = _points(uv, what, 2)
+        if uv.shape[-1:] != (2,):
+            raise InputError(f"{what} needs pixels of shape (..., 2), got {uv.shape}")
+        return uv
