@@ -53,6 +53,7 @@ from orthomvp.camera.model import (
     PinholeCamera,
     as_image,
     check_image,
+    in_world,
     require_pinhole,
     sensor_positions,
 )
@@ -80,6 +81,7 @@ __all__ = [
     "camera_to_dict",
     "check_image",
     "distortion_class",
+    "in_world",
     "load_view",
     "orthority_rotation",
     "read_camera",

@@ -375,6 +375,14 @@ def require_pinhole(camera: Camera, name: str, needs: str) -> PinholeCamera:
     return camera
 
 
+def in_world(camera: Camera, terrain: object) -> Camera:
+    """``camera`` in the world frame of ``terrain`` (a :class:`~orthomvp.terrain.Terrain`):
+    models defined on geodetic coordinates (RPC) offer ``bind(terrain)`` and are bound to it;
+    the others live in one frame already and come back unchanged."""
+    bind = getattr(camera, "bind", None)
+    return bind(terrain) if callable(bind) else camera
+
+
 def sensor_positions(camera: Camera, lattice: int = 3) -> np.ndarray:
     """Where ``camera`` images from: the ray origins (k, 3), world metres, of a ``lattice`` x
     ``lattice`` grid of pixels spanning the image (its centre alone without an image size),

@@ -297,7 +297,7 @@ def plan_fit(
     sources = tuple(image_source(image, camera) for image, camera in views)
     for view in sources:
         require_pinhole(view.camera, str(view.path), "the MVP fit (plane homographies)")
-    source = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source)
     levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)
     opts = replace(opts, levels=levels)

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from orthomvp.camera import Camera, sensor_positions
+from orthomvp.camera import Camera, in_world, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
@@ -269,7 +269,7 @@ def plan_ortho(
     if interp not in INTERPOLATION:
         raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
     sources = _views(views)
-    source = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source, res, bounds, crs)
     to_dem = grid_to_dem(grid, source)
     jobs, boxes, reach, elevation = plan_tiles(
@@ -315,9 +315,10 @@ def read_source(
     radius_values: bool,
     world: WorldFrame | str,
     progress: bool,
-) -> DemSource:
+) -> tuple[DemSource, tuple[ImageSource, ...]]:
     """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
-    its cameras fit, :func:`~orthomvp.world.detect_world`), with every camera above it."""
+    its cameras fit, :func:`~orthomvp.world.detect_world`), with every camera above it; and
+    the views with their cameras in that frame (:func:`~orthomvp.camera.in_world`)."""
     frame = _frame(world)
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
@@ -325,8 +326,11 @@ def read_source(
     if frame is None:
         frame = detect_world(source.preview, centres)
     source = dem_with_world(source, frame)
-    check_cameras_above(source.preview, centres)
-    return source
+    sources = tuple(replace(v, camera=in_world(v.camera, source.preview)) for v in sources)
+    check_cameras_above(
+        source.preview, np.concatenate([sensor_positions(v.camera) for v in sources])
+    )
+    return source, sources
 
 
 def plan_tiles(
