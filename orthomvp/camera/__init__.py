@@ -5,7 +5,8 @@ pitch, pixels (u, v) = (column, row) with integer values at pixel centres) are i
 :mod:`orthomvp.camera.model`, the lens distortion models in :mod:`orthomvp.camera.distortion`.
 
 :func:`read_camera` reads any file of the registry :data:`FORMATS`: ASP/VW ``.tsai`` text and
-binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
+binary ``.pinhole`` (:mod:`.formats.tsai`), OpenSfM's ``reconstruction.json`` and ODM's
+``shots.geojson`` (:mod:`.formats.opensfm`), Orthority's parameter files
 (:mod:`.formats.orthority`) and our JSON (:mod:`.formats.json`). Each format module lists the
 formats it reads (name, file name extensions, reader, content test); a file goes to the first
 format that names its extension and recognises its content, else to the last one naming its
@@ -34,9 +35,10 @@ from orthomvp.camera.distortion import (
     distortion_class,
 )
 from orthomvp.camera.formats import json as json_format
-from orthomvp.camera.formats import orthority, tsai
+from orthomvp.camera.formats import opensfm, orthority, tsai
 from orthomvp.camera.formats._common import CameraFile, CameraFormat
 from orthomvp.camera.formats.json import camera_to_dict, write_json
+from orthomvp.camera.formats.opensfm import read_odm_shots, read_opensfm_cameras
 from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
 from orthomvp.camera.formats.tsai import tsai_text, write_tsai
 from orthomvp.camera.model import (
@@ -72,6 +74,8 @@ __all__ = [
     "load_view",
     "orthority_rotation",
     "read_camera",
+    "read_odm_shots",
+    "read_opensfm_cameras",
     "read_orthority_cameras",
     "require_pinhole",
     "sensor_positions",
@@ -80,14 +84,20 @@ __all__ = [
     "write_tsai",
 ]
 
-FORMATS: tuple[CameraFormat, ...] = (*orthority.FORMATS, *json_format.FORMATS, *tsai.FORMATS)
+FORMATS: tuple[CameraFormat, ...] = (
+    *opensfm.FORMATS,
+    *orthority.FORMATS,
+    *json_format.FORMATS,
+    *tsai.FORMATS,
+)
 """Every camera file format :func:`read_camera` knows, in the order they are tried."""
 
 
 def read_camera(
     path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
 ) -> PinholeCamera:
-    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, or Orthority files.
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, OpenSfM/ODM or
+    Orthority files.
 
     Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
     their content) ignore ``image`` and ``interior``.
@@ -99,6 +109,11 @@ def read_camera(
     else from the one ``.yaml``/``.yml`` file in the exterior file's directory. CSV angles are
     in degrees (see :func:`read_orthority_cameras`). An interior ``.yaml`` alone holds no camera
     pose and raises InputError.
+
+    OpenSfM's ``reconstruction.json`` and ODM's ``shots.geojson`` (whose interior parameters
+    come from ``interior`` or the ``cameras.json`` beside it or one directory up) pick the shot
+    by the image's stem in the same way, in the map frame of the reconstruction's UTM zone (see
+    :mod:`orthomvp.camera.formats.opensfm`); ``cameras.json`` alone raises InputError.
 
     A missing or unreadable file raises InputError; a file that breaks its format raises
     FormatError naming it (and the line, for text formats).
