@@ -25,14 +25,15 @@ u, v, w), so the centre is C = -Rod(r)^T t and R (camera-to-world) = Rod(r)^T.
 World frame (the map frame of :mod:`orthomvp.world`): C + (E, N, h) of the reconstruction's
 ``reference_lla`` in a projected CRS, default the WGS 84 UTM zone of the reference (zone from
 the longitude alone, north or south from the latitude), R unchanged: Orthority's convention.
-In an ODM dataset it is exact: ODM rewrites ``reconstruction.json`` in its DSM's projected CRS
-minus an offset, and sets the reference at that offset (the topocentric original is kept as
-``reconstruction.topocentric.json``). A plain OpenSfM reconstruction is topocentric (east,
-north, up at the reference); taking it as the map frame leaves out the grid convergence (a
-rotation about the vertical: horizontal error about gamma d at distance d from the reference,
-gamma = dlon sin(lat), up to a few degrees at a UTM zone's edge), the scale factor (0.9996 to
-1.0010 of the distances) and the Earth's curvature (heights low by d^2 / 12,740 km: 8 cm at
-1 km).
+For ODM it is exact: ODM rewrites ``reconstruction.json`` in its DSM's projected CRS minus an
+offset, with the same transform as its point cloud and DSM, and sets the reference at that
+offset (the topocentric original is kept as ``reconstruction.topocentric.json``). A plain
+OpenSfM reconstruction is topocentric (east, north, up at the reference); taking it as the map
+frame leaves out the grid convergence (a turn about the vertical of gamma = dlon sin(lat), up
+to 3 degrees at a UTM zone's edge: that pointing error, and horizontal errors of gamma times
+the distance d from the reference, 37 m at 1 km at 45 N, 3 degrees from the central
+meridian), the scale factor (0.9996 to 1.0010 of the distances) and the Earth's curvature
+(heights low by d^2 / 12,740 km: 8 cm at 1 km).
 
 ``shots.geojson`` (ODM's report) holds, per image, ``filename``, ``translation`` (the camera
 centre in the DSM's CRS, offset added back), ``rotation`` (as in the reconstruction),
