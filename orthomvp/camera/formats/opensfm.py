@@ -326,8 +326,8 @@ def _shots(path: Path, text: str, interior: str | Path | None) -> dict[str, Pinh
     if not isinstance(features, list):
         raise FormatError(path, "features: expected a list")
     found = _find_cameras_json(path) if interior is None else Path(interior)
-    text = decode_text(found, read_bytes(found, "ODM cameras.json"))
-    cameras = _interiors(found, _load(found, text), "cameras")
+    interior_text = decode_text(found, read_bytes(found, "ODM cameras.json"))
+    cameras = _interiors(found, _load(found, interior_text), "cameras")
     out: dict[str, PinholeCamera] = {}
     for n, feature in enumerate(features):
         at = f"features[{n}].properties"
