@@ -7,7 +7,8 @@ pitch, pixels (u, v) = (column, row) with integer values at pixel centres) are i
 RPC cameras in :mod:`orthomvp.camera.rpc`.
 
 :func:`read_camera` reads any file of the registry :data:`FORMATS`: ASP/VW ``.tsai`` text and
-binary ``.pinhole`` (:mod:`.formats.tsai`), Orthority's parameter files
+binary ``.pinhole`` (:mod:`.formats.tsai`), OpenSfM's ``reconstruction.json`` and ODM's
+``shots.geojson`` (:mod:`.formats.opensfm`), Orthority's parameter files
 (:mod:`.formats.orthority`), USGS CSM ISDs and model states (:mod:`.formats.csm`, the line-scan,
 frame and push-frame models of :mod:`orthomvp.camera.csm`), RPCs (GeoTIFF metadata,
 ``_RPC.TXT``, ``.RPB``, Orthority's RPC YAML: :mod:`.formats.rpc`) and our JSON
@@ -41,10 +42,11 @@ from orthomvp.camera.distortion import (
 )
 from orthomvp.camera.formats import csm as csm_format
 from orthomvp.camera.formats import json as json_format
-from orthomvp.camera.formats import orthority, tsai
+from orthomvp.camera.formats import opensfm, orthority, tsai
 from orthomvp.camera.formats import rpc as rpc_format
 from orthomvp.camera.formats._common import CameraFile, CameraFormat
 from orthomvp.camera.formats.json import camera_to_dict, write_json
+from orthomvp.camera.formats.opensfm import read_odm_shots, read_opensfm_cameras
 from orthomvp.camera.formats.orthority import orthority_rotation, read_orthority_cameras
 from orthomvp.camera.formats.tsai import tsai_text, write_tsai
 from orthomvp.camera.model import (
@@ -85,6 +87,8 @@ __all__ = [
     "load_view",
     "orthority_rotation",
     "read_camera",
+    "read_odm_shots",
+    "read_opensfm_cameras",
     "read_orthority_cameras",
     "require_pinhole",
     "sensor_positions",
@@ -96,6 +100,7 @@ __all__ = [
 
 FORMATS: tuple[CameraFormat, ...] = (
     *rpc_format.FORMATS,
+    *opensfm.FORMATS,
     *orthority.FORMATS,
     *csm_format.FORMATS,
     *json_format.FORMATS,
@@ -107,8 +112,8 @@ FORMATS: tuple[CameraFormat, ...] = (
 def read_camera(
     path: str | Path, image: str | Path | None = None, *, interior: str | Path | None = None
 ) -> Camera:
-    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority files, a
-    USGS CSM ISD or model state (a line-scan, frame or push-frame model of
+    """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority or
+    OpenSfM/ODM files, a USGS CSM ISD or model state (a line-scan, frame or push-frame model of
     :mod:`orthomvp.camera.csm`), or an RPC camera (:class:`RpcCamera`).
 
     Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
@@ -127,6 +132,11 @@ def read_camera(
     or Orthority's RPC parameter YAML (``image`` picks the entry by stem, as for the exterior
     files); see :mod:`orthomvp.camera.formats.rpc`. They live in WGS84 geocentric metres;
     :meth:`RpcCamera.bind` moves them to a terrain's world frame.
+
+    OpenSfM's ``reconstruction.json`` and ODM's ``shots.geojson`` (whose interior parameters
+    come from ``interior`` or the ``cameras.json`` beside it or one directory up) pick the shot
+    by the image's stem in the same way, in the map frame of the reconstruction's UTM zone (see
+    :mod:`orthomvp.camera.formats.opensfm`); ``cameras.json`` alone raises InputError.
 
     A missing or unreadable file raises InputError; a file that breaks its format raises
     FormatError naming it (and the line, for text formats).

@@ -26,8 +26,9 @@ PATH = click.Path(path_type=Path)
 """A file or directory name; its existence is checked where it is read, with a clear message."""
 
 CAMERA_HELP = (
-    "camera model: .tsai, .pinhole, .json, or an Orthority exterior file (.csv, .geojson; the "
-    "row of IMAGE, the one .yaml beside it)"
+    "camera model: .tsai, .pinhole, .json, an OpenSfM reconstruction.json or ODM shots.geojson "
+    "(the shot of IMAGE), or an Orthority exterior file (.csv, .geojson; the row of IMAGE, the "
+    "one .yaml beside it)"
 )
 
 
@@ -103,7 +104,8 @@ quiet_option = click.option("-q", "--quiet", is_flag=True, help="no progress bar
 class DemInput:
     """The DEM argument and the options saying how to read it."""
 
-    path: Path
+    path: Path | None
+    """None only for a command whose DEM may come from ``--odm``, until it does"""
     radius_values: bool = False
     crs: str | None = None
     world: str = "auto"
@@ -134,13 +136,15 @@ class DemInput:
         return terrain
 
 
-dem_argument = click.argument(
-    "dem",
-    type=PATH,
-    metavar="DEM",
-    help="the DEM: a GeoTIFF (or any raster GDAL reads) of heights above the reference "
-    "surface of its CRS (or radii: --radius-values)",
+DEM_HELP = (
+    "the DEM: a GeoTIFF (or any raster GDAL reads) of heights above the reference surface of "
+    "its CRS (or radii: --radius-values)"
 )
+dem_argument = click.argument("dem", type=PATH, metavar="DEM", help=DEM_HELP)
+optional_dem_argument = click.argument(
+    "dem", type=PATH, metavar="[DEM]", required=False, help=f"{DEM_HELP}; not with --odm"
+)
+"""The DEM of a command that can also take it from ``--odm DIR``: None when not given."""
 
 
 def dem_options(f: F) -> F:
@@ -195,16 +199,17 @@ image_argument = click.argument(
 camera_argument = click.argument("camera", type=PATH, metavar="CAMERA", help=f"its {CAMERA_HELP}")
 
 
-def pairs_argument(minimum: int = 1) -> Callable[[F], F]:
-    """The ``IMAGE CAMERA [IMAGE CAMERA ...]`` argument, at least ``minimum`` pairs; the
-    command receives a list of (image, camera) paths named ``pairs``."""
+def pairs_argument(minimum: int = 1, *, optional: bool = False) -> Callable[[F], F]:
+    """The ``IMAGE CAMERA [IMAGE CAMERA ...]`` argument, at least ``minimum`` pairs (or none
+    when ``optional``: the views come from ``--odm``); the command receives a list of
+    (image, camera) paths named ``pairs``."""
 
     def pairs(
         ctx: click.Context, param: click.Parameter, value: tuple[Path, ...]
     ) -> list[tuple[Path, Path]]:
         if len(value) % 2:
             raise click.UsageError("needs IMAGE CAMERA pairs: got an odd number of files", ctx)
-        if len(value) < 2 * minimum:
+        if len(value) < 2 * minimum and not (optional and not value):
             raise click.UsageError(f"needs at least {minimum} IMAGE CAMERA pairs", ctx)
         return list(zip(value[::2], value[1::2], strict=True))
 
@@ -212,11 +217,12 @@ def pairs_argument(minimum: int = 1) -> Callable[[F], F]:
         "pairs",
         type=PATH,
         nargs=-1,
-        required=True,
+        required=not optional,
         callback=pairs,
-        metavar="IMAGE CAMERA ...",
+        metavar="[IMAGE CAMERA ...]" if optional else "IMAGE CAMERA ...",
         help=f"at least {minimum} image{'s' if minimum > 1 else ''}, each followed by its "
-        f"{CAMERA_HELP.replace('of IMAGE', 'of the image')}",
+        f"{CAMERA_HELP.replace('of IMAGE', 'of the image')}"
+        + ("; not with --odm" if optional else ""),
     )
 
 

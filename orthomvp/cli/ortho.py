@@ -6,6 +6,7 @@ the output grid in bounded memory, written as Cloud-Optimized or tiled GeoTIFF."
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,20 +25,23 @@ from orthomvp.cli.options import (
     eps_option,
     image_argument,
     interp_option,
+    optional_dem_argument,
     output_option,
     overwrite_option,
     pairs_argument,
     quiet,
+    usage_error,
 )
 from orthomvp.codes import Code, Interp
 
 if TYPE_CHECKING:
+    from orthomvp.camera import Camera
     from orthomvp.engine import Outputs, Plan, RunReport
 
 
 def _plan(
     dem: DemInput,
-    views: list[tuple[Path, Path]],
+    views: list[tuple[Path, Path | Camera]],
     engine: EngineInput,
     *,
     occlusion: bool = True,
@@ -157,8 +161,15 @@ def ortho(
     cls=Command,
     short_help="one orthophoto from many images, occluded posts filled from other views",
 )
-@dem_argument
-@pairs_argument()
+@optional_dem_argument
+@pairs_argument(optional=True)
+@click.option(
+    "--odm",
+    type=PATH,
+    metavar="DIR",
+    help="an OpenDroneMap dataset: its DEM (odm_dem/dsm.tif, else dtm.tif), images/ and "
+    "opensfm/reconstruction.json, instead of DEM IMAGE CAMERA ...",
+)
 @output_option("MOSAIC.tif", "the mosaic (all bands; float32 with NaN = nodata by default)")
 @click.option(
     "--source",
@@ -180,7 +191,8 @@ def ortho(
 @dem_options
 def mosaic(
     dem: DemInput,
-    pairs: list[tuple[Path, Path]],
+    pairs: list[tuple[Path, Path | Camera]],
+    odm: Path | None,
     output: Path,
     source: Path | None,
     visibility_out: Path | None,
@@ -192,13 +204,27 @@ def mosaic(
     """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
     or --res/--bounds/--crs); each post takes its value from the visible view with the
     smallest emission angle. --source records which image (1-based, in command-line order;
-    0 = none) each post came from."""
+    0 = none) each post came from. --odm DIR takes the DEM, images and cameras of an
+    OpenDroneMap dataset (the cameras in the DEM's CRS)."""
     outputs = [
         Output("-o", output),
         Output("--source", source),
         Output("--visibility", visibility_out),
     ]
-    check_outputs(outputs, view_inputs(dem, pairs), overwrite)
+    if odm is None:
+        if dem.path is None or not pairs:
+            raise usage_error("needs DEM IMAGE CAMERA [IMAGE CAMERA ...], or --odm DIR")
+        inputs = view_inputs(dem, pairs)
+    else:
+        if dem.path is not None:
+            raise usage_error("--odm DIR takes the DEM, images and cameras from DIR; give no DEM")
+        from orthomvp.cli.odm import read_odm_dataset
+
+        dataset = read_odm_dataset(odm, dem_crs=dem.crs)
+        dem, pairs = replace(dem, path=dataset.dem), list(dataset.views)
+        inputs = [("DEM", dataset.dem), ("CAMERA", dataset.reconstruction)]
+        inputs += [(f"IMAGE {k}", image) for k, (image, _) in enumerate(pairs, start=1)]
+    check_outputs(outputs, inputs, overwrite)
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, eps=eps, interp=interp)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)

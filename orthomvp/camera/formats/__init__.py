@@ -1,7 +1,8 @@
 """Camera file formats, one module each: ``tsai`` (ASP/VW ``.tsai`` text and binary
-``.pinhole``), ``orthority`` (Orthority's interior and exterior parameter files), ``json``
-(orthomvp's own JSON) and ``rpc`` (RPC cameras: GeoTIFF metadata, ``_RPC.TXT``, ``.RPB``,
-Orthority's RPC YAML).
+``.pinhole``), ``opensfm`` (OpenSfM's ``reconstruction.json``, ODM's ``shots.geojson`` and
+``cameras.json``), ``orthority`` (Orthority's interior and exterior parameter files), ``json``
+(orthomvp's own JSON), ``csm`` (USGS CSM ISDs and model states) and ``rpc`` (RPC cameras:
+GeoTIFF metadata, ``_RPC.TXT``, ``.RPB``, Orthority's RPC YAML).
 
 Each module lists what it reads in ``FORMATS``, a tuple of
 :class:`~orthomvp.camera.formats._common.CameraFormat` entries, which :mod:`orthomvp.camera`'s
