@@ -33,6 +33,109 @@ __all__ = ["KernelResult", "compile_seconds", "fused_evaluate"]
 _COMPILE_S: float | None = None
 
 
+def _sample(
+    img: np.ndarray,
+    origin: np.ndarray,
+    H: np.ndarray,
+    dH: np.ndarray,
+    xo: np.ndarray,
+    yo: np.ndarray,
+    jac: bool,
+    U: np.ndarray,
+    V: np.ndarray,
+    IW: np.ndarray,
+    It: np.ndarray,
+    Gc: np.ndarray,
+    Gr: np.ndarray,
+    dIt: np.ndarray,
+    box: np.ndarray,
+) -> None:
+    """One view of one post, in float32 as the numpy objective: positions ``U``, ``V`` and
+    1/w ``IW`` of the window's offsets through ``H`` (3, 3), their bounding ``box`` (4,),
+    samples ``It`` of ``img`` (rows, cols, 3) (whose first pixel is ``origin`` (2,)) and,
+    with ``jac``, gradients ``Gc``, ``Gr`` and derivatives ``dIt`` (3, S) through ``dH``
+    (3, 3, 3). Compiled without fast-math: these float32 roundings are the numpy
+    objective's."""
+    one = np.float32(1.0)
+    S = xo.shape[0]
+    h = H / H[2, 2]
+    h00, h01, h02 = np.float32(h[0, 0]), np.float32(h[0, 1]), np.float32(h[0, 2])
+    h10, h11, h12 = np.float32(h[1, 0]), np.float32(h[1, 1]), np.float32(h[1, 2])
+    h20, h21, h22 = np.float32(h[2, 0]), np.float32(h[2, 1]), np.float32(h[2, 2])
+    for s in range(S):
+        iw = one / (h20 * xo[s] + h21 * yo[s] + h22)
+        IW[s] = iw
+        U[s] = (h00 * xo[s] + h01 * yo[s] + h02) * iw
+        V[s] = (h10 * xo[s] + h11 * yo[s] + h12) * iw
+    umin, umax, vmin, vmax = U[0], U[0], V[0], V[0]
+    finite = True
+    for s in range(S):
+        finite &= np.isfinite(U[s]) & np.isfinite(V[s])
+        umin, umax = min(umin, U[s]), max(umax, U[s])
+        vmin, vmax = min(vmin, V[s]), max(vmax, V[s])
+    if finite:
+        box[0], box[1], box[2], box[3] = umin, umax, vmin, vmax
+    else:
+        box[:] = np.nan
+    # bilinear, as cv2.remap with BORDER_REPLICATE (a position that is not finite
+    # takes the first pixel)
+    rows, cols = img.shape[0], img.shape[1]
+    oc, orr = origin[0], origin[1]
+    for s in range(S):
+        uc = U[s] - oc
+        vc = V[s] - orr
+        if not (np.isfinite(uc) and np.isfinite(vc)):
+            uc = vc = np.float32(0.0)
+        fu = np.floor(uc)
+        fv = np.floor(vc)
+        fx = uc - fu
+        fy = vc - fv
+        ic = int(min(max(fu, -1.0), cols))  # far outside: the border pixel
+        ir = int(min(max(fv, -1.0), rows))
+        c0 = min(max(ic, 0), cols - 1)
+        c1 = min(max(ic + 1, 0), cols - 1)
+        r0 = min(max(ir, 0), rows - 1)
+        r1 = min(max(ir + 1, 0), rows - 1)
+        w00 = (one - fy) * (one - fx)
+        w01 = (one - fy) * fx
+        w10 = fy * (one - fx)
+        w11 = fy * fx
+        It[s] = (
+            img[r0, c0, 0] * w00
+            + img[r0, c1, 0] * w01
+            + img[r1, c0, 0] * w10
+            + img[r1, c1, 0] * w11
+        )
+        if jac:
+            Gc[s] = (
+                img[r0, c0, 1] * w00
+                + img[r0, c1, 1] * w01
+                + img[r1, c0, 1] * w10
+                + img[r1, c1, 1] * w11
+            )
+            Gr[s] = (
+                img[r0, c0, 2] * w00
+                + img[r0, c1, 2] * w01
+                + img[r1, c0, 2] * w10
+                + img[r1, c1, 2] * w11
+            )
+    if jac:  # d(u, v) = (d(x, y) - (u, v) dw) / w with d(x, y, w) = dH (xo, yo, 1)
+        for p in range(3):
+            d = dH[p] / H[2, 2]
+            d00, d01, d02 = np.float32(d[0, 0]), np.float32(d[0, 1]), np.float32(d[0, 2])
+            d10, d11, d12 = np.float32(d[1, 0]), np.float32(d[1, 1]), np.float32(d[1, 2])
+            d20, d21, d22 = np.float32(d[2, 0]), np.float32(d[2, 1]), np.float32(d[2, 2])
+            for s in range(S):
+                a = Gc[s] * IW[s]
+                bb = Gr[s] * IW[s]
+                cc = -(a * U[s] + bb * V[s])
+                dIt[p, s] = (
+                    a * (d00 * xo[s] + d01 * yo[s] + d02)
+                    + bb * (d10 * xo[s] + d11 * yo[s] + d12)
+                    + cc * (d20 * xo[s] + d21 * yo[s] + d22)
+                )
+
+
 def _evaluate(
     images,  # noqa: ANN001 - numba typed List of (rows, cols, 3) float32 arrays
     origins: np.ndarray,
@@ -40,7 +143,8 @@ def _evaluate(
     H: np.ndarray,
     dH: np.ndarray,
     W: np.ndarray,
-    offsets: np.ndarray,
+    xo: np.ndarray,
+    yo: np.ndarray,
     g: np.ndarray,
     jac: bool,
     extras: bool,
@@ -52,210 +156,161 @@ def _evaluate(
     loo: np.ndarray,
     box: np.ndarray,
 ) -> None:
-    """The numba kernel behind :func:`fused_evaluate` (its arguments; outputs filled in)."""
+    """The numba kernel behind :func:`fused_evaluate` (its arguments, with the window's
+    offsets as columns ``xo``, ``yo`` and P = 3 parameters; outputs filled in). Loops over
+    samples are kept free of branches where they can be vectorised."""
     B, K = W.shape
-    S = offsets.shape[0]
-    P = dH.shape[2]
-    one = np.float32(1.0)
+    S = xo.shape[0]
     for b in numba.prange(B):
-        Ik = np.zeros((K, S))
-        dI = np.zeros((K, P, S))
-        dIt = np.empty((P, S), np.float32)
-        sds = np.ones(K)
+        Ik = np.zeros((K, S))  # normalised patches, 0 for views not used
+        dI = np.zeros((K, 3, S))  # their derivatives
+        U = np.empty(S, np.float32)  # positions and 1 / w
+        V = np.empty(S, np.float32)
+        IW = np.empty(S, np.float32)
+        It = np.empty(S, np.float32)  # raw samples and gradients
+        Gc = np.empty(S, np.float32)
+        Gr = np.empty(S, np.float32)
+        dIt = np.zeros((3, S), np.float32)  # raw samples' derivatives
+        A = np.zeros(S)
+        dA = np.zeros((3, S))
         n = 0
         for k in range(K):
-            box[b, k, 0] = np.inf
-            box[b, k, 1] = -np.inf
-            box[b, k, 2] = np.inf
-            box[b, k, 3] = -np.inf
             used[b, k] = False
             loo[b, k] = np.nan
+            box[b, k, 0] = box[b, k, 2] = np.inf
+            box[b, k, 1] = box[b, k, 3] = -np.inf
             if not W[b, k]:
                 continue
-            img = images[k]
-            rows, cols = img.shape[0], img.shape[1]
-            oc, orr = origins[k, 0], origins[k, 1]
-            h22 = H[b, k, 2, 2]
-            Hf = np.empty((3, 3), np.float32)
-            for i in range(3):
-                for j in range(3):
-                    Hf[i, j] = np.float32(H[b, k, i, j] / h22)
-            Df = np.empty((P, 3, 3), np.float32)
-            if jac:
-                for p in range(P):
-                    for i in range(3):
-                        for j in range(3):
-                            Df[p, i, j] = np.float32(dH[b, k, p, i, j] / h22)
-            umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
-            finite = True
-            It = Ik[k]
-            for s in range(S):
-                xo, yo = offsets[s, 0], offsets[s, 1]
-                x = Hf[0, 0] * xo + Hf[0, 1] * yo + Hf[0, 2]
-                y = Hf[1, 0] * xo + Hf[1, 1] * yo + Hf[1, 2]
-                w = Hf[2, 0] * xo + Hf[2, 1] * yo + Hf[2, 2]
-                iw = one / w
-                u = x * iw
-                v = y * iw
-                if np.isfinite(u) and np.isfinite(v):
-                    umin = min(umin, u)
-                    umax = max(umax, u)
-                    vmin = min(vmin, v)
-                    vmax = max(vmax, v)
-                    uc = u - oc
-                    vc = v - orr
-                    fu = np.floor(uc)
-                    fv = np.floor(vc)
-                    fx = uc - fu
-                    fy = vc - fv
-                    ic = int(min(max(fu, -1.0), cols))  # far outside: the border pixel
-                    ir = int(min(max(fv, -1.0), rows))
-                    c0 = min(max(ic, 0), cols - 1)
-                    c1 = min(max(ic + 1, 0), cols - 1)
-                    r0 = min(max(ir, 0), rows - 1)
-                    r1 = min(max(ir + 1, 0), rows - 1)
-                else:
-                    finite = False
-                    fx = np.float32(0.0)
-                    fy = np.float32(0.0)
-                    c0 = c1 = r0 = r1 = 0
-                w00 = (one - fy) * (one - fx)
-                w01 = (one - fy) * fx
-                w10 = fy * (one - fx)
-                w11 = fy * fx
-                It[s] = (
-                    img[r0, c0, 0] * w00
-                    + img[r0, c1, 0] * w01
-                    + img[r1, c0, 0] * w10
-                    + img[r1, c1, 0] * w11
-                )
-                if jac:
-                    gc = (
-                        img[r0, c0, 1] * w00
-                        + img[r0, c1, 1] * w01
-                        + img[r1, c0, 1] * w10
-                        + img[r1, c1, 1] * w11
-                    )
-                    gr = (
-                        img[r0, c0, 2] * w00
-                        + img[r0, c1, 2] * w01
-                        + img[r1, c0, 2] * w10
-                        + img[r1, c1, 2] * w11
-                    )
-                    a = gc * iw
-                    bb = gr * iw
-                    cc = -(a * u + bb * v)
-                    for p in range(P):
-                        d0 = Df[p, 0, 0] * xo + Df[p, 0, 1] * yo + Df[p, 0, 2]
-                        d1 = Df[p, 1, 0] * xo + Df[p, 1, 1] * yo + Df[p, 1, 2]
-                        d2 = Df[p, 2, 0] * xo + Df[p, 2, 1] * yo + Df[p, 2, 2]
-                        dIt[p, s] = a * d0 + bb * d1 + cc * d2
-            if finite:
-                box[b, k, 0], box[b, k, 1], box[b, k, 2], box[b, k, 3] = umin, umax, vmin, vmax
-            else:
-                box[b, k, :] = np.nan
-            # eq. 19: I = (It - <1, It>) / sd, with <x, y> = sum g x y
+            _sample(
+                images[k],
+                origins[k],
+                H[b, k],
+                dH[b, k],
+                xo,
+                yo,
+                jac,
+                U,
+                V,
+                IW,
+                It,
+                Gc,
+                Gr,
+                dIt,
+                box[b, k],
+            )
+            # eq. 19: I = (It - <1, It>) / sd with <x, y> = sum g x y, and through it
+            # dI = (dIt - <1, dIt> - I <I, dIt>) / sd
             m = 0.0
             for s in range(S):
                 m += g[s] * It[s]
             var = 0.0
             for s in range(S):
-                It[s] -= m
-                var += g[s] * It[s] * It[s]
+                c = It[s] - m
+                var += g[s] * c * c
             sd = np.sqrt(max(var, 0.0))
             if not sd > flat[k]:
-                It[:] = 0.0
                 continue
             used[b, k] = True
             n += 1
-            sds[k] = sd
+            isd = 1.0 / sd
             for s in range(S):
-                It[s] /= sd
-            if jac:  # dI = (dIt - <1, dIt> - I <I, dIt>) / sd
-                for p in range(P):
+                i = (It[s] - m) * isd
+                Ik[k, s] = i
+                A[s] += i
+            if jac:
+                for p in range(3):
                     dm = 0.0
                     ds = 0.0
                     for s in range(S):
                         dm += g[s] * dIt[p, s]
-                        ds += g[s] * It[s] * dIt[p, s]
+                        ds += g[s] * Ik[k, s] * dIt[p, s]
                     for s in range(S):
-                        dI[k, p, s] = (dIt[p, s] - dm - It[s] * ds) / sd
+                        d = (dIt[p, s] - dm - Ik[k, s] * ds) * isd
+                        dI[k, p, s] = d
+                        dA[p, s] += d
         nn = max(n, 1)
-        A = np.zeros(S)
-        for k in range(K):
-            if used[b, k]:
-                for s in range(S):
-                    A[s] += Ik[k, s]
+        inn = 1.0 / nn
         for s in range(S):
-            A[s] /= nn
+            A[s] *= inn
+        for p in range(3):
+            for s in range(S):
+                dA[p, s] *= inn
+        # residuals R_k = sqrt(g) (A - I_k) and their derivatives dA - dI_k, used views only
         f = 0.0
+        r0_ = r1_ = r2_ = 0.0
+        j00 = j10 = j11 = j20 = j21 = j22 = 0.0
+        q00 = q10 = q11 = q20 = q21 = q22 = 0.0
         for k in range(K):
-            if used[b, k]:
-                for s in range(S):
-                    r = A[s] - Ik[k, s]
-                    f += g[s] * r * r
+            if not used[b, k]:
+                continue
+            for s in range(S):
+                r = A[s] - Ik[k, s]
+                f += g[s] * r * r
+            if not jac:
+                continue
+            for s in range(S):
+                gs = g[s]
+                gr_ = gs * (A[s] - Ik[k, s])
+                e0 = dA[0, s] - dI[k, 0, s]
+                e1 = dA[1, s] - dI[k, 1, s]
+                e2 = dA[2, s] - dI[k, 2, s]
+                r0_ += gr_ * e0
+                r1_ += gr_ * e1
+                r2_ += gr_ * e2
+                g0, g1, g2 = gs * e0, gs * e1, gs * e2
+                j00 += g0 * e0
+                j10 += g1 * e0
+                j11 += g1 * e1
+                j20 += g2 * e0
+                j21 += g2 * e1
+                j22 += g2 * e2
+            if not extras:
+                continue
+            for s in range(S):
+                gs = g[s] * g[s]
+                e0 = dA[0, s] - dI[k, 0, s]
+                e1 = dA[1, s] - dI[k, 1, s]
+                e2 = dA[2, s] - dI[k, 2, s]
+                q00 += gs * e0 * e0
+                q10 += gs * e1 * e0
+                q11 += gs * e1 * e1
+                q20 += gs * e2 * e0
+                q21 += gs * e2 * e1
+                q22 += gs * e2 * e2
         cost[b] = f if n >= 2 else np.inf
+        JTr[b, 0], JTr[b, 1], JTr[b, 2] = r0_, r1_, r2_
+        JTJ[b, 0, 0], JTJ[b, 1, 1], JTJ[b, 2, 2] = j00, j11, j22
+        JTJ[b, 1, 0] = JTJ[b, 0, 1] = j10
+        JTJ[b, 2, 0] = JTJ[b, 0, 2] = j20
+        JTJ[b, 2, 1] = JTJ[b, 1, 2] = j21
+        JgJ[b, 0, 0], JgJ[b, 1, 1], JgJ[b, 2, 2] = q00, q11, q22
+        JgJ[b, 1, 0] = JgJ[b, 0, 1] = q10
+        JgJ[b, 2, 0] = JgJ[b, 0, 2] = q20
+        JgJ[b, 2, 1] = JgJ[b, 1, 2] = q21
         if extras and n >= 2:  # each view against the mean of the others (leave-one-out)
             for k in range(K):
                 if used[b, k]:
                     num = 0.0
                     den = 0.0
                     for s in range(S):
-                        al = (nn * A[s] - Ik[k, s]) / max(nn - 1.0, 1.0)
+                        al = (nn * A[s] - Ik[k, s]) / (nn - 1.0)
                         num += g[s] * Ik[k, s] * al
                         den += g[s] * al * al
                     loo[b, k] = num / np.sqrt(max(den, 1e-30))
-        if not jac:
-            continue
-        # residuals sqrt(g) (A - I_k), their derivatives dR_k = dA - dI_k over the used views
-        dA = np.zeros((P, S))
-        for k in range(K):
-            if used[b, k]:
-                for p in range(P):
-                    for s in range(S):
-                        dA[p, s] += dI[k, p, s]
-        for p in range(P):
-            for s in range(S):
-                dA[p, s] /= nn
-        for p in range(P):
-            JTr[b, p] = 0.0
-            for q in range(P):
-                JTJ[b, p, q] = 0.0
-                JgJ[b, p, q] = 0.0
-        for k in range(K):
-            if not used[b, k]:
-                continue
-            for p in range(P):
-                t = 0.0
-                for s in range(S):
-                    t += g[s] * (dA[p, s] - dI[k, p, s]) * (A[s] - Ik[k, s])
-                JTr[b, p] += t
-                for q in range(p + 1):
-                    t1 = 0.0
-                    t2 = 0.0
-                    for s in range(S):
-                        e = g[s] * (dA[p, s] - dI[k, p, s]) * (dA[q, s] - dI[k, q, s])
-                        t1 += e
-                        t2 += g[s] * e
-                    JTJ[b, p, q] += t1
-                    JgJ[b, p, q] += t2
-        for p in range(P):
-            for q in range(p):
-                JTJ[b, q, p] = JTJ[b, p, q]
-                JgJ[b, q, p] = JgJ[b, p, q]
 
 
-def _jit(fn: Callable) -> Callable:
-    """``fn`` compiled lazily (on its first call), cached on disk where numba can."""
-    options = {"parallel": True, "fastmath": False, "nogil": True}
+def _jit(fn: Callable, **options: object) -> Callable:
+    """``fn`` compiled with ``options`` lazily (on its first call), releasing the GIL, cached
+    on disk where numba can."""
     try:
-        return numba.njit(cache=True, **options)(fn)
+        return numba.njit(cache=True, nogil=True, **options)(fn)
     except RuntimeError as err:  # no writable cache directory anywhere
         warnings.warn(f"numba cannot cache the MVP kernel ({err})", stacklevel=2)
-        return numba.njit(**options)(fn)
+        return numba.njit(nogil=True, **options)(fn)
 
 
-_kernel = _jit(_evaluate)
+_sample = _jit(_sample, fastmath=False)
+_kernel = _jit(_evaluate, parallel=True, fastmath={"reassoc", "contract"})
 
 
 def compile_seconds() -> float:
@@ -313,7 +368,9 @@ def fused_evaluate(
     jac = dH is not None
     if dH is None:
         dH = np.zeros((B, K, 3, 3, 3))
-    P = dH.shape[2]
+    if dH.shape[2:] != (3, 3, 3):
+        raise ValueError(f"the kernel fits 3 plane parameters, dH is {dH.shape}")
+    P = 3
     if not hasattr(images, "_numba_type_"):
         images = List(images)
     out = KernelResult(
@@ -332,7 +389,8 @@ def fused_evaluate(
         np.ascontiguousarray(H, np.float64),
         np.ascontiguousarray(dH, np.float64),
         np.ascontiguousarray(W, bool),
-        window.offsets,
+        np.ascontiguousarray(window.offsets[:, 0]),
+        np.ascontiguousarray(window.offsets[:, 1]),
         window.weights,
         jac,
         extras,
