@@ -23,21 +23,25 @@ RTOL = 1e-6
 
 
 def assert_matches(got: Evaluation, ref: Evaluation, jac: bool) -> None:
-    """Views used equal; cost to RTOL where finite (inf where fewer than 2 views); JTJ and JgJ
-    to RTOL of their norm, JTr to RTOL of its Cauchy-Schwarz bound sqrt(f JTJ_ii), per post;
-    leave-one-out correlations to RTOL."""
+    """Views used equal; per post with 2 or more views: cost to RTOL of its range n - 1 (f =
+    (n - 1) (1 - mean correlation); near 0 the two bilinear samplers' float32 roundings
+    show); JTJ to RTOL of its norm and JTr of its Cauchy-Schwarz bound sqrt(f JTJ_ii);
+    JgJ (for the uncertainty only, with the squared weights that leave fewer samples
+    to average the roundings) to 10 RTOL of its norm; leave-one-out correlations to
+    RTOL."""
     np.testing.assert_array_equal(got.used, ref.used)
     ok = np.isfinite(ref.cost)
     np.testing.assert_array_equal(np.isfinite(got.cost), ok)
     assert ok.sum() > 10
-    np.testing.assert_allclose(got.cost[ok], ref.cost[ok], rtol=RTOL, atol=0)
+    n = ref.used.sum(axis=1)[ok]
+    assert (np.abs(got.cost[ok] - ref.cost[ok]) <= RTOL * (n - 1)).all()
     np.testing.assert_allclose(got.loo, ref.loo, rtol=0, atol=RTOL)  # NaN where ref is NaN
     if not jac:
         return
-    for name in ("JTJ", "JgJ"):
+    for name, tol in (("JTJ", RTOL), ("JgJ", 10 * RTOL)):
         a, b = getattr(got, name)[ok], getattr(ref, name)[ok]
         err = np.abs(a - b).max(axis=(1, 2)) / np.linalg.norm(b, axis=(1, 2))
-        assert err.max() < RTOL, name
+        assert err.max() < tol, (name, err.max())
     diag = np.einsum("bii->bi", ref.JTJ[ok])
     bound = np.sqrt(ref.cost[ok, None] * diag)
     assert (np.abs(got.JTr[ok] - ref.JTr[ok]) <= RTOL * bound).all()

@@ -7,7 +7,7 @@ Gauss-Newton normal equations, without the (B, K, P, S) temporaries of the numpy
 (:func:`orthomvp.mvp.patches.evaluate`, which stays as its reference). Each post is reduced
 by one thread in a fixed order, so a post's results do not depend on the batch it is in or on
 the number of threads. Per-sample positions and derivatives are float32 as in the numpy
-objective; sums over samples and views are float64.
+objective; derivatives and sums over samples and views are float64.
 
 numba is imported here only, and this module only when the fitter first evaluates; the first
 call compiles (a few seconds, see ``orthomvp bench``) into numba's cache: beside this file
@@ -50,11 +50,11 @@ def _sample(
     dIt: np.ndarray,
     box: np.ndarray,
 ) -> None:
-    """One view of one post, in float32 as the numpy objective: positions ``U``, ``V`` and
-    1/w ``IW`` of the window's offsets through ``H`` (3, 3), their bounding ``box`` (4,),
+    """One view of one post, as the numpy objective: float32 positions ``U``, ``V`` and 1/w
+    ``IW`` of the window's offsets through ``H`` (3, 3), their bounding ``box`` (4,), float32
     samples ``It`` of ``img`` (rows, cols, 3) (whose first pixel is ``origin`` (2,)) and,
-    with ``jac``, gradients ``Gc``, ``Gr`` and derivatives ``dIt`` (3, S) through ``dH``
-    (3, 3, 3). Compiled without fast-math: these float32 roundings are the numpy
+    with ``jac``, gradients ``Gc``, ``Gr`` and float64 derivatives ``dIt`` (3, S) through
+    ``dH`` (3, 3, 3). Compiled without fast-math, so that the roundings are the numpy
     objective's."""
     one = np.float32(1.0)
     S = xo.shape[0]
@@ -119,20 +119,19 @@ def _sample(
                 + img[r1, c0, 2] * w10
                 + img[r1, c1, 2] * w11
             )
-    if jac:  # d(u, v) = (d(x, y) - (u, v) dw) / w with d(x, y, w) = dH (xo, yo, 1)
+    if jac:  # d(u, v) = (d(x, y) - (u, v) dw) / w with d(x, y, w) = dH (xo, yo, 1), float64
         for p in range(3):
-            d = dH[p] / H[2, 2]
-            d00, d01, d02 = np.float32(d[0, 0]), np.float32(d[0, 1]), np.float32(d[0, 2])
-            d10, d11, d12 = np.float32(d[1, 0]), np.float32(d[1, 1]), np.float32(d[1, 2])
-            d20, d21, d22 = np.float32(d[2, 0]), np.float32(d[2, 1]), np.float32(d[2, 2])
+            d = (dH[p] / H[2, 2]).astype(np.float32).astype(np.float64)
             for s in range(S):
-                a = Gc[s] * IW[s]
-                bb = Gr[s] * IW[s]
+                x, y = np.float64(xo[s]), np.float64(yo[s])
+                iw = np.float64(IW[s])
+                a = Gc[s] * iw
+                bb = Gr[s] * iw
                 cc = -(a * U[s] + bb * V[s])
                 dIt[p, s] = (
-                    a * (d00 * xo[s] + d01 * yo[s] + d02)
-                    + bb * (d10 * xo[s] + d11 * yo[s] + d12)
-                    + cc * (d20 * xo[s] + d21 * yo[s] + d22)
+                    a * (d[0, 0] * x + d[0, 1] * y + d[0, 2])
+                    + bb * (d[1, 0] * x + d[1, 1] * y + d[1, 2])
+                    + cc * (d[2, 0] * x + d[2, 1] * y + d[2, 2])
                 )
 
 
@@ -170,7 +169,7 @@ def _evaluate(
         It = np.empty(S, np.float32)  # raw samples and gradients
         Gc = np.empty(S, np.float32)
         Gr = np.empty(S, np.float32)
-        dIt = np.zeros((3, S), np.float32)  # raw samples' derivatives
+        dIt = np.zeros((3, S))  # raw samples' derivatives
         A = np.zeros(S)
         dA = np.zeros((3, S))
         n = 0

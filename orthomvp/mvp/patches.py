@@ -236,11 +236,11 @@ def sample_patches(
     pixel positions u, v and 1/w, each (B, K, S) float32. ``origins`` (K, 2) float32: the
     images are windows whose first pixels (c, r) are these whole-image pixels (integers:
     positions shift exactly in float32)."""
-    Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)
-    xyw = Hf @ _homogeneous(offsets)  # (B, K, 3, S)
-    iw = 1.0 / xyw[:, :, 2]
-    u = xyw[:, :, 0] * iw
-    v = xyw[:, :, 1] * iw
+    Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)[..., None]  # (B, K, 3, 3, 1)
+    oc, orr = offsets[:, 0], offsets[:, 1]
+    iw = 1.0 / (Hf[:, :, 2, 0] * oc + Hf[:, :, 2, 1] * orr + Hf[:, :, 2, 2])  # (B, K, S)
+    u = (Hf[:, :, 0, 0] * oc + Hf[:, :, 0, 1] * orr + Hf[:, :, 0, 2]) * iw
+    v = (Hf[:, :, 1, 0] * oc + Hf[:, :, 1, 1] * orr + Hf[:, :, 1, 2]) * iw
     B, K, S = u.shape
     out = np.empty((B, K, S, channels), np.float32)
     for k, img in enumerate(images):
@@ -276,19 +276,21 @@ def evaluate(
     with respect to P plane parameters, on the same scale as H, to get the normal equations.
     ``extras``: also ``loo`` and (with ``dH``) ``JgJ``, which the iterations do not need.
     ``origins``: see :func:`sample_patches`; ``track(u, v)`` is called with the sampled
-    positions (B, K, S).
+    positions (B, K, S). Positions and samples are float32, everything after them float64:
+    the reference of the fused kernel (:mod:`orthomvp.mvp.kernel`), which the fitter runs.
     """
     jac = dH is not None
     offsets, g = window.offsets, window.weights
     smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1, origins)
     if track is not None:
         track(u, v)
+    smp, u, v, iw, g = (x.astype(np.float64) for x in (smp, u, v, iw, g))
     It = smp[..., 0]
     m = It @ g
     c = It - m[..., None]
     sd = np.sqrt(np.maximum((c * c) @ g, 0.0))
     used = W & (sd > flat)
-    usedf = used.astype(np.float32)
+    usedf = used.astype(np.float64)
     n = usedf.sum(axis=1)
     Ik = c / np.where(used, sd, 1.0)[..., None]
     Ik *= usedf[..., None]
@@ -309,8 +311,8 @@ def evaluate(
     a = smp[..., 1] * iw
     b = smp[..., 2] * iw
     cc = -(a * u + b * v)
-    dHs = (dH / H[:, :, None, 2:3, 2:3]).astype(np.float32)
-    D = dHs @ _homogeneous(offsets)  # (B, K, P, 3, S)
+    dHs = (dH / H[:, :, None, 2:3, 2:3]).astype(np.float32).astype(np.float64)
+    D = dHs @ _homogeneous(offsets).astype(np.float64)  # (B, K, P, 3, S)
     dIt = a[:, :, None] * D[:, :, :, 0]
     dIt += b[:, :, None] * D[:, :, :, 1]
     dIt += cc[:, :, None] * D[:, :, :, 2]  # (B, K, P, S)
