@@ -33,3 +33,5 @@ def test_bench_mvp_is_consistent(monkeypatch: pytest.MonkeyPatch) -> None:
     assert math.isfinite(row["rmse_m"]) and row["rmse_m"] < 10.0
     text = format_mvp(row)
     assert f"ratio {row['ratio']:.1f}x" in text and "40 x 40 posts" in text
+    assert row["kernel_compile_s"] > 0 and row["kernel_first_call_s"] > 0
+    assert f"{row['kernel_compile_s']:.1f} s" in text

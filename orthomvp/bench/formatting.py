@@ -48,6 +48,9 @@ def format_mvp(row: dict) -> str:
             f"  bilinear samples taken by the fit: {row['samples'] / 1e6:,.0f} M",
             f"  bare cv2.remap of as many samples (value and gradients, 3 per position): "
             f"{row['remap_s']:.2f} s; ratio {row['ratio']:.1f}x",
+            f"  kernel compile (numba, fresh process, empty cache): "
+            f"{row['kernel_compile_s']:.1f} s; first call in this run: "
+            f"{row['kernel_first_call_s']:.2f} s (not in the fit time)",
             f"ratio = fit time ({row['fit_threads']} worker threads) / bare cv2.remap time "
             f"(one call at a time, {row['cv2_threads']} cv2 threads), same run",
         ]

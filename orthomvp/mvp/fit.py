@@ -4,7 +4,7 @@ Per post, a plane theta = (h, alpha, beta) (:mod:`orthomvp.mvp.model`) starts at
 and its own surface normal n0 at the post; normals are reported as eq. 11 angles as well.
 Levenberg-Marquardt (:mod:`orthomvp.mvp.lm`) on the Gauss-Newton normal equations of
 :func:`patches.evaluate`, batched: a tile of posts iterates together, posts leave the batch as
-they converge, and tiles run in a thread pool (numpy and OpenCV release the GIL). Coarse to
+they converge, and tiles run in a thread pool (the numba kernel releases the GIL). Coarse to
 fine: at pyramid level L the images are reduced 2**L times and the patch grid steps 2**L posts,
 so the window covers 2**L times the ground and the basin of convergence grows with it.
 

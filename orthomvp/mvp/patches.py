@@ -78,6 +78,7 @@ class ViewStack:
     origins: list[np.ndarray] | None = None
     extents: list[np.ndarray] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _typed: list | None = field(default=None, repr=False)
 
     def evaluate(
         self,
@@ -90,42 +91,64 @@ class ViewStack:
         keep_patches: bool = False,
     ) -> Evaluation:
         """:func:`evaluate` on the images of ``level``, counting the bilinear samples taken
-        (positions times channels) in ``samples``."""
+        (positions of views allowed to take part, times channels) in ``samples``. The fused
+        kernel (:mod:`orthomvp.mvp.kernel`) computes it, the numpy objective only when the
+        patches are kept."""
         with self._lock:
-            self.samples += H.shape[0] * H.shape[1] * len(window.offsets) * (1 if dH is None else 3)
-        origins = None if self.origins is None else self.origins[level]
-        track = None
-        if self.extents is not None:
+            self.samples += int(W.sum()) * len(window.offsets) * (1 if dH is None else 3)
+        origins = np.zeros((len(self.flat[level]), 2), np.float32)
+        if self.origins is not None:
+            origins = self.origins[level]
+        if keep_patches:
+            track = None
+            if self.extents is not None:
 
-            def track(u: np.ndarray, v: np.ndarray) -> None:
-                self._track(level, u, v, W)
+                def track(u: np.ndarray, v: np.ndarray) -> None:
+                    self._track(level, boxes(u, v, W))
 
-        return evaluate(
-            self.levels[level],
-            self.flat[level],
-            H,
-            W,
-            window,
-            dH,
-            extras,
-            keep_patches,
-            origins=origins,
-            track=track,
+            return evaluate(
+                self.levels[level], self.flat[level], H, W, window, dH, extras, True,
+                origins=origins, track=track,
+            )  # fmt: skip
+        from orthomvp.mvp.kernel import fused_evaluate
+
+        res = fused_evaluate(
+            self.typed_levels(level), origins, self.flat[level], H, dH, W, window, extras
         )
+        if self.extents is not None:
+            self._track(level, res.box)
+        ev = Evaluation(res.cost, res.used)
+        if extras:
+            ev.loo = res.loo
+        if dH is not None:
+            ev.JTJ, ev.JTr = res.JTJ, res.JTr
+            if extras:
+                ev.JgJ = res.JgJ
+        return ev
 
-    def _track(self, level: int, u: np.ndarray, v: np.ndarray, W: np.ndarray) -> None:
-        """Widen ``extents[level]`` by the positions ``u``, ``v`` (B, K, S) of views taking
-        part (``W`` (B, K))."""
+    def typed_levels(self, level: int) -> object:
+        """The images of ``level`` as a numba typed List (made once; :mod:`orthomvp.mvp.kernel`
+        takes them so)."""
+        from numba.typed import List
+
+        with self._lock:
+            if self._typed is None:
+                self._typed = [None] * len(self.levels)
+            if self._typed[level] is None:
+                self._typed[level] = List(self.levels[level])
+            return self._typed[level]
+
+    def _track(self, level: int, box: np.ndarray) -> None:
+        """Widen ``extents[level]`` by the bounding boxes ``box`` (B, K, 4) of the sampled
+        positions of each post and view (inf / -inf where not sampled, NaN where not
+        finite)."""
         assert self.extents is not None
-        box = np.full((W.shape[1], 4), [np.inf, -np.inf, np.inf, -np.inf])
-        for k in np.nonzero(W.any(axis=0))[0]:
-            uk, vk = u[W[:, k], k], v[W[:, k], k]
-            box[k] = uk.min(), uk.max(), vk.min(), vk.max()
+        lo, hi = box[..., 0::2].min(axis=0), box[..., 1::2].max(axis=0)  # (K, 2), NaN kept
         with self._lock:
             ext = self.extents[level]
-            bad = np.isnan(box).any(axis=1) | np.isnan(ext).any(axis=1)
-            ext[:, 0::2] = np.minimum(ext[:, 0::2], box[:, 0::2])
-            ext[:, 1::2] = np.maximum(ext[:, 1::2], box[:, 1::2])
+            bad = np.isnan(lo).any(axis=1) | np.isnan(hi).any(axis=1) | np.isnan(ext).any(axis=1)
+            ext[:, 0::2] = np.minimum(ext[:, 0::2], lo)
+            ext[:, 1::2] = np.maximum(ext[:, 1::2], hi)
             ext[bad] = np.nan
 
     @classmethod
@@ -213,11 +236,11 @@ def sample_patches(
     pixel positions u, v and 1/w, each (B, K, S) float32. ``origins`` (K, 2) float32: the
     images are windows whose first pixels (c, r) are these whole-image pixels (integers:
     positions shift exactly in float32)."""
-    Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)
-    xyw = Hf @ _homogeneous(offsets)  # (B, K, 3, S)
-    iw = 1.0 / xyw[:, :, 2]
-    u = xyw[:, :, 0] * iw
-    v = xyw[:, :, 1] * iw
+    Hf = (H / H[..., 2:3, 2:3]).astype(np.float32)[..., None]  # (B, K, 3, 3, 1)
+    oc, orr = offsets[:, 0], offsets[:, 1]
+    iw = 1.0 / (Hf[:, :, 2, 0] * oc + Hf[:, :, 2, 1] * orr + Hf[:, :, 2, 2])  # (B, K, S)
+    u = (Hf[:, :, 0, 0] * oc + Hf[:, :, 0, 1] * orr + Hf[:, :, 0, 2]) * iw
+    v = (Hf[:, :, 1, 0] * oc + Hf[:, :, 1, 1] * orr + Hf[:, :, 1, 2]) * iw
     B, K, S = u.shape
     out = np.empty((B, K, S, channels), np.float32)
     for k, img in enumerate(images):
@@ -253,19 +276,21 @@ def evaluate(
     with respect to P plane parameters, on the same scale as H, to get the normal equations.
     ``extras``: also ``loo`` and (with ``dH``) ``JgJ``, which the iterations do not need.
     ``origins``: see :func:`sample_patches`; ``track(u, v)`` is called with the sampled
-    positions (B, K, S).
+    positions (B, K, S). Positions and samples are float32, everything after them float64:
+    the reference of the fused kernel (:mod:`orthomvp.mvp.kernel`), which the fitter runs.
     """
     jac = dH is not None
     offsets, g = window.offsets, window.weights
     smp, u, v, iw = sample_patches(images, H, offsets, 3 if jac else 1, origins)
     if track is not None:
         track(u, v)
+    smp, u, v, iw, g = (x.astype(np.float64) for x in (smp, u, v, iw, g))
     It = smp[..., 0]
     m = It @ g
     c = It - m[..., None]
     sd = np.sqrt(np.maximum((c * c) @ g, 0.0))
     used = W & (sd > flat)
-    usedf = used.astype(np.float32)
+    usedf = used.astype(np.float64)
     n = usedf.sum(axis=1)
     Ik = c / np.where(used, sd, 1.0)[..., None]
     Ik *= usedf[..., None]
@@ -286,8 +311,8 @@ def evaluate(
     a = smp[..., 1] * iw
     b = smp[..., 2] * iw
     cc = -(a * u + b * v)
-    dHs = (dH / H[:, :, None, 2:3, 2:3]).astype(np.float32)
-    D = dHs @ _homogeneous(offsets)  # (B, K, P, 3, S)
+    dHs = (dH / H[:, :, None, 2:3, 2:3]).astype(np.float32).astype(np.float64)
+    D = dHs @ _homogeneous(offsets).astype(np.float64)  # (B, K, P, 3, S)
     dIt = a[:, :, None] * D[:, :, :, 0]
     dIt += b[:, :, None] * D[:, :, :, 1]
     dIt += cc[:, :, None] * D[:, :, :, 2]  # (B, K, P, S)
@@ -314,6 +339,16 @@ def evaluate(
         - nf * ((dA * g2) @ np.swapaxes(dA, -1, -2))
     ).astype(np.float64)
     return out
+
+
+def boxes(u: np.ndarray, v: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """(B, K, 4) bounding boxes (c_min, c_max, r_min, r_max) of the positions ``u``, ``v``
+    (B, K, S) of each post in each view allowed (``W`` (B, K)): inf / -inf elsewhere, NaN
+    where a position is not finite."""
+    box = np.stack([u.min(-1), u.max(-1), v.min(-1), v.max(-1)], axis=-1)
+    box[~np.isfinite(u).all(-1) | ~np.isfinite(v).all(-1)] = np.nan
+    box[~W] = [np.inf, -np.inf, np.inf, -np.inf]
+    return box
 
 
 def _leave_one_out(
