@@ -53,13 +53,10 @@ SUN = (150.0, 50.0)
 """Sun azimuth (degrees clockwise from north) and elevation (degrees)."""
 TOL = 1e-6
 """How far inside a piece a segment must reach to count as under the surface, metres."""
-VIEWS = (
-    ViewSpec("ne", 40.0, 45.0, 150.0),
-    ViewSpec("se", 35.0, 135.0, 150.0),
-    ViewSpec("sw", 45.0, 225.0, 150.0),
-    ViewSpec("nw", 38.0, 315.0, 150.0),
-)
-"""The four oblique aerial frames: emission angle, azimuth from the ground, altitude (m)."""
+VIEW_ANGLES = (("ne", 40.0, 45.0), ("se", 35.0, 135.0), ("sw", 45.0, 225.0), ("nw", 38.0, 315.0))
+"""The four oblique aerial frames: name, emission angle and azimuth from the ground (degrees)."""
+ALTITUDE = 2.0
+"""Flying height above the tile centre, in tile widths (160 m over the default 80 m tile)."""
 
 
 @dataclass(frozen=True)
@@ -353,6 +350,8 @@ def make_city_surface(extent: float, spacing: float, rng: np.random.Generator) -
         if len(buildings) == wanted:
             break
         w, d = (2 * max(2, round(rng.uniform(8, 18) / spacing / 2)) * spacing for _ in range(2))
+        if max(w, d) > extent - 4:
+            continue  # no room on a small tile
         x0 = snap(rng.uniform(-half + 2, half - 2 - w))
         y0 = snap(rng.uniform(-half + 2, half - 2 - d))
         if any(
@@ -382,6 +381,8 @@ def make_city_surface(extent: float, spacing: float, rng: np.random.Generator) -
     trees: list[Tree] = []
     for _ in range(round(extent**2 / 150)):
         r = rng.uniform(2, 4)
+        if 2 * r > extent:
+            continue
         x, y = snap(rng.uniform(-half + r, half - r)), snap(rng.uniform(-half + r, half - r))
         if any(
             np.hypot(x - np.clip(x, b.x0, b.x1), y - np.clip(y, b.y0, b.y1)) < r + 1
@@ -468,8 +469,9 @@ class CityScene:
 
 def make_city(size: int, spacing: float, gsd_ratio: float, seed: int) -> CityScene:
     """A city of ``size`` x ``size`` posts ``spacing`` metres apart centred on :data:`ORIGIN`,
-    seen by :data:`VIEWS` with ground sample distance ``gsd_ratio`` post spacings (arguments
-    checked by :func:`~orthomvp.synthetic.scene.make_scene`)."""
+    seen from :data:`VIEW_ANGLES` at :data:`ALTITUDE` with ground sample distance
+    ``gsd_ratio`` post spacings (arguments checked by
+    :func:`~orthomvp.synthetic.scene.make_scene`)."""
     rng = np.random.default_rng(seed)
     extent = size * spacing
     surface = make_city_surface(extent, spacing, rng)
@@ -484,10 +486,11 @@ def make_city(size: int, spacing: float, gsd_ratio: float, seed: int) -> CitySce
     e, n = grid.pixel_to_crs(*grid.grid())
     terrain = grid.with_values(surface.height(e - ORIGIN[0], n - ORIGIN[1]))
     gsd = gsd_ratio * spacing
-    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in VIEWS}
+    views = tuple(ViewSpec(name, em, az, ALTITUDE * extent) for name, em, az in VIEW_ANGLES)
+    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
     facts = {
         "buildings": len(surface.buildings),
         "trees": len(surface.trees),
         "tallest_m": float(np.max(terrain.values) - np.min(terrain.values)),
     }
-    return CityScene("city", surface, terrain, VIEWS, cameras, spacing, gsd, seed, facts)
+    return CityScene("city", surface, terrain, views, cameras, spacing, gsd, seed, facts)
