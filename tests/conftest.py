@@ -72,3 +72,13 @@ def crater_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("crater")
     make_scene("crater", size=64, spacing=80.0).write(out, supersample=2)
     return out
+
+
+@pytest.fixture(scope="session")
+def city_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small city scene written once per test session."""
+    from orthomvp.synthetic import make_scene
+
+    out = tmp_path_factory.mktemp("city")
+    make_scene("city", size=64).write(out, supersample=1)
+    return out

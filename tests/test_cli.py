@@ -23,7 +23,7 @@ from orthomvp.cli.command import spell_out
 
 COMMANDS = (
     "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
-    "eps-study", "bench",
+    "eps-study", "check", "bench",
 )  # fmt: skip
 
 

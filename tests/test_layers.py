@@ -22,7 +22,7 @@ LAYERS = [
     ("orthomvp.visibility",),
     ("orthomvp.ortho", "orthomvp.mvp"),
     ("orthomvp.engine", "orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
-    ("orthomvp.epsstudy",),
+    ("orthomvp.epsstudy", "orthomvp.check"),
     ("orthomvp.bench", "orthomvp.demo"),
     ("orthomvp.cli",),
     ("orthomvp.__main__",),

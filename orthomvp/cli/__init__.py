@@ -158,6 +158,7 @@ def main_entry() -> None:
 # the commands, in the order --help lists them
 from orthomvp.cli import (  # noqa: E402
     bench,
+    check,
     demo,
     eps_study,
     explore,
@@ -179,6 +180,7 @@ for _command in (
     explore.explore,
     fit.fit,
     eps_study.eps_study,
+    check.check,
     bench.bench,
 ):
     cli.add_command(_command)

@@ -9,7 +9,7 @@ import click
 from orthomvp.cli.command import Command
 from orthomvp.cli.options import PATH, Number, check_outdir, quiet
 
-KINDS = ("planar", "crater", "hills")
+KINDS = ("planar", "crater", "hills", "city")
 """the scene kinds of :func:`orthomvp.synthetic.make_scene` (not imported: --help stays fast)"""
 SPACING_RANGE = (0.01, 10_000.0)
 GSD_RATIO_RANGE = (0.05, 20.0)
@@ -23,8 +23,9 @@ MAX_SUPERSAMPLE = 16
     type=click.Choice(KINDS),
     metavar="KIND",
     help="planar (a tilted plane under four orbital frames), crater (a complex crater, one "
-    "oblique, one near-nadir and two along-track views) or hills (rolling terrain under four "
-    "along-track frames)",
+    "oblique, one near-nadir and two along-track views), hills (rolling terrain under four "
+    "along-track frames) or city (box buildings with gabled roofs and trees on gentle ground, "
+    "UTM 33N, four oblique aerial frames in the map frame)",
 )
 @click.argument(
     "outdir",
@@ -36,14 +37,14 @@ MAX_SUPERSAMPLE = 16
     "--size",
     type=click.IntRange(min=8),
     metavar="N",
-    show_default="per kind: 64/160/128",
+    show_default="per kind: 64/160/128/160",
     help="DEM posts per side",
 )
 @click.option(
     "--spacing",
     type=Number(min=SPACING_RANGE[0], max=SPACING_RANGE[1]),
     metavar="METRES",
-    show_default="per kind: 40/40/30",
+    show_default="per kind: 40/40/30/0.5",
     help="DEM post spacing, metres",
 )
 @click.option(
@@ -76,10 +77,10 @@ def synth(
     seed: int,
     supersample: int,
 ) -> None:
-    """Write a synthetic lunar scene: DEM GeoTIFF (heights in metres above the 1737400 m
-    sphere), rendered images (float32 TIFF), cameras (.tsai), truth rasters (radiance,
-    per-camera visibility: 0 outside image, 1 visible, 2 occluded, 3 facing away) and
-    scene.json."""
+    """Write a synthetic scene: DEM GeoTIFF (heights in metres; lunar kinds above the
+    1737400 m sphere, city in UTM 33N with cameras in its map frame), rendered images (float32
+    TIFF), cameras (.tsai), truth rasters (radiance, per-camera visibility: 0 outside image, 1
+    visible, 2 occluded, 3 facing away) and scene.json."""
     from orthomvp.raster import atomic_dir
     from orthomvp.synthetic import make_scene
     from orthomvp.synthetic.kinds import DEFAULTS

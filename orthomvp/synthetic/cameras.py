@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.codes import WorldFrame
 from orthomvp.synthetic.surface import local_frame
 from orthomvp.terrain import Terrain
 
@@ -64,15 +65,19 @@ def look_at(centre: np.ndarray, target: np.ndarray, north: np.ndarray) -> np.nda
 def orbital_camera(
     terrain: Terrain, view: ViewSpec, gsd: float, margin: float = 6.0
 ) -> PinholeCamera:
-    """A pinhole camera placed as ``view`` says over the centre of a body-frame ``terrain``,
-    looking at that centre (at the median height), with ground sample distance ``gsd`` metres
-    there and an image just large enough (plus ``margin`` pixels) to hold the whole DEM."""
+    """A pinhole camera placed as ``view`` says over the centre of ``terrain`` (body or map
+    frame), looking at that centre (at the median height), with ground sample distance
+    ``gsd`` metres there and an image just large enough (plus ``margin`` pixels) to hold the
+    whole DEM."""
     rows, cols = terrain.shape
-    up, east, north = local_frame(
-        *terrain.pixel_to_lonlat(np.array((cols - 1) / 2), np.array((rows - 1) / 2))
-    )
+    mid = np.array((cols - 1) / 2), np.array((rows - 1) / 2)
     heights = terrain.values[terrain.valid]
-    target = (terrain.radii[0] + float(np.median(heights))) * up
+    if terrain.world == WorldFrame.MAP:  # easting, northing, height
+        east, north, up = np.eye(3)
+        target = terrain.to_world(*mid, np.median(heights))
+    else:
+        up, east, north = local_frame(*terrain.pixel_to_lonlat(*mid))
+        target = (terrain.radii[0] + float(np.median(heights))) * up
     corners = terrain.to_world(
         np.array([0, cols - 1, 0, cols - 1] * 2, float),
         np.array([0, 0, rows - 1, rows - 1] * 2, float),

@@ -1,8 +1,9 @@
 """The scene kinds' analytic heights and albedo, as functions of local (x, y) metres.
 
 ``planar``: a tilted 3D plane; ``crater``: a complex crater with a central peak; ``hills``:
-rolling terrain. Each builder draws its random parameters from the generator it is given, so a
-seed fixes the scene.
+rolling terrain; ``city`` (box buildings and trees in a projected CRS) is built by
+:mod:`orthomvp.synthetic.city`. Each builder draws its random parameters from the generator it
+is given, so a seed fixes the scene.
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ import numpy as np
 from orthomvp.synthetic.surface import MOON_RADIUS, LocalField, local_frame
 from orthomvp.terrain import unit_vector
 
-KINDS = ("planar", "crater", "hills")
-DEFAULTS = {"planar": (64, 40.0), "crater": (160, 40.0), "hills": (128, 30.0)}
+KINDS = ("planar", "crater", "hills", "city")
+DEFAULTS = {"planar": (64, 40.0), "crater": (160, 40.0), "hills": (128, 30.0), "city": (160, 0.5)}
 """Default (size in posts, post spacing in metres) of each kind."""
 
 

@@ -44,7 +44,7 @@ def load_scene(directory: str | Path) -> SceneData:
         raise InputError(f"{directory}: not a scene directory (no scene.json)")
     try:
         summary = json.loads(meta.read_text())
-        terrain = Terrain.read(directory / summary["dem"])
+        terrain = Terrain.read(directory / summary["dem"], world=summary.get("world", "body"))
         radiance = read_image(directory / summary["truth_radiance"])[0]
         views = {}
         for name, v in summary["views"].items():

@@ -21,6 +21,7 @@ from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
+from orthomvp.synthetic.city import CityScene, make_city
 from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
 from orthomvp.synthetic.rendering import fine_terrain, render_image
 from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, local_frame
@@ -83,6 +84,14 @@ class Scene:
     def _caster(self) -> RayCaster:
         return RayCaster(terrain_mesh(self.fine))
 
+    def frame_facts(self) -> dict:
+        """The summary's facts about the frame: body radius, CRS, tile centre."""
+        return {
+            "body_radius_m": MOON_RADIUS,
+            "crs": MOON_CRS,
+            "centre_lonlat_deg": [np.degrees(self.surface.lon0), np.degrees(self.surface.lat0)],
+        }
+
     def visibility_truth(self, camera: PinholeCamera, step: float | None = None) -> np.ndarray:
         """Truth visibility codes (rows, cols) uint8 of the DEM posts for ``camera``, marched
         against the analytic surface every ``step`` metres (default a quarter of the post
@@ -115,11 +124,13 @@ def make_scene(
     gsd_ratio: float = 0.8,
     seed: int = 0,
     lonlat_deg: tuple[float, float] = (3.6, 26.1),
-) -> Scene:
+) -> Scene | CityScene:
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings. The same arguments give the same scene.
+    spacings. The same arguments give the same scene. ``city`` is a
+    :class:`~orthomvp.synthetic.city.CityScene` in its own projected CRS (``lonlat_deg`` does
+    not apply).
 
     Ranges (InputError outside them, and for a scene too large for the memory): ``size`` an
     integer >= 8, ``spacing`` :data:`SPACING_RANGE` metres, ``gsd_ratio``
@@ -138,6 +149,8 @@ def make_scene(
     gsd_ratio = number(gsd_ratio, "GSD ratio", minimum=lo, maximum=hi)
     seed = number(seed, "seed", minimum=0, integer=True)
     check_scene_memory(size, gsd_ratio)
+    if kind == "city":
+        return make_city(size, spacing, gsd_ratio, seed)
     rng = np.random.default_rng(seed)
     lon0, lat0 = np.radians(lonlat_deg[0]), np.radians(lonlat_deg[1])
     height, facts = relief(kind, size * spacing, lon0, lat0, rng)

@@ -48,12 +48,24 @@ def visibility_truth(
     max_radius: float,
     step: float,
 ) -> np.ndarray:
+    """Truth :class:`~orthomvp.codes.Code` of surface ``points`` for ``camera`` by
+    :func:`truth_codes`, with :func:`march` (``step`` metres, up to ``max_radius``) against
+    ``below`` as the occlusion test."""
+    return truth_codes(camera, points, normals, lambda p, s: march(p, s, step, max_radius, below))
+
+
+def truth_codes(
+    camera: Camera,
+    points: np.ndarray,
+    normals: np.ndarray,
+    hidden: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
     """Truth :class:`~orthomvp.codes.Code` (uint8, the shape of ``points`` without its last
     axis) of surface ``points`` (..., 3) with outward unit ``normals`` (..., 3) for ``camera``
     (with its image size): NODATA outside the image or behind the camera, FACING_AWAY where
-    the normal points away from the camera, else OCCLUDED or VISIBLE by :func:`march` towards
-    where the camera images each point from (a line scanner: its position at the point's
-    line time)."""
+    the normal points away from the camera, else OCCLUDED or VISIBLE by ``hidden(points (n, 3),
+    sensors (n, 3))``, whether the segment from each point towards where the camera images it
+    from (a line scanner: its position at the point's line time) dips under the surface."""
     uv, depth = camera.project(points)
     inside = (depth > 0) & camera.in_image(uv)
     sensor = camera.origins(np.where(inside[..., None], uv, np.nan))
@@ -62,6 +74,5 @@ def visibility_truth(
     codes = np.full(inside.shape, Code.NODATA, np.uint8)
     codes[inside & ~facing] = Code.FACING_AWAY
     cast = inside & facing
-    hidden = march(points[cast], sensor[cast], step, max_radius, below)
-    codes[cast] = np.where(hidden, Code.OCCLUDED, Code.VISIBLE)
+    codes[cast] = np.where(hidden(points[cast], sensor[cast]), Code.OCCLUDED, Code.VISIBLE)
     return codes

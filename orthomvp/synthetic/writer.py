@@ -1,6 +1,6 @@
 """Writing a synthetic scene as a directory of files that any tool can read.
 
-``dem.tif`` (heights above the sphere: the analytic truth at the posts), ``truth_radiance.tif``
+``dem.tif`` (heights: the analytic truth at the posts), ``truth_radiance.tif``
 (float32 radiance at the posts), for each view ``NAME.tif`` (float32 image), ``NAME.tsai``
 (camera) and ``NAME.visibility.tif`` (uint8 truth :class:`~orthomvp.codes.Code` on the DEM
 grid), and ``scene.json``: the summary that names them, read back by
@@ -21,15 +21,15 @@ from orthomvp.camera import write_tsai
 from orthomvp.codes import Code
 from orthomvp.raster import atomic_path, write_geotiff
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
-from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS
 from orthomvp.validate import number
 
 if TYPE_CHECKING:
+    from orthomvp.synthetic.city import CityScene
     from orthomvp.synthetic.scene import Scene
 
 
 def write_scene(
-    scene: Scene, outdir: str | Path, supersample: int = 3, progress: bool = False
+    scene: Scene | CityScene, outdir: str | Path, supersample: int = 3, progress: bool = False
 ) -> dict:
     """Render ``scene`` (``supersample`` x ``supersample`` rays per pixel) and write its
     directory into ``outdir``, with a progress bar over the views if ``progress`` and on a
@@ -69,14 +69,12 @@ def write_scene(
         }
     summary = {
         "kind": scene.kind,
-        "body_radius_m": MOON_RADIUS,
-        "crs": MOON_CRS,
+        **scene.frame_facts(),
         "dem": "dem.tif",
         "truth_heights": "dem.tif",
         "truth_radiance": "truth_radiance.tif",
         "size": list(t.shape),
         "post_spacing_m": scene.spacing,
-        "centre_lonlat_deg": [np.degrees(scene.surface.lon0), np.degrees(scene.surface.lat0)],
         "sun": scene.surface.sun.tolist(),
         "seed": scene.seed,
         "views": views,

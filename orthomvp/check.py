@@ -1,0 +1,275 @@
+"""A truth-free consistency check of the visibility flags, for users' own data.
+
+For every ordered pair of overlapping views (A, B) and every epsilon (DEM posts), the local
+normalised cross-correlation (NCC, a ``window`` x ``window`` box of posts) between orthophotos
+on the DEM grid is scored at two classes of posts, binned by A's first-hit miss distance
+(:attr:`orthomvp.visibility.Visibility.miss`, DEM posts; a ray that hits nothing counts as 0):
+
+- ``visible``: posts visible in A and in B; NCC of A's and B's occlusion-aware orthophotos;
+- ``occluded``: posts A calls occluded and B visible; NCC of A's *naive* orthophoto (what A
+  would paint there) with B's occlusion-aware one.
+
+Where the flags are right, ``visible`` correlates highly (the same ground seen twice) and
+``occluded`` poorly (A's value there is the occluder's); a ``visible`` NCC that falls with the
+miss distance says that epsilon lets partial ghosts through. Windows count only posts where both
+orthophotos have values, and need at least half the window; multi-band images are averaged
+over their bands. Rows with view ``all`` pool every pair.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.ndimage import uniform_filter
+
+from orthomvp.camera import Camera, as_image, check_image
+from orthomvp.codes import Code, classify
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.memory import check_memory, count_text
+from orthomvp.mesh import terrain_mesh
+from orthomvp.ortho import sample_image
+from orthomvp.raster import atomic_path
+from orthomvp.raycast import RayCaster
+from orthomvp.terrain import Terrain
+from orthomvp.validate import number, of_type
+from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility
+
+DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
+"""Epsilons checked by default, DEM posts."""
+MISS_BINS = (0.0, 0.25, 1.0, 2.0, 4.0, 8.0, 16.0, np.inf)
+"""Edges of the miss-distance bins, DEM posts (each bin includes its lower edge)."""
+CHECK_BYTES_PER_POST = 200
+"""Memory per post beyond the visibility: NCC maps and their box sums, bytes."""
+VIEW_BYTES_PER_POST = 16
+"""Memory per post and view kept across the check: miss, codes, naive value, bytes."""
+CSV_FIELDS = (
+    "eps",
+    "view",
+    "other",
+    "class",
+    "miss_from",
+    "miss_to",
+    "posts",
+    "scored",
+    "ncc_mean",
+    "ncc_median",
+)
+
+
+@dataclass
+class CheckResult:
+    """The check: ``rows`` (dicts with :data:`CSV_FIELDS`), the 1-based ``pairs`` of views
+    that overlap and those (``apart``) that do not, and the view ``names``."""
+
+    rows: list[dict]
+    pairs: list[tuple[int, int]]
+    apart: list[tuple[int, int]] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+
+    def pooled(self, eps: float, cls: str) -> dict:
+        """The pooled row over all pairs and miss distances for ``eps`` and class ``cls``."""
+        return next(
+            r
+            for r in self.rows
+            if r["view"] == "all"
+            and r["eps"] == eps
+            and r["class"] == cls
+            and r["miss_from"] == 0
+            and r["miss_to"] == np.inf
+        )
+
+
+def local_ncc(a: np.ndarray, b: np.ndarray, window: int) -> np.ndarray:
+    """NCC (rows, cols) of ``a`` and ``b`` (rows, cols; NaN = no value) in a ``window`` x
+    ``window`` box around each post, over the posts where both have values; NaN where fewer
+    than half the box has both, or where either is flat."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    w = ok.astype(np.float64)
+    a0, b0 = np.where(ok, a, 0.0).astype(np.float64), np.where(ok, b, 0.0).astype(np.float64)
+
+    def box(x: np.ndarray) -> np.ndarray:
+        return uniform_filter(x, window, mode="constant")
+
+    n = box(w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ma, mb = box(a0) / n, box(b0) / n
+        va = box(a0 * a0) / n - ma * ma
+        vb = box(b0 * b0) / n - mb * mb
+        cov = box(a0 * b0) / n - ma * mb
+        ncc = cov / np.sqrt(va * vb)
+    good = (n >= 0.5 - 1e-9) & (va > 1e-10) & (vb > 1e-10)
+    return np.where(good, np.clip(ncc, -1, 1), np.nan)
+
+
+def check_views(
+    terrain: Terrain,
+    views: list[tuple[np.ndarray, Camera]],
+    *,
+    eps_values: tuple[float, ...] = DEFAULT_EPS,
+    window: int = 7,
+    names: list[str] | None = None,
+    caster: RayCaster | None = None,
+    progress: bool = False,
+) -> CheckResult:
+    """Check the visibility flags of (image, camera) ``views`` (at least two; images (bands,
+    rows, cols) or (rows, cols), cameras with or without image size) on ``terrain`` for every
+    epsilon of ``eps_values`` (DEM posts, > 0), with an odd ``window`` (3..51 posts); see the
+    module docstring. ``names`` label the views (default 1, 2, ...); ``caster`` reuses a ray
+    caster on this terrain's mesh. GeometryError when no two views overlap (share at least a
+    window of posts inside both images and facing both)."""
+    of_type(terrain, Terrain, "terrain")
+    if not isinstance(views, (list, tuple)) or len(views) < 2:
+        raise InputError("the check needs a list of at least two (image, camera) views")
+    eps_values = tuple(
+        number(e, "an epsilon (DEM posts)", minimum=0, min_open=True) for e in eps_values
+    )
+    if not eps_values:
+        raise InputError("the check needs at least one epsilon")
+    window = number(window, "window (posts)", minimum=3, maximum=51, integer=True)
+    if window % 2 == 0:
+        raise InputError(f"window (posts) must be odd, got {window}")
+    names = [str(k) for k in range(1, len(views) + 1)] if names is None else list(names)
+    rows, cols = terrain.shape
+    posts = float(rows) * cols
+    check_memory(
+        f"this grid is {count_text(posts)} posts ({cols:,} x {rows:,}) for {len(views)} views",
+        posts
+        * (VISIBILITY_BYTES_PER_POST + CHECK_BYTES_PER_POST + VIEW_BYTES_PER_POST * len(views)),
+        "use a smaller or coarser DEM",
+    )
+    caster = caster or RayCaster(terrain_mesh(terrain))
+    miss, naive, base = [], [], []
+    for k, (image, camera) in enumerate(views):
+        image = as_image(image, f"view {names[k]}")
+        camera = check_image(image, camera, f"view {names[k]}")
+        vis = compute_visibility(terrain, camera, caster=caster, progress=progress)
+        m = vis.miss.copy()
+        m[np.isposinf(m)] = 0.0  # nothing in the way
+        miss.append(m)
+        base.append(vis.codes)
+        naive.append(np.mean(sample_image(image, vis.uv), axis=0))
+    seen = [np.isin(c, (Code.VISIBLE, Code.OCCLUDED)) for c in base]
+    pairs, apart = [], []
+    for a in range(len(views)):
+        for b in range(a + 1, len(views)):
+            both = int((seen[a] & seen[b] & np.isfinite(naive[a]) & np.isfinite(naive[b])).sum())
+            (pairs if both >= window * window else apart).append((a, b))
+    if not pairs:
+        raise GeometryError(
+            f"no two of the {len(views)} views overlap: no pair sees a {window} x {window} "
+            "window of the same posts"
+        )
+    out: list[dict] = []
+    for eps in eps_values:
+        codes = []
+        for m, c in zip(miss, base, strict=True):
+            c = c.copy()
+            cast = ~np.isnan(m)
+            c[cast] = classify(m[cast], eps)
+            codes.append(c)
+        ortho = [np.where(c == Code.VISIBLE, n, np.nan) for c, n in zip(codes, naive, strict=True)]
+        pooled: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"visible": [], "occluded": []}
+        for a, b in pairs:
+            both = local_ncc(ortho[a], ortho[b], window)
+            for x, y in ((a, b), (b, a)):
+                vis_b = codes[y] == Code.VISIBLE
+                classes = {
+                    "visible": ((codes[x] == Code.VISIBLE) & vis_b, both),
+                    "occluded": (
+                        (codes[x] == Code.OCCLUDED) & vis_b,
+                        local_ncc(naive[x], ortho[y], window),
+                    ),
+                }
+                for cls, (mask, ncc) in classes.items():
+                    pooled[cls].append((miss[x][mask], ncc[mask]))
+                    out += _rows(eps, names[x], names[y], cls, miss[x][mask], ncc[mask])
+        for cls, parts in pooled.items():
+            d = np.concatenate([p[0] for p in parts])
+            v = np.concatenate([p[1] for p in parts])
+            out += _rows(eps, "all", "all", cls, d, v)
+    to_names = [(a + 1, b + 1) for a, b in pairs]
+    return CheckResult(out, to_names, [(a + 1, b + 1) for a, b in apart], names)
+
+
+def _rows(
+    eps: float, view: str, other: str, cls: str, miss: np.ndarray, ncc: np.ndarray
+) -> list[dict]:
+    """One row per miss bin and one over all bins."""
+    edges = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.inf)]
+    out = []
+    for lo, hi in edges:
+        sel = (miss >= lo) & (miss < hi)
+        v = ncc[sel]
+        v = v[np.isfinite(v)]
+        out.append(
+            {
+                "eps": eps,
+                "view": view,
+                "other": other,
+                "class": cls,
+                "miss_from": lo,
+                "miss_to": hi,
+                "posts": int(sel.sum()),
+                "scored": int(v.size),
+                "ncc_mean": float(v.mean()) if v.size else np.nan,
+                "ncc_median": float(np.median(v)) if v.size else np.nan,
+            }
+        )
+    return out
+
+
+def write_csv(result: CheckResult, path: str | Path) -> None:
+    """Write the check's rows as CSV."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
+    writer.writeheader()
+    for r in result.rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    with atomic_path(path) as tmp:
+        tmp.write_text(buf.getvalue())
+
+
+def plot(result: CheckResult, path: str | Path) -> None:
+    """Median NCC against the miss-distance bin, one panel per epsilon, pooled over the
+    pairs: posts visible in both views and posts called occluded (naive value)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eps_values = sorted({r["eps"] for r in result.rows})
+    fig, axes = plt.subplots(
+        1,
+        len(eps_values),
+        figsize=(3.2 * len(eps_values) + 1, 3.6),
+        sharey=True,
+        squeeze=False,
+        constrained_layout=True,
+    )
+    labels = [f"{lo:g}-{hi:g}" for lo, hi in zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)]
+    for ax, eps in zip(axes[0], eps_values, strict=True):
+        for cls, colour in (("visible", "tab:blue"), ("occluded", "tab:red")):
+            rows = [
+                r
+                for r in result.rows
+                if r["view"] == "all"
+                and r["eps"] == eps
+                and r["class"] == cls
+                and not (r["miss_from"] == 0 and r["miss_to"] == np.inf)
+            ]
+            y = [r["ncc_median"] if r["scored"] else np.nan for r in rows]
+            ax.plot(range(len(rows)), y, marker="o", color=colour, label=cls)
+        ax.set_xticks(range(len(labels)), labels, rotation=45, fontsize=7)
+        ax.set_title(f"eps {eps:g} posts")
+        ax.set_xlabel("first-hit miss (DEM posts)")
+        ax.grid(True, alpha=0.3)
+        ax.set_ylim(-1, 1)
+    axes[0][0].set_ylabel("median local NCC")
+    axes[0][0].legend(fontsize=8)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format=Path(path).suffix.lstrip(".") or "png")
+    plt.close(fig)
