@@ -31,6 +31,7 @@ from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
+from orthomvp.mosaic import Correction
 
 
 class WorkerError(OrthoMVPError):
@@ -43,7 +44,8 @@ class RunReport:
     workers' seconds per phase summed over tiles (read, mesh, visibility, sample) and the
     writer's (write), posts filled in ``ortho``, the grid's posts with a height (``valid``;
     tiles that no image sees count whole), and per view the posts inside the image, the posts
-    taken from it (``source``) and the posts of each visibility code (``counts``)."""
+    taken from it (``source``) and the posts of each visibility code (``counts``); for a
+    mosaic, the radiometric ``correction`` applied and the ``blend`` width used (posts)."""
 
     tiles_run: int = 0
     tiles_skipped: int = 0
@@ -54,6 +56,8 @@ class RunReport:
     inside: list[int] = field(default_factory=list)
     taken: list[int] = field(default_factory=list)
     counts: list[list[int]] = field(default_factory=list)
+    correction: Correction | None = None
+    blend: int | None = None
 
 
 def available_memory() -> int:
@@ -287,6 +291,8 @@ def run_plan(
             plan = survey(plan, run_survey)
     n = len(plan.views)
     report = RunReport(inside=[0] * n, taken=[0] * n, counts=[[0] * len(Code) for _ in range(n)])
+    report.correction = plan.correction
+    report.blend = plan.mosaic.blend if plan.mosaic is not None else None
     pool = executor(plan, run_tile, workers, processes, client)
     with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
