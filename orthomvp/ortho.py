@@ -5,14 +5,16 @@ float32 with NaN as nodata. With occlusion on (the default) only posts whose vis
 1 (visible) get a value; ``occlusion=False`` gives the naive orthophoto of other tools, which
 paints the occluder's pixels again onto every post hidden behind it (ghosts).
 
-Mosaic rule: each post takes its value from the visible view with the smallest emission angle
-(the angle between the DEM's surface normal and the direction to the camera), which is also the
-view with the least foreshortening; posts visible in no view stay nodata.
+Mosaics combine views as :mod:`orthomvp.mosaic` describes: by default each post prefers the
+visible view with the smallest emission angle (the angle between the DEM's surface normal and
+the direction to the camera, the least foreshortening), seamlines keep away from occlusion
+boundaries and disagreement, seams are feathered over 8 posts, and posts visible in no view
+stay nodata.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -24,6 +26,16 @@ from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
+from orthomvp.mosaic import (
+    Correction,
+    MosaicOptions,
+    clamp_blend,
+    compose,
+    nadir_angle,
+    overlap_width,
+    pair_stats,
+    solve_balance,
+)
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
@@ -55,13 +67,18 @@ class Ortho:
 @dataclass
 class Mosaic:
     """A mosaic: ``data`` as in :class:`Ortho`; ``source`` (rows, cols) uint8, the 1-based index
-    of the view each post came from (0 where none); ``visibilities`` per view."""
+    of the view each post is labelled with (0 where none); ``visibilities`` per view;
+    ``flags`` (rows, cols) :class:`~orthomvp.mosaic.Flag`; ``weights`` (views, rows, cols)
+    each view's blend weight; ``correction`` the radiometric balance applied (or None)."""
 
     data: np.ndarray
     source: np.ndarray
     transform: Affine
     crs: CRS
     visibilities: list[Visibility]
+    flags: np.ndarray
+    weights: np.ndarray
+    correction: Correction | None = None
 
 
 def sample_image(
@@ -160,13 +177,20 @@ def mosaic(
     interp: Interp | str = Interp.BILINEAR,
     caster: RayCaster | None = None,
     progress: bool = False,
+    options: MosaicOptions | None = None,
 ) -> Mosaic:
-    """One orthophoto from several (image, camera) views: each post from its best visible view
-    (smallest emission angle). All images must have the same number of bands. ``eps`` and
-    ``interp`` as in :func:`orthorectify`; ``caster`` reuses a ray caster built on this
-    terrain's mesh (one is built otherwise)."""
+    """One orthophoto from several (image, camera) views, combined as ``options`` say
+    (default :class:`~orthomvp.mosaic.MosaicOptions`: emission priority, seamlines, blending
+    over 8 posts, no balance, holes left empty; see :mod:`orthomvp.mosaic`), as the engine's
+    mosaic does. The balance's statistics come from the whole grid (the engine's from a
+    decimated one), and the blend width is clamped to the widest overlap (BlendWarning).
+    All images must have the same number of bands. ``eps`` and ``interp`` as in
+    :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's mesh (one is
+    built otherwise)."""
     interp = Interp(interp)
     of_type(terrain, Terrain, "terrain")
+    options = options or MosaicOptions()
+    of_type(options, MosaicOptions, "options", " or None")
     if not isinstance(views, (list, tuple)) or not views:
         raise InputError(f"a mosaic needs a list of (image, camera) views, got {views!r:.40}")
     for k, view in enumerate(views, start=1):
@@ -176,25 +200,46 @@ def mosaic(
     bands = {img.shape[0] for img, _ in views}
     if len(bands) != 1:
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
+    n, nb = len(views), bands.pop()
+    check_orthophoto_memory(terrain.shape, nb * n, "use a coarser grid (Terrain.regrid)")
     caster = caster or RayCaster(terrain_mesh(terrain))
-    rows, cols = terrain.shape
-    data = np.full((bands.pop(), rows, cols), np.nan, np.float32)
-    source = np.zeros((rows, cols), np.uint8)
-    best = np.full((rows, cols), np.inf)
+    shape = (n, *terrain.shape)
+    values = np.full((n, nb, *terrain.shape), np.nan, np.float32)
+    codes = np.zeros(shape, np.uint8)
+    emission, gsd, nadir = np.full(shape, np.inf), np.full(shape, np.inf), np.full(shape, np.inf)
     visibilities = []
-    for k, (image, camera) in enumerate(views, start=1):
-        ortho = orthorectify(
-            terrain, image, camera, eps=eps, interp=interp, caster=caster, progress=progress
-        )
-        vis = ortho.visibility
+    whole = (slice(None), slice(None))
+    for k, (image, camera) in enumerate(views):
+        camera = check_image(image, camera)
+        vis = compute_visibility(terrain, camera, eps=eps, caster=caster, progress=progress)
         visibilities.append(vis)
-        better = (
-            (vis.codes == Code.VISIBLE) & (vis.emission < best) & np.isfinite(ortho.data).all(0)
-        )
-        data[:, better] = ortho.data[:, better]
-        source[better] = k
-        best[better] = vis.emission[better]
-    return Mosaic(data, source, terrain.transform, terrain.crs, visibilities)
+        codes[k], emission[k], gsd[k] = vis.codes, vis.emission, vis.gsd
+        need = vis.codes == Code.VISIBLE
+        if options.fill == "any-view":
+            need |= vis.codes == Code.FACING_AWAY
+        elif options.fill == "naive":
+            need |= vis.codes != Code.NODATA
+        if options.priority == "nadir" or options.fill == "naive":
+            inside = np.isfinite(vis.uv).all(axis=-1)
+            nadir[k] = np.where(inside, nadir_angle(terrain, whole, camera, vis.uv), np.inf)
+        values[k][:, need] = sample_image(image, vis.uv[need], interp)
+    correction = None
+    if options.balance is not None:
+        stats = pair_stats(values, codes)
+        correction = solve_balance(stats, options.balance, options.reference)
+    blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
+    options = replace(options, blend=blend)
+    comp = compose(values, codes, emission, gsd, nadir, options, correction)
+    return Mosaic(
+        comp.data,
+        comp.source.astype(np.uint8 if n < 255 else np.uint16),
+        terrain.transform,
+        terrain.crs,
+        visibilities,
+        comp.flags,
+        comp.weights,
+        correction,
+    )
 
 
 def orthophoto_bytes(shape: tuple[int, int], bands: int) -> float:

@@ -20,6 +20,7 @@ LAYERS = [
     ("orthomvp.mesh",),
     ("orthomvp.raycast",),
     ("orthomvp.visibility",),
+    ("orthomvp.mosaic",),
     ("orthomvp.ortho", "orthomvp.mvp"),
     ("orthomvp.engine", "orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
     ("orthomvp.epsstudy", "orthomvp.check"),

@@ -10,6 +10,7 @@ from pyproj import CRS
 from orthomvp.camera import PinholeCamera
 from orthomvp.epsstudy import eps_study, reclassify
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.mosaic import MosaicOptions
 from orthomvp.ortho import mosaic, orthorectify, sample_image
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
 from orthomvp.terrain import Terrain, unit_vector
@@ -54,7 +55,9 @@ def test_orthophoto_has_no_ghosts_and_matches_radiance(scene) -> None:
 
 def test_mosaic_fills_hidden_posts(scene) -> None:
     oblique, nadir = scene.views["oblique"], scene.views["nadir"]
-    result = mosaic(scene.terrain, [(oblique.image, oblique.camera), (nadir.image, nadir.camera)])
+    views = [(oblique.image, oblique.camera), (nadir.image, nadir.camera)]
+    plain = MosaicOptions(seamlines=False, blend=0)
+    result = mosaic(scene.terrain, views, options=plain)
     hidden = np.isin(oblique.truth, (2, 3)) & away_from_boundaries(oblique.truth)
     filled = np.isfinite(result.data[0])[hidden].mean()
     assert filled >= 0.99
@@ -65,6 +68,10 @@ def test_mosaic_fills_hidden_posts(scene) -> None:
     np.testing.assert_array_equal(result.source[both], np.where(e0 < e1, 1, 2)[both])
     visible = np.isfinite(result.data[0]) & away_from_boundaries(oblique.truth)
     assert np.corrcoef(result.data[0][visible], scene.radiance[visible])[0, 1] > 0.98
+    # the default (seamlines, 8-post feather) fills the same posts, as faithfully
+    seamless = mosaic(scene.terrain, views)
+    np.testing.assert_array_equal(np.isfinite(seamless.data), np.isfinite(result.data))
+    assert np.corrcoef(seamless.data[0][visible], scene.radiance[visible])[0, 1] > 0.98
 
 
 def test_eps_rule_and_study(crater_dir) -> None:

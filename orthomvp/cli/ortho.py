@@ -37,6 +37,22 @@ from orthomvp.codes import Code, Interp
 if TYPE_CHECKING:
     from orthomvp.camera import Camera
     from orthomvp.engine import Outputs, Plan, RunReport
+    from orthomvp.mosaic import MosaicOptions
+
+PRIORITIES = ("emission", "gsd", "nadir", "order")
+FILLS = ("none", "any-view", "naive")
+BALANCES = ("none", "gain", "gain-offset")
+"""As :data:`orthomvp.mosaic.PRIORITIES`, ``FILLS`` and ``BALANCES`` (not imported: --help
+stays fast; a test checks that they agree)."""
+
+
+def _reference(ctx: click.Context, param: click.Parameter, value: str) -> int | None:
+    """--balance-reference: "mean", or a 1-based image number -> 0-based index."""
+    if value == "mean":
+        return None
+    if not value.isdigit() or int(value) < 1:
+        raise usage_error(f"--balance-reference must be 'mean' or an image number, not {value!r}")
+    return int(value) - 1
 
 
 def _plan(
@@ -47,6 +63,7 @@ def _plan(
     occlusion: bool = True,
     eps: float | None = None,
     interp: Interp = Interp.BILINEAR,
+    mosaic: MosaicOptions | None = None,
 ) -> Plan:
     from orthomvp.engine import plan_ortho
 
@@ -64,6 +81,7 @@ def _plan(
         radius_values=dem.radius_values,
         world=dem.world,
         progress=not quiet(),
+        mosaic=mosaic,
     )
 
 
@@ -175,7 +193,55 @@ def ortho(
     "--source",
     type=PATH,
     metavar="SOURCE.tif",
-    help="also write which image each post came from",
+    help="also write which image each post came from (band 1), how (band 2: 1 visible, "
+    "2 filled from any view, 3 filled naive) and each image's blend weight (bands 3.., /255)",
+)
+@click.option(
+    "--priority",
+    type=click.Choice(PRIORITIES),
+    default="emission",
+    show_default=True,
+    help="which image a post prefers: smallest emission angle, finest GSD, most nadir, or "
+    "the first given",
+)
+@click.option(
+    "--seamlines/--no-seamlines",
+    default=True,
+    show_default=True,
+    help="seams away from occlusion boundaries and where images disagree (off: each post "
+    "from its preferred image)",
+)
+@click.option(
+    "--blend",
+    type=click.IntRange(min=0),
+    default=8,
+    show_default=True,
+    metavar="WIDTH",
+    help="feather seams over WIDTH posts (0: hard seams; clamped to the widest overlap)",
+)
+@click.option(
+    "--balance",
+    type=click.Choice(BALANCES),
+    default="none",
+    show_default=True,
+    help="radiometric balance: per-image gain, or gain and offset, by least squares on overlaps",
+)
+@click.option(
+    "--balance-reference",
+    default="mean",
+    show_default=True,
+    metavar="N|mean",
+    callback=_reference,
+    help="image held fixed by --balance (1-based), or the mean gain 1 and offset 0",
+)
+@click.option(
+    "--fill",
+    type=click.Choice(FILLS),
+    default="none",
+    show_default=True,
+    help="posts visible in no image: leave empty, take the least-bad image that covers them "
+    "facing away or not (never occluded), or the most nadir naive value (ghosts); flagged in "
+    "--source",
 )
 @click.option(
     "--visibility",
@@ -195,6 +261,12 @@ def mosaic(
     odm: Path | None,
     output: Path,
     source: Path | None,
+    priority: str,
+    seamlines: bool,
+    blend: int,
+    balance: str,
+    balance_reference: int | None,
+    fill: str,
     visibility_out: Path | None,
     interp: Interp,
     eps: float | None,
@@ -202,10 +274,13 @@ def mosaic(
     overwrite: bool,
 ) -> None:
     """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
-    or --res/--bounds/--crs); each post takes its value from the visible view with the
-    smallest emission angle. --source records which image (1-based, in command-line order;
-    0 = none) each post came from. --odm DIR takes the DEM, images and cameras of an
-    OpenDroneMap dataset (the cameras in the DEM's CRS)."""
+    or --res/--bounds/--crs) into one seamless mosaic: each post prefers the visible image
+    of --priority, seamlines run away from occlusion boundaries and disagreement, seams are
+    feathered over --blend posts, optionally balanced; an image never gives a post it does
+    not see (except --fill naive, flagged). --source records which image (1-based, in
+    command-line order; 0 = none) each post came from, how, and the blend weights. --odm DIR
+    takes the DEM, images and cameras of an OpenDroneMap dataset (the cameras in the DEM's
+    CRS)."""
     outputs = [
         Output("-o", output),
         Output("--source", source),
@@ -225,15 +300,30 @@ def mosaic(
         inputs = [("DEM", dataset.dem), ("CAMERA", dataset.reconstruction)]
         inputs += [(f"IMAGE {k}", image) for k, (image, _) in enumerate(pairs, start=1)]
     check_outputs(outputs, inputs, overwrite)
+    from orthomvp.errors import InputError
+    from orthomvp.mosaic import MosaicOptions
+
+    if balance_reference is not None and balance_reference >= len(pairs):
+        raise InputError(
+            f"--balance-reference {balance_reference + 1}: there are {len(pairs)} images"
+        )
+    options = MosaicOptions(
+        priority=priority,
+        seamlines=seamlines,
+        blend=blend,
+        balance=None if balance == "none" else balance,
+        reference=balance_reference,
+        fill=fill,
+    )
     with warnings_as_lines():
-        plan = _plan(dem, pairs, engine, eps=eps, interp=interp)
+        plan = _plan(dem, pairs, engine, eps=eps, interp=interp, mosaic=options)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
     rows, cols = plan.grid.shape
     parts = ", ".join(
         f"{n:,} from {image}" for n, (image, _) in zip(report.taken, pairs, strict=True)
     )
     none = rows * cols - sum(report.taken)
-    print(f"wrote {output}: {parts}; {none:,} posts visible in no image")
+    print(f"wrote {output}: {parts}; {none:,} posts from no image")
 
 
 def view_inputs(dem: DemInput, pairs: list[tuple[Path, Path]]) -> list[tuple[str, Path]]:

@@ -23,6 +23,7 @@ from orthomvp.engine.halo import Halo, ToDem, footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.mosaic import Correction, MosaicOptions
 from orthomvp.ortho import INTERPOLATION
 from orthomvp.world import check_cameras_above, detect_world
 
@@ -45,6 +46,7 @@ MESH_BYTES = 300
 WINDOW_BYTES = 16
 TILE_BYTES = 100
 VIEW_BYTES = 50
+MOSAIC_BYTES = 80
 BASE_BYTES = 300 << 20
 """An interpreter with numpy, rasterio, pyproj, trimesh and Embree loaded, and GDAL's block
 cache (bounded by :data:`orthomvp.engine.grid.GDAL_CACHE`)."""
@@ -82,7 +84,9 @@ class Plan:
     ``interp``). ``spacing`` is one DEM post in metres at the DEM centre, ``post_scale`` one
     output post in DEM posts (both for the epsilon test, the same in every tile);
     ``reach`` and ``elevation`` per view: the farthest occluder track in DEM posts and the
-    lowest line of sight in degrees over all tiles."""
+    lowest line of sight in degrees over all tiles. ``mosaic`` (two views or more) says how
+    views combine, ``correction`` the radiometric balance found by
+    :func:`orthomvp.engine.survey.survey`."""
 
     dem: DemSource
     grid: OutputGrid
@@ -96,10 +100,22 @@ class Plan:
     post_scale: float
     reach: tuple[float, ...]
     elevation: tuple[float, ...]
+    mosaic: MosaicOptions | None = None
+    correction: Correction | None = None
 
     @property
     def bands(self) -> int:
         return self.views[0].bands
+
+    @property
+    def margin(self) -> int:
+        """Posts computed around every tile for the mosaic's seams and blending
+        (:attr:`orthomvp.mosaic.MosaicOptions.margin`; 0 without a mosaic)."""
+        return self.mosaic.margin if self.mosaic is not None else 0
+
+    def extent(self, job: TileJob) -> WindowT:
+        """The posts a tile computes: its window grown by :attr:`margin`, within the grid."""
+        return grow(job.window, self.margin, self.grid.shape)
 
     def tile_bytes(self, job: TileJob, images: bool = True) -> int:
         """Expected peak memory of one tile in a worker, bytes (the constants above)."""
@@ -108,7 +124,13 @@ class Plan:
         mesh = MESH_BYTES * job.dem_posts if self.occlusion else 0
         pixels = max((min(p, SAMPLE_BUDGET_PIXELS) for p in job.image_pixels), default=0)
         image = 8 * self.bands * pixels if images else 0
-        views = VIEW_BYTES * ext * len(job.views)
+        if self.mosaic is not None:
+            m = 2 * self.margin
+            ext = (r1 - r0 + 2 + m) * (c1 - c0 + 2 + m)
+            # per view: samples of every band, codes, angles, GSD, costs and weights
+            views = (VIEW_BYTES + 4 * self.bands + MOSAIC_BYTES) * ext * len(job.views)
+        else:
+            views = VIEW_BYTES * ext * len(job.views)
         return WINDOW_BYTES * job.dem_posts + mesh + TILE_BYTES * ext + views + image
 
     def peak_memory(self, workers: int, processes: int = 0, images: bool = True) -> int:
@@ -185,6 +207,13 @@ def _pixels(box: Box, view: ImageSource) -> int:
     return int(max(c1 - c0, 0) * max(r1 - r0, 0))
 
 
+def grow(window: WindowT, margin: int, shape: tuple[int, int]) -> WindowT:
+    """``window`` grown by ``margin`` posts on every side, within a grid of ``shape``."""
+    r0, r1, c0, c1 = window
+    rows, cols = shape
+    return max(r0 - margin, 0), min(r1 + margin, rows), max(c0 - margin, 0), min(c1 + margin, cols)
+
+
 def _union(a: WindowT, b: WindowT) -> WindowT:
     return min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3])
 
@@ -209,14 +238,17 @@ def _job(
     index: int,
     window: WindowT,
     occlusion: bool,
+    margin: int = 0,
 ) -> tuple[TileJob, list[Box | None], list[Halo | None]]:
     """Plan one tile: the job (the views that see it, its DEM window), and per view the
-    tile's image box and its occluder halo (None where not computed)."""
+    tile's image box and its occluder halo (None where not computed), all for the tile grown
+    by ``margin`` posts (the posts it computes)."""
+    tile, window = window, grow(window, margin, grid.shape)
     boxes: list[Box | None] = [None] * len(views)
     halos: list[Halo | None] = [None] * len(views)
     need = footprint(dem, to_dem, window, grid.on_dem)
     if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
-        return TileJob(index, window, (), None, ()), boxes, halos
+        return TileJob(index, tile, (), None, ()), boxes, halos
     seen, pixels = [], []
     for k, view in enumerate(views):
         boxes[k] = image_box(dem, to_dem, window, view.camera)
@@ -228,8 +260,8 @@ def _job(
             halos[k] = tile_halo(dem, to_dem, window, view.camera)
             need = _union(need, halos[k].window)
     if not seen:
-        return TileJob(index, window, (), None, ()), boxes, halos
-    return TileJob(index, window, tuple(seen), need, tuple(pixels)), boxes, halos
+        return TileJob(index, tile, (), None, ()), boxes, halos
+    return TileJob(index, tile, tuple(seen), need, tuple(pixels)), boxes, halos
 
 
 def plan_ortho(
@@ -247,6 +279,7 @@ def plan_ortho(
     radius_values: bool = False,
     world: WorldFrame | str = "auto",
     progress: bool = True,
+    mosaic: MosaicOptions | None = None,
 ) -> Plan:
     """Plan orthophotos, visibility codes or a mosaic of ``views`` ((image path, camera or
     camera path) pairs) on the DEM at path ``dem``.
@@ -257,6 +290,10 @@ def plan_ortho(
     are those of :func:`orthomvp.ortho.orthorectify`; ``dem_crs`` overrides the DEM file's
     CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
     :meth:`orthomvp.terrain.Terrain.read` and :func:`orthomvp.world.detect_world`.
+
+    With two views or more the plan is a mosaic, combined as ``mosaic`` says (default
+    :class:`~orthomvp.mosaic.MosaicOptions`: seamlines and blending on); every tile then
+    computes its posts plus the options' margin, so tiles join as one untiled run would.
 
     Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
     sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
@@ -269,12 +306,16 @@ def plan_ortho(
     if interp not in INTERPOLATION:
         raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
     sources = _views(views)
+    if mosaic is not None and not isinstance(mosaic, MosaicOptions):
+        raise InputError(f"mosaic must be MosaicOptions or None, got {type(mosaic).__name__}")
+    mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else None
+    margin = mosaic.margin if mosaic is not None else 0
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source, res, bounds, crs)
     to_dem = grid_to_dem(grid, source)
     jobs, boxes, reach, elevation = plan_tiles(
         grid.tiles(int(tile)),
-        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion),
+        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion, margin),
         len(sources),
         progress,
     )
@@ -295,6 +336,7 @@ def plan_ortho(
         post_scale,
         tuple(reach),
         tuple(elevation),
+        mosaic,
     )
 
 

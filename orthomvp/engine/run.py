@@ -27,9 +27,11 @@ from orthomvp.codes import Code
 from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
+from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
+from orthomvp.mosaic import Correction
 
 
 class WorkerError(OrthoMVPError):
@@ -42,7 +44,8 @@ class RunReport:
     workers' seconds per phase summed over tiles (read, mesh, visibility, sample) and the
     writer's (write), posts filled in ``ortho``, the grid's posts with a height (``valid``;
     tiles that no image sees count whole), and per view the posts inside the image, the posts
-    taken from it (``source``) and the posts of each visibility code (``counts``)."""
+    taken from it (``source``) and the posts of each visibility code (``counts``); for a
+    mosaic, the radiometric ``correction`` applied and the ``blend`` width used (posts)."""
 
     tiles_run: int = 0
     tiles_skipped: int = 0
@@ -53,6 +56,8 @@ class RunReport:
     inside: list[int] = field(default_factory=list)
     taken: list[int] = field(default_factory=list)
     counts: list[list[int]] = field(default_factory=list)
+    correction: Correction | None = None
+    blend: int | None = None
 
 
 def available_memory() -> int:
@@ -259,6 +264,10 @@ def run_plan(
     tiles (default twice the workers) are in flight. A plain ``threads`` run gives each tile
     ``threads // tiles`` threads when there are fewer tiles than threads.
 
+    A mosaic plan with blending or balancing first runs its survey
+    (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap,
+    on a decimated grid.
+
     Raises InputError before any work when the expected peak memory exceeds what is
     available, GeometryError (and writes nothing) when an image sees no post of the grid or
     only posts facing away, and WorkerError (writing nothing) when a worker dies.
@@ -271,8 +280,19 @@ def run_plan(
     at_once = min(workers, max(len(jobs), 1))
     peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
+    if plan.mosaic is not None and kinds - {"visibility"}:
+        if plan.mosaic.balance is not None or plan.mosaic.blend:
+
+            def run_survey(coarse: Plan, todo: list[int]) -> Iterator[TileResult]:
+                with executor(coarse, run_tile, workers, processes, client) as (submit, wait):
+                    stack = frozenset({"stack"})
+                    yield from results(submit, wait, todo, (stack, 1), 2 * workers)
+
+            plan = survey(plan, run_survey)
     n = len(plan.views)
     report = RunReport(inside=[0] * n, taken=[0] * n, counts=[[0] * len(Code) for _ in range(n)])
+    report.correction = plan.correction
+    report.blend = plan.mosaic.blend if plan.mosaic is not None else None
     pool = executor(plan, run_tile, workers, processes, client)
     with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
@@ -311,7 +331,7 @@ def _account(report: RunReport, result: TileResult, write_seconds: float) -> Non
     report.inside = [a + b for a, b in zip(report.inside, result.inside, strict=True)]
     _add_counts(report, result)
     if result.source is not None:
-        counts = np.bincount(result.source.ravel(), minlength=len(report.taken) + 1)
+        counts = np.bincount(result.source[0].ravel(), minlength=len(report.taken) + 1)
         report.taken = [a + int(b) for a, b in zip(report.taken, counts[1:], strict=True)]
 
 

@@ -22,10 +22,11 @@ from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
 from orthomvp.mesh import terrain_mesh
+from orthomvp.mosaic import compose, nadir_angle
 from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility
 
 GC_POSTS = 1 << 15
 """DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
@@ -34,12 +35,15 @@ GC_POSTS = 1 << 15
 @dataclass
 class TileResult:
     """A finished tile: ``window`` on the output grid; ``data`` (bands, rows, cols) float32
-    (NaN where empty), ``codes`` (views, rows, cols) uint8, ``source`` (rows, cols) 1-based
-    view index (0 = none), each None unless asked for. ``inside`` and ``seen`` count, per view,
+    (NaN where empty), ``codes`` (views, rows, cols) uint8, ``source`` (layers, rows, cols):
+    the 1-based view of each post (0 = none), and for a mosaic its
+    :class:`~orthomvp.mosaic.Flag` and every view's blend weight in 1/255 (see
+    :func:`source_layers`), each None unless asked for. ``inside`` and ``seen`` count, per view,
     the posts inside the image and those visible or occluded; ``counts`` per view the posts of
     each :class:`~orthomvp.codes.Code`; ``valid`` the tile's posts with a height (for a tile
     that no image sees: all of them, unread); ``seconds`` per phase (read, mesh, visibility,
-    sample)."""
+    sample, compose); ``stack`` (kind "stack" of a mosaic plan) every view's samples (views,
+    bands, rows, cols) and codes (views, rows, cols), uncomposed."""
 
     index: int
     window: WindowT
@@ -51,6 +55,7 @@ class TileResult:
     counts: list[list[int]]
     valid: int
     seconds: dict[str, float] = field(default_factory=dict)
+    stack: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @contextmanager
@@ -70,7 +75,7 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
         job.window,
         np.full((plan.bands, *shape), np.nan, np.float32) if "ortho" in kinds else None,
         np.zeros((n, *shape), np.uint8) if "visibility" in kinds else None,
-        np.zeros(shape, np.uint8 if n < 256 else np.uint16) if "source" in kinds else None,
+        np.zeros((source_layers(plan), *shape), source_dtype(plan)) if "source" in kinds else None,
         [0] * n,
         [0] * n,
         [[shape[0] * shape[1], 0, 0, 0] for _ in range(n)],
@@ -78,15 +83,28 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
     )
 
 
+def source_layers(plan: Plan) -> int:
+    """Bands of the source raster: the view; for a mosaic also the flag and one weight per
+    view."""
+    return 2 + len(plan.views) if plan.mosaic is not None else 1
+
+
+def source_dtype(plan: Plan) -> type:
+    """The source raster's data type (uint8 up to 254 views)."""
+    return np.uint8 if len(plan.views) < 255 else np.uint16
+
+
 def _has_cell(valid: np.ndarray) -> bool:
     """Whether any grid cell has four valid corners (something to mesh)."""
     return bool((valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]).any())
 
 
-def _grid_tile(plan: Plan, job: TileJob, window: Terrain) -> tuple[Terrain, tuple[slice, slice]]:
-    """The tile's posts with one around (within the grid) as a Terrain with heights taken from
-    the DEM ``window``, and the slices of the tile itself in it."""
-    r0, r1, c0, c1 = job.window
+def _grid_tile(
+    plan: Plan, job: TileJob, window: Terrain, posts: WindowT
+) -> tuple[Terrain, tuple[slice, slice]]:
+    """The grid window ``posts`` with one post around (within the grid) as a Terrain with
+    heights taken from the DEM ``window``, and the slices of ``posts`` in it."""
+    r0, r1, c0, c1 = posts
     rows, cols = plan.grid.shape
     ext = (max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols))
     inner = (slice(r0 - ext[0], r1 - ext[0]), slice(c0 - ext[2], c1 - ext[2]))
@@ -131,7 +149,8 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
 
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
     """Run tile ``index`` of ``plan`` for the outputs ``kinds`` ("ortho": image values,
-    "visibility": codes per view, "source": the mosaic's view per post), with
+    "visibility": codes per view, "source": the mosaic's view per post, "stack": a mosaic's
+    uncomposed samples), with
     ``threads`` threads for ray casting and visibility.
 
     The garbage collector runs after every tile whose DEM window has at least
@@ -177,7 +196,9 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     if not _has_cell(np.isfinite(values)):
         return result
     window = plan.dem.window_terrain(job.dem, values)
-    grid, inner = _grid_tile(plan, job, window)
+    if plan.mosaic is not None:
+        return _mosaic_tile(plan, job, result, window, kinds, threads)
+    grid, inner = _grid_tile(plan, job, window, job.window)
     if grid is None:
         return result
     caster = None
@@ -189,18 +210,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     for k in job.views:
         view = plan.views[k]
         with _timed(seconds, "visibility"):
-            vis = compute_visibility(
-                grid,
-                view.camera,
-                eps=plan.eps,
-                caster=caster,
-                threads=threads,
-                post_scale=plan.post_scale,
-                occlusion=plan.occlusion,
-                spacing=plan.spacing,
-                strict=False,
-                dem=window,
-            )
+            vis = _visibility(plan, grid, k, caster, window, threads)
         codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
         result.inside[k] = int((codes != Code.NODATA).sum())
         result.seen[k] = int(np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).sum())
@@ -218,6 +228,93 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
                 result.data[:, rows[ok], cols[ok]] = values[:, ok]
             keep[rows[~ok], cols[~ok]] = False
         if result.source is not None:
-            result.source[keep] = k + 1
+            result.source[0][keep] = k + 1
         best[keep] = emission[keep]
+    return result
+
+
+def _visibility(
+    plan: Plan, grid: Terrain, k: int, caster: RayCaster | None, window: Terrain, threads: int
+) -> Visibility:
+    """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``)."""
+    return compute_visibility(
+        grid,
+        plan.views[k].camera,
+        eps=plan.eps,
+        caster=caster,
+        threads=threads,
+        post_scale=plan.post_scale,
+        occlusion=plan.occlusion,
+        spacing=plan.spacing,
+        strict=False,
+        dem=window,
+    )
+
+
+def _mosaic_tile(
+    plan: Plan,
+    job: TileJob,
+    result: TileResult,
+    window: Terrain,
+    kinds: frozenset[str],
+    threads: int,
+) -> TileResult:
+    """A mosaic tile: every view's samples, codes and angles on the tile grown by the plan's
+    margin (:meth:`Plan.extent`), composed (:func:`orthomvp.mosaic.compose`), cut to the tile."""
+    assert plan.mosaic is not None
+    ext = plan.extent(job)
+    grid, inner = _grid_tile(plan, job, window, ext)
+    if grid is None:
+        return result
+    seconds, n = result.seconds, len(plan.views)
+    r0, r1, c0, c1 = job.window
+    core = (slice(r0 - ext[0], r1 - ext[0]), slice(c0 - ext[2], c1 - ext[2]))
+    shape = (ext[1] - ext[0], ext[3] - ext[2])
+    caster = None
+    if plan.occlusion:
+        with _timed(seconds, "mesh"):
+            caster = RayCaster(terrain_mesh(window), threads=threads)
+    result.valid = int(np.isfinite(grid.values[inner][core]).sum())
+    values = np.full((n, plan.bands, *shape), np.nan, np.float32)
+    codes = np.zeros((n, *shape), np.uint8)
+    emission, gsd = np.full((n, *shape), np.inf), np.full((n, *shape), np.inf)
+    nadir = np.full((n, *shape), np.inf)
+    fill = plan.mosaic.fill
+    for k in job.views:
+        with _timed(seconds, "visibility"):
+            vis = _visibility(plan, grid, k, caster, window, threads)
+        code, uv = vis.codes[inner], vis.uv[inner]
+        inside = np.isfinite(uv).all(axis=-1)
+        if not plan.occlusion:
+            code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
+        tile_codes = code[core]
+        result.inside[k] = int((tile_codes != Code.NODATA).sum())
+        result.seen[k] = int(np.isin(tile_codes, (Code.VISIBLE, Code.OCCLUDED)).sum())
+        result.counts[k] = np.bincount(tile_codes.ravel(), minlength=len(Code)).tolist()
+        if result.codes is not None:
+            result.codes[k] = tile_codes
+        codes[k], emission[k], gsd[k] = code, vis.emission[inner], vis.gsd[inner]
+        if plan.mosaic.priority == "nadir" or fill == "naive":
+            nadir[k] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
+        need = code == Code.VISIBLE
+        if fill == "any-view":
+            need |= code == Code.FACING_AWAY
+        elif fill == "naive":
+            need |= code != Code.NODATA
+        wanted = result.data is not None or result.source is not None or "stack" in kinds
+        if wanted and need.any():
+            with _timed(seconds, "sample"):
+                values[k][:, need] = sample_view(plan.views[k], uv[need], plan.interp)
+    if "stack" in kinds:
+        result.stack = (values[:, :, core[0], core[1]], codes[:, core[0], core[1]])
+    if result.data is None and result.source is None:
+        return result
+    with _timed(seconds, "compose"):
+        comp = compose(values, codes, emission, gsd, nadir, plan.mosaic, plan.correction)
+    if result.data is not None:
+        result.data = comp.data[:, core[0], core[1]]
+    if result.source is not None:
+        weights = np.rint(comp.weights[:, core[0], core[1]] * 255)
+        layers = [comp.source[core][None], comp.flags[core][None], weights]
+        result.source = np.concatenate(layers).astype(source_dtype(plan))
     return result

@@ -22,6 +22,7 @@ from rasterio.windows import Window
 
 from orthomvp.engine.grid import OutputGrid
 from orthomvp.engine.plan import Plan
+from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
 from orthomvp.raster import atomic_path
 
@@ -35,7 +36,8 @@ NODATA = {"float32": np.nan, "uint8": 0, "uint16": 0, "int16": -32768}
 class Outputs:
     """What a run writes: ``ortho`` (orthophoto or mosaic, all bands), ``visibility`` (uint8
     codes of :class:`orthomvp.codes.Code`, one band per view, 0 = nodata), ``source`` (the
-    1-based view each post came from, 0 = none): paths, or None for outputs not wanted.
+    1-based view each post came from, 0 = none; for a mosaic also its flag and the blend
+    weights, :func:`source_names`): paths, or None for outputs not wanted.
 
     ``format`` "cog" (Cloud-Optimized GeoTIFF) or "gtiff" (tiled GeoTIFF with internal
     overviews); ``compress`` one of :data:`COMPRESSIONS` (with the predictor that fits the
@@ -131,10 +133,18 @@ class Layer:
     names: tuple[str, ...] = ()
 
 
+def source_names(views: int) -> tuple[str, ...]:
+    """Band names of a mosaic's source raster: the 1-based view (0 = none), the
+    :class:`~orthomvp.mosaic.Flag` (0 empty, 1 visible, 2 filled from any view, 3 filled
+    naive), and each view's blend weight in 1/255."""
+    return ("view", "flag", *(f"weight {k}" for k in range(1, views + 1)))
+
+
 def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
     """The layers of :class:`Outputs` (orthophoto or mosaic, visibility codes, source)."""
     n = len(plan.views)
-    source = "uint8" if n < 256 else "uint16"
+    source = np.dtype(source_dtype(plan)).name
+    names = ("view",) if plan.mosaic is None else source_names(n)
     fill = outputs.fill
     make = {
         "ortho": lambda path: Layer(
@@ -149,7 +159,7 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
             path, n, "uint8", 0, Resampling.nearest, lambda result: result.codes
         ),
         "source": lambda path: Layer(
-            path, 1, source, 0, Resampling.nearest, lambda result: result.source
+            path, len(names), source, 0, Resampling.nearest, lambda r: r.source, names
         ),
     }
     return [make[kind](path) for kind, path in outputs.paths().items()]

@@ -1,0 +1,386 @@
+"""Mosaic composition: source priority, seamlines, feathered blending, radiometric balancing
+and the hole policy, on per-view stacks of one window (a tile with its margin, or a whole grid).
+
+Every decision at a post depends only on the posts within :meth:`MosaicOptions.margin` of it,
+and the sums behind them are exact integers, so a tile computed with that margin around it
+gives the same result as the whole grid (the engine reads that margin; see
+:mod:`orthomvp.engine.tile`). Off the grid counts as nothing: no post, no vote.
+
+Seamlines. Each view gets a cost per post: its priority (:data:`PRIORITIES`, scaled to about
+0..1), plus the share of its neighbours within :data:`SEAM_RADIUS` posts that it does not see
+(seams keep away from occlusion boundaries and image edges), plus its disagreement with the
+median of the views that see the post (seams avoid where one view differs from the others:
+ghosts, moving objects, misregistration). Costs are quantised to 1/:data:`QUANT` and averaged
+over the visible neighbours within :data:`SEAM_RADIUS`; each post is labelled with the visible
+view of least cost. Blending: a view's weight at a post is the share of posts labelled with
+it within ``blend // 2`` posts (a box), among views that see the post, so a straight seam
+becomes a linear ramp ``blend`` posts wide (``blend`` = 0: hard seams). A view never
+contributes where it does not see the post.
+
+Holes (posts no view sees) follow :data:`FILLS`; filled posts are flagged (:class:`Flag`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from orthomvp.camera import Camera
+from orthomvp.codes import Code
+from orthomvp.errors import InputError
+from orthomvp.terrain import Terrain
+
+PRIORITIES = ("emission", "gsd", "nadir", "order")
+"""Which view a post prefers: smallest emission angle (surface normal to camera), finest
+ground sample distance, smallest off-nadir angle (local vertical to camera), or the first
+listed view."""
+
+FILLS = ("none", "any-view", "naive")
+"""Hole policy: leave empty; the least-bad view that sees the post's side or not (facing away,
+never occluded; least priority cost); the naive value of the nadir-most view imaging it
+(occluded included: a ghost, flagged)."""
+
+BALANCES = ("gain", "gain-offset")
+"""Radiometric balancing: one gain per image and band (means matched on overlaps), or a gain
+(standard deviations matched) and an offset (means matched)."""
+
+SEAM_RADIUS = 4
+"""Posts around a post whose costs decide its label."""
+
+QUANT = 1024
+"""Steps per unit of cost (fixed point: sums are exact integers)."""
+
+DISAGREE = 4.0
+"""Relative difference ``|a - b| / (|a| + |b|)`` times this is the disagreement cost (capped
+at 1): an eighth apart costs as much as the whole priority range."""
+
+ORDER_STEP = 8
+"""Cost between consecutive views under priority "order" (more than all other costs)."""
+
+
+class BlendWarning(UserWarning):
+    """A blend width wider than any overlap between two views (clamped)."""
+
+
+class Flag(IntEnum):
+    """Band 2 of the source raster: how a post got its value."""
+
+    EMPTY = 0
+    VISIBLE = 1
+    ANY_VIEW = 2
+    NAIVE = 3
+
+
+@dataclass(frozen=True)
+class MosaicOptions:
+    """How views combine: ``priority`` (:data:`PRIORITIES`), ``seamlines`` (False: each post
+    from its best view alone), ``blend`` width in posts (0: hard seams), ``balance`` (None or
+    one of :data:`BALANCES`) with ``reference`` the 0-based view held fixed (None: the mean
+    gain is 1 and the mean offset 0), and ``fill`` (:data:`FILLS`)."""
+
+    priority: str = "emission"
+    seamlines: bool = True
+    blend: int = 8
+    balance: str | None = None
+    reference: int | None = None
+    fill: str = "none"
+
+    def __post_init__(self) -> None:
+        for name, value, allowed in (
+            ("priority", self.priority, PRIORITIES),
+            ("fill", self.fill, FILLS),
+            ("balance", self.balance, (None, *BALANCES)),
+        ):
+            if value not in allowed:
+                names = ", ".join(a for a in allowed if a is not None)
+                raise InputError(f"mosaic {name} must be one of {names}, not {value!r}")
+        if isinstance(self.blend, bool) or not isinstance(self.blend, int | np.integer):
+            raise InputError(f"blend width must be a whole number of posts, got {self.blend!r}")
+        if self.blend < 0:
+            raise InputError(f"blend width must be at least 0 posts, got {self.blend}")
+        if self.reference is not None and (isinstance(self.reference, bool) or self.reference < 0):
+            raise InputError(f"balance reference must be a view index >= 0, got {self.reference}")
+
+    @property
+    def margin(self) -> int:
+        """Posts around a post that its result depends on: the label's cost average and its
+        costs' neighbourhoods (2 :data:`SEAM_RADIUS`) plus the blend box (``blend // 2``)."""
+        return (2 * SEAM_RADIUS if self.seamlines else 0) + self.blend // 2
+
+
+@dataclass(frozen=True)
+class Correction:
+    """Per view and band: corrected = ``gains`` * value + ``offsets`` ((views, bands))."""
+
+    gains: np.ndarray
+    offsets: np.ndarray
+
+    def apply(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (views, bands, ...) corrected, float32."""
+        shape = self.gains.shape + (1,) * (values.ndim - 2)
+        out = values * self.gains.reshape(shape) + self.offsets.reshape(shape)
+        return out.astype(np.float32)
+
+
+@dataclass
+class Composite:
+    """A composed window: ``data`` (bands, rows, cols) float32, NaN where empty; ``source``
+    (rows, cols) the 1-based view each post is labelled with (0: none); ``flags`` (rows,
+    cols) :class:`Flag`; ``weights`` (views, rows, cols) float32, each view's share."""
+
+    data: np.ndarray
+    source: np.ndarray
+    flags: np.ndarray
+    weights: np.ndarray
+
+
+def box_sum(a: np.ndarray, radius: int) -> np.ndarray:
+    """Exact sums of integer array ``a`` (..., rows, cols) over the (2 radius + 1)^2 box
+    around each post, zero beyond the array (int64)."""
+    a = a.astype(np.int64)
+    for axis in (-2, -1):
+        n = a.shape[axis]
+        pad = [(0, 0)] * a.ndim
+        pad[axis] = (radius + 1, radius)
+        c = np.cumsum(np.pad(a, pad), axis=axis)
+        hi = np.take(c, np.arange(2 * radius + 1, 2 * radius + 1 + n), axis=axis)
+        lo = np.take(c, np.arange(0, n), axis=axis)
+        a = hi - lo
+    return a
+
+
+def priority_cost(
+    priority: str, emission: np.ndarray, gsd: np.ndarray, nadir: np.ndarray, usable: np.ndarray
+) -> np.ndarray:
+    """Cost (views, rows, cols) of each view's ``priority`` at each post: emission or
+    off-nadir angle (degrees) / 90, GSD over the finest usable one at the post minus 1 (at
+    most 1), or :data:`ORDER_STEP` times the view's index. ``usable`` (views, rows, cols)
+    masks the views that can give the post."""
+    if priority == "emission":
+        return emission / 90.0
+    if priority == "nadir":
+        return nadir / 90.0
+    if priority == "order":
+        k = np.arange(len(usable), dtype=np.float64)[:, None, None]
+        return np.broadcast_to(ORDER_STEP * k, usable.shape).astype(np.float64)
+    g = np.where(usable, gsd, np.inf)
+    finest = g.min(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.minimum(gsd / np.where(np.isfinite(finest), finest, 1.0) - 1.0, 1.0)
+
+
+def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Each view's disagreement (views, rows, cols) in 0..1 with the median of the views that
+    see the post (mean over bands of :data:`DISAGREE` times the relative difference, capped)."""
+    stack = np.where(visible[:, None], values, np.nan)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        median = np.nanmedian(stack, axis=0)
+        rel = np.abs(stack - median) / (np.abs(stack) + np.abs(median) + 1e-12)
+    return np.nan_to_num(np.minimum(DISAGREE * rel, 1.0).mean(axis=1), nan=1.0)
+
+
+def labels(
+    cost: np.ndarray, visible: np.ndarray, values: np.ndarray, seamlines: bool
+) -> np.ndarray:
+    """The 0-based view of each post (-1 where none is ``visible``): least priority ``cost``,
+    or with ``seamlines`` least seam cost (module docstring)."""
+    if seamlines:
+        inside = box_sum(np.ones(visible.shape[1:], np.int8), SEAM_RADIUS)
+        seen = box_sum(visible, SEAM_RADIUS)
+        unseen = 1.0 - seen / inside
+        total = np.nan_to_num(cost, nan=0.0) + unseen + disagreement(values, visible)
+        q = np.where(visible, np.rint(total * QUANT), 0).astype(np.int64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cost = box_sum(q, SEAM_RADIUS) / box_sum(visible, SEAM_RADIUS)
+    cost = np.where(visible, cost, np.inf)
+    best = np.argmin(cost, axis=0)
+    return np.where(visible.any(axis=0), best, -1)
+
+
+def nadir_angle(
+    grid: Terrain, inner: tuple[slice, slice], camera: Camera, uv: np.ndarray
+) -> np.ndarray:
+    """Degrees between the local vertical and the direction to the camera at the posts
+    ``inner`` of ``grid``, imaged at ``uv`` (NaN where the camera does not image the post)."""
+    p = grid.world_points()[inner]
+    d = camera.origins(uv) - p
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    cos = np.einsum("...i,...i->...", d, grid.up_vectors(p))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def compose(
+    values: np.ndarray,
+    codes: np.ndarray,
+    emission: np.ndarray,
+    gsd: np.ndarray,
+    nadir: np.ndarray,
+    options: MosaicOptions,
+    correction: Correction | None = None,
+) -> Composite:
+    """Compose a mosaic window from per-view ``values`` (views, bands, rows, cols) float32
+    (each view's naive samples, NaN outside its image), visibility ``codes`` (views, rows,
+    cols), and the views' ``emission`` and ``nadir`` angles (degrees) and ``gsd`` (metres) at
+    each post, following ``options``, after ``correction``."""
+    if correction is not None:
+        values = correction.apply(values)
+    finite = np.isfinite(values).all(axis=1)
+    visible = (codes == Code.VISIBLE) & finite
+    cost = priority_cost(options.priority, emission, gsd, nadir, visible)
+    label = labels(cost, visible, values, options.seamlines)
+    n, bands, rows, cols = values.shape
+    onehot = label[None] == np.arange(n)[:, None, None]
+    if options.blend // 2:
+        votes = box_sum(onehot, options.blend // 2) * visible
+        votes = np.where(visible.any(axis=0), votes, 0)
+    else:
+        votes = onehot.astype(np.int64)
+    total = votes.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        weights = (votes / np.where(total > 0, total, 1)).astype(np.float32)
+    weights[:, total == 0] = onehot[:, total == 0]
+    data = np.einsum("krc,kbrc->brc", weights, np.where(visible[:, None], values, 0))
+    data = data.astype(np.float32)
+    flags = np.where(label >= 0, Flag.VISIBLE, Flag.EMPTY).astype(np.uint8)
+    data[:, label < 0] = np.nan
+    hole = label < 0
+    if options.fill != "none" and hole.any():
+        if options.fill == "any-view":
+            usable = (codes == Code.FACING_AWAY) & finite
+            fill_cost = np.where(usable, np.nan_to_num(cost, nan=np.inf), np.inf)
+            flag = Flag.ANY_VIEW
+        else:
+            usable = (codes != Code.NODATA) & finite
+            fill_cost = np.where(usable, nadir, np.inf)
+            flag = Flag.NAIVE
+        fill = np.argmin(fill_cost, axis=0)
+        fill = np.where(hole & usable.any(axis=0), fill, -1)
+        got = fill >= 0
+        rr, cc = np.nonzero(got)
+        data[:, rr, cc] = values[fill[got], :, rr, cc].T
+        weights[:, got] = fill[got][None] == np.arange(n)[:, None]
+        flags[got] = flag
+        label = np.where(got, fill, label)
+    return Composite(data, (label + 1).astype(np.int64), flags, weights)
+
+
+def pair_stats(values: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """Overlap statistics (views, views, bands, 5) float64: for each ordered pair (i, j) and
+    band, the posts both see, the sums of i's and of j's values, and of their squares (over
+    the posts of that pair), from ``values`` (views, bands, rows, cols) and ``codes``."""
+    n, bands = values.shape[:2]
+    visible = (codes == Code.VISIBLE) & np.isfinite(values).all(axis=1)
+    out = np.zeros((n, n, bands, 5))
+    for i in range(n):
+        for j in range(n):
+            both = visible[i] & visible[j]
+            if i == j or not both.any():
+                continue
+            a = values[i][:, both].astype(np.float64)
+            b = values[j][:, both].astype(np.float64)
+            out[i, j] = np.stack(
+                [np.full(bands, both.sum()), a.sum(1), b.sum(1), (a * a).sum(1), (b * b).sum(1)],
+                axis=1,
+            )
+    return out
+
+
+def _constrained(
+    rows: list[tuple[float, dict[int, float]]], n: int, reference: int | None
+) -> np.ndarray:
+    """Least squares of ``rows`` ((right-hand side, {unknown: coefficient})) over ``n``
+    unknowns x, with x[reference] = its target or (None) the unknowns' mean at the target;
+    targets are the rows' natural values: 1 for gains, 0 for offsets, given by the caller as
+    the last row (coefficient 1 of every unknown, or of the reference)."""
+    *eqs, (target, _) = rows
+    a = np.zeros((len(eqs) + n, n))
+    y = np.zeros(len(eqs) + n)
+    for m, (rhs, coef) in enumerate(eqs):
+        y[m] = rhs
+        for k, v in coef.items():
+            a[m, k] = v
+    # a faint pull of every unknown towards the target keeps views without overlaps defined
+    scale = 1e-6 * max(float(np.abs(a).max()), 1.0)
+    a[len(eqs) :] = scale * np.eye(n)
+    y[len(eqs) :] = scale * target
+    c = np.zeros((1, n))
+    if reference is None:
+        c[0] = 1.0 / n
+    else:
+        c[0, reference] = 1.0
+    kkt = np.block([[2 * a.T @ a, c.T], [c, np.zeros((1, 1))]])
+    rhs = np.concatenate([2 * a.T @ y, [target]])
+    return np.linalg.solve(kkt, rhs)[:n]
+
+
+def solve_balance(stats: np.ndarray, mode: str, reference: int | None) -> Correction:
+    """Per-view gains and offsets from :func:`pair_stats` (summed over windows): for every
+    overlapping pair, weighted by the root of its posts, gains match the means (``mode``
+    "gain") or the standard deviations ("gain-offset", whose offsets then match the means),
+    with view ``reference`` held fixed (gain 1, offset 0) or the mean gain 1 and offset 0."""
+    n, _, bands, _ = stats.shape
+    if reference is not None and reference >= n:
+        raise InputError(f"balance reference {reference + 1} is not one of the {n} views")
+    gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
+    for b in range(bands):
+        mean, std, weight = {}, {}, {}
+        for i in range(n):
+            for j in range(i + 1, n):
+                cnt, si, sj, qi, qj = stats[i, j, b]
+                if cnt < 2:
+                    continue
+                mean[i, j] = (si / cnt, sj / cnt)
+                std[i, j] = (
+                    np.sqrt(max(qi / cnt - (si / cnt) ** 2, 0.0)),
+                    np.sqrt(max(qj / cnt - (sj / cnt) ** 2, 0.0)),
+                )
+                weight[i, j] = np.sqrt(cnt)
+        match = std if mode == "gain-offset" else mean
+        rows = [
+            (0.0, {i: w * match[i, j][0], j: -w * match[i, j][1]}) for (i, j), w in weight.items()
+        ]
+        gains[:, b] = _constrained([*rows, (1.0, {})], n, reference)
+        if mode == "gain-offset":
+            g = gains[:, b]
+            rows = [
+                (-w * (g[i] * mean[i, j][0] - g[j] * mean[i, j][1]), {i: w, j: -w})
+                for (i, j), w in weight.items()
+            ]
+            offsets[:, b] = _constrained([*rows, (0.0, {})], n, reference)
+    return Correction(gains, offsets)
+
+
+def overlap_width(codes: np.ndarray, step: float = 1.0) -> float:
+    """Width of the widest overlap between two views, posts: twice the largest distance from
+    a post both see to one that one of them does not see, on a grid whose posts are ``step``
+    posts apart (``codes`` (views, rows, cols))."""
+    from scipy.ndimage import distance_transform_edt
+
+    visible = codes == Code.VISIBLE
+    widest = 0.0
+    for i in range(len(codes)):
+        for j in range(i + 1, len(codes)):
+            both = visible[i] & visible[j]
+            if both.any():
+                inner = np.pad(both, 1)
+                widest = max(widest, 2 * float(distance_transform_edt(inner).max()) * step)
+    return widest
+
+
+def clamp_blend(blend: int, widest: float) -> int:
+    """``blend``, or the ``widest`` overlap (posts, rounded down) with a
+    :class:`BlendWarning` when it is wider than that."""
+    if widest > 0 and blend > widest:
+        clamped = int(widest)
+        warnings.warn(
+            f"blend width {blend} posts is wider than the widest overlap between two images "
+            f"({widest:.0f} posts): blending over {clamped} posts",
+            BlendWarning,
+            stacklevel=3,
+        )
+        return clamped
+    return blend

@@ -1,0 +1,246 @@
+"""Seamless mosaics: tiled == untiled for every option, seams feathered, balance recovers a
+known gain and offset, holes filled only where the policy says (flagged), and a view never
+gives a post it calls occluded."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from orthomvp.camera import load_view
+from orthomvp.cli import main
+from orthomvp.codes import Code
+from orthomvp.engine import Outputs, plan_ortho, run_plan
+from orthomvp.mosaic import (
+    BALANCES,
+    FILLS,
+    PRIORITIES,
+    Flag,
+    MosaicOptions,
+    box_sum,
+    pair_stats,
+    solve_balance,
+)
+from orthomvp.ortho import mosaic, orthorectify
+from orthomvp.raster import write_geotiff
+from orthomvp.terrain import Terrain
+
+VIEWS = ("oblique", "nadir", "fore")
+
+
+def read(path: Path) -> np.ndarray:
+    with rasterio.open(path) as src:
+        return src.read()
+
+
+def engine_mosaic(
+    dem: Path, views: list, tmp_path: Path, name: str, tile: int = 64, **options: object
+) -> dict:
+    plan = plan_ortho(dem, views, tile=tile, progress=False, mosaic=MosaicOptions(**options))
+    kinds = ("ortho", "source", "visibility")
+    outputs = Outputs(**{k: tmp_path / f"{name}-{k}.tif" for k in kinds})
+    report = run_plan(plan, outputs, threads=2, progress=False)
+    return {k: read(tmp_path / f"{name}-{k}.tif") for k in kinds} | {"report": report}
+
+
+@pytest.fixture(scope="module")
+def views(crater_dir: Path) -> list[tuple[Path, Path]]:
+    return [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in VIEWS]
+
+
+@pytest.fixture(scope="module")
+def gained(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The nadir image times 1.3 plus 0.07 (camera copied)."""
+    out = tmp_path_factory.mktemp("gained")
+    image, _ = load_view(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")
+    with rasterio.open(crater_dir / "nadir.tif") as src:
+        transform, crs = src.transform, src.crs
+    write_geotiff(out / "nadir.tif", 1.3 * image + 0.07, transform, crs)
+    (out / "nadir.tsai").write_text((crater_dir / "nadir.tsai").read_text())
+    return out
+
+
+CASES = [
+    {},
+    {"priority": "nadir", "fill": "naive", "blend": 6},
+    {"priority": "gsd", "fill": "any-view", "balance": "gain-offset", "reference": 0},
+    {"priority": "order", "seamlines": False, "blend": 0, "balance": "gain"},
+]
+
+
+@pytest.mark.parametrize("options", CASES, ids=lambda o: ",".join(map(str, o.values())))
+def test_tiled_equals_untiled(crater_dir: Path, views: list, tmp_path: Path, options) -> None:
+    """Tiles of 16 posts (margins up to 12 posts around them) give the whole grid's mosaic;
+    without balance also the in-memory one's."""
+    tiled = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, "t", tile=16, **options)
+    whole = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, "w", tile=64, **options)
+    assert len(tiled["report"].counts) == 3 and tiled["report"].tiles_run == 16
+    np.testing.assert_array_equal(tiled["source"], whole["source"])
+    np.testing.assert_array_equal(np.isnan(tiled["ortho"]), np.isnan(whole["ortho"]))
+    np.testing.assert_allclose(tiled["ortho"], whole["ortho"], rtol=1e-6, equal_nan=True)
+    weights = tiled["source"][2:]
+    partial = ((weights > 0) & (weights < 255)).any()
+    assert partial if not options else not partial or options.get("blend", 8)
+    if "balance" not in options:
+        terrain = Terrain.read(crater_dir / "dem.tif")
+        memory = mosaic(terrain, [load_view(*v) for v in views], options=MosaicOptions(**options))
+        np.testing.assert_array_equal(whole["source"][0], memory.source)
+        np.testing.assert_array_equal(whole["source"][1], memory.flags)
+        np.testing.assert_allclose(whole["ortho"], memory.data, rtol=1e-6, equal_nan=True)
+
+
+def seam_steps(data: np.ndarray, source: np.ndarray) -> tuple[float, float]:
+    """Median absolute difference of neighbouring posts across a change of source view, and
+    between neighbours of the same view."""
+    across, within = [], []
+    for a, b, sa, sb in (
+        (data[:, 1:], data[:, :-1], source[:, 1:], source[:, :-1]),
+        (data[1:], data[:-1], source[1:], source[:-1]),
+    ):
+        ok = (sa > 0) & (sb > 0) & np.isfinite(a) & np.isfinite(b)
+        across.append(np.abs(a - b)[ok & (sa != sb)])
+        within.append(np.abs(a - b)[ok & (sa == sb)])
+    return float(np.median(np.concatenate(across))), float(np.median(np.concatenate(within)))
+
+
+def test_blending_removes_the_seam_step(crater_dir: Path, gained: Path, tmp_path: Path) -> None:
+    """Two views 30% apart in gain: a hard seam shows the step, a 16-post feather does not."""
+    views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
+    views.append((gained / "nadir.tif", gained / "nadir.tsai"))
+    dem = crater_dir / "dem.tif"
+    hard = engine_mosaic(dem, views, tmp_path, "hard", tile=32, blend=0)
+    soft = engine_mosaic(dem, views, tmp_path, "soft", tile=32, blend=16)
+    step_hard, within_hard = seam_steps(hard["ortho"][0], hard["source"][0])
+    step_soft, within_soft = seam_steps(soft["ortho"][0], soft["source"][0])
+    figures = (step_hard, within_hard, step_soft, within_soft)
+    assert step_hard > 2 * within_hard and step_soft < 1.2 * within_soft, figures
+    # the same labels, only the values near seams change
+    np.testing.assert_array_equal(hard["source"][0], soft["source"][0])
+
+
+def test_balance_recovers_a_known_gain_and_offset(
+    crater_dir: Path, gained: Path, tmp_path: Path
+) -> None:
+    """The nadir image scaled by 1.3 and shifted by 0.07, oblique held fixed: the correction
+    found undoes exactly that, on top of the one the untouched pair needs (near identity)."""
+    dem, oblique = crater_dir / "dem.tif", (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
+    nadir = (crater_dir / "nadir.tif", crater_dir / "nadir.tsai")
+    changed = (gained / "nadir.tif", gained / "nadir.tsai")
+    for mode in ("gain-offset", "gain"):
+        base = engine_mosaic(dem, [oblique, nadir], tmp_path, "b", balance=mode, reference=0)
+        got = engine_mosaic(dem, [oblique, changed], tmp_path, "g", balance=mode, reference=0)
+        g0, o0 = base["report"].correction.gains[1], base["report"].correction.offsets[1]
+        g1, o1 = got["report"].correction.gains[1], got["report"].correction.offsets[1]
+        assert abs(g0[0] - 1) < 0.05 and abs(o0[0]) < 0.05  # same sensor model: near identity
+        if mode == "gain-offset":
+            np.testing.assert_allclose(g1, g0 / 1.3, rtol=1e-4)
+            np.testing.assert_allclose(o1, o0 - g1 * 0.07, atol=1e-5)
+            both = np.isfinite(base["ortho"]) & np.isfinite(got["ortho"])
+            np.testing.assert_allclose(got["ortho"][both], base["ortho"][both], atol=1e-4)
+        assert got["report"].correction.gains[0] == pytest.approx(1.0)
+
+
+def test_solve_balance_exact() -> None:
+    """Three views of one random scene, two altered by known gains and offsets: the solve
+    undoes them with the first view held fixed, and centres them with the mean held."""
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(10, 200, (2, 40, 50)).astype(np.float32)
+    gains, offsets = np.array([1.0, 0.8, 1.25]), np.array([0.0, 12.0, -5.0])
+    values = np.stack([g * truth + o for g, o in zip(gains, offsets, strict=True)])
+    codes = np.full((3, 40, 50), Code.VISIBLE, np.uint8)
+    codes[1, :, :10] = Code.OCCLUDED
+    codes[2, :20] = Code.NODATA
+    stats = pair_stats(values.astype(np.float32), codes)
+    fixed = solve_balance(stats, "gain-offset", 0)
+    np.testing.assert_allclose(fixed.gains[:, 0], 1 / gains, rtol=1e-5)
+    np.testing.assert_allclose(fixed.offsets[:, 0], -offsets / gains, atol=1e-3)
+    mean = solve_balance(stats, "gain-offset", None)
+    assert mean.gains.mean(axis=0) == pytest.approx([1, 1]) and abs(mean.offsets.mean()) < 1e-6
+    corrected = mean.apply(values)
+    np.testing.assert_allclose(corrected[1], corrected[0], rtol=1e-4)
+
+
+def test_box_sum_is_exact_and_zero_off_the_grid() -> None:
+    a = np.arange(30).reshape(5, 6)
+    got = box_sum(a, 1)
+    padded = np.pad(a, 1)
+    expected = sum(padded[i : i + 5, j : j + 6] for i in range(3) for j in range(3))
+    np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("fill", FILLS)
+def test_fill_policies_and_occlusion(crater_dir: Path, tmp_path: Path, fill) -> None:
+    """Values only where the rule says, flagged; a view gives weight only to posts it sees
+    (naive fills, flagged, excepted); filled values are that view's naive orthophoto. The
+    oblique view twice: the crater's only view with hidden posts (the others see all)."""
+    views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")] * 2
+    got = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, fill, tile=32, fill=fill)
+    data, src, codes = got["ortho"], got["source"], got["visibility"]
+    view, flags, weights = src[0].astype(int), src[1], src[2:]
+    visible = codes == Code.VISIBLE
+    hole = ~visible.any(axis=0)
+    assert hole.sum() > 50
+    filled = np.isfinite(data).all(axis=0)
+    np.testing.assert_array_equal(filled & ~hole, ~hole)
+    np.testing.assert_array_equal(flags[~hole], Flag.VISIBLE)
+    expect = {"none": Flag.EMPTY, "any-view": Flag.ANY_VIEW, "naive": Flag.NAIVE}[fill]
+    if fill == "none":
+        rule = np.zeros_like(hole)
+    elif fill == "any-view":
+        rule = hole & (codes == Code.FACING_AWAY).any(axis=0)
+    else:
+        rule = hole & (codes != Code.NODATA).any(axis=0)
+    np.testing.assert_array_equal(filled & hole, rule)
+    np.testing.assert_array_equal(flags[rule], expect)
+    assert not flags[hole & ~rule].any() and not view[hole & ~rule].any()
+    blended = flags == Flag.VISIBLE
+    for k in range(len(views)):
+        # weights only where the view sees the post (fills: only the chosen view)
+        assert not (weights[k][blended] > 0)[~visible[k][blended]].any()
+        if fill != "none":
+            mine = rule & (view == k + 1)
+            if fill == "any-view":
+                assert (codes[k][mine] == Code.FACING_AWAY).all()
+            else:
+                assert (codes[k][mine] != Code.NODATA).all()
+            if mine.any():
+                image, camera = load_view(*views[k])
+                naive = orthorectify(
+                    Terrain.read(crater_dir / "dem.tif"), image, camera, occlusion=False
+                )
+                np.testing.assert_allclose(data[:, mine], naive.data[:, mine], rtol=1e-6)
+    if fill == "naive":
+        assert rule.sum() > 0 and (codes[view[rule] - 1, rule] == Code.OCCLUDED).any()
+    if fill == "any-view":
+        assert rule.sum() > 0
+
+
+def test_cli_options_and_errors(crater_dir: Path, tmp_path: Path, capsys) -> None:
+    pairs = [str(crater_dir / f"{v}.{e}") for v in ("oblique", "nadir") for e in ("tif", "tsai")]
+    dem, out = str(crater_dir / "dem.tif"), str(tmp_path / "m.tif")
+    base = ["-q", "mosaic", dem, *pairs, "-o", out, "--overwrite"]
+    args = ["--priority", "nadir", "--balance", "gain", "--balance-reference", "2"]
+    assert main([*base, *args, "--fill", "naive", "--source", str(tmp_path / "s.tif")]) == 0
+    src = read(tmp_path / "s.tif")
+    assert src.shape[0] == 4 and set(np.unique(src[1])) <= {0, 1, 3}
+    capsys.readouterr()
+    assert main([*base, "--blend", "500"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "wider than the widest overlap" in err[0], err
+    for bad, word in (
+        (["--blend", "-2"], "--blend"),
+        (["--priority", "best"], "--priority"),
+        (["--fill", "all"], "--fill"),
+        (["--balance-reference", "3"], "3"),
+        (["--balance-reference", "x"], "--balance-reference"),
+    ):
+        assert main([*base, *bad]) == 2, bad
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert word in lines[-1], lines
+    from orthomvp.cli import ortho as cli_ortho
+
+    assert cli_ortho.PRIORITIES == PRIORITIES and cli_ortho.FILLS == FILLS
+    assert cli_ortho.BALANCES == ("none", *BALANCES)
