@@ -330,6 +330,16 @@ def atomic_path(path: str | Path, size: int | None = None) -> Iterator[Path]:
         yield tmp
 
 
+def write_set(writers: dict[Path, Callable[[Path], object]]) -> None:
+    """Write several files as one atomic set: each ``writers[path](tmp)`` writes its
+    temporary file; all are renamed onto their paths only when all were written (see
+    :func:`atomic_paths`); a failure is one OutputError naming the file."""
+    with atomic_paths(list(writers)) as temps:
+        for (path, write), tmp in zip(writers.items(), temps, strict=True):
+            with writing(path):
+                write(tmp)
+
+
 @contextlib.contextmanager
 def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
     """Yield a temporary name beside ``path`` (see :func:`temp_name`) for work files that

@@ -110,10 +110,12 @@ def _error(message: object, status: int = EXIT_USER) -> int:
 
 
 def _os_error_text(exc: OSError) -> str:
-    """``PATH: cause`` of an OSError that names a file, its own text otherwise."""
-    if exc.filename is not None and exc.strerror:
-        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
-    return str(exc)
+    """``PATH: cause`` of an OSError that names a file, the cause alone otherwise (never the
+    raw ``[Errno N]`` text)."""
+    if not exc.strerror:
+        return str(exc)
+    cause = f"{exc.strerror[:1].lower()}{exc.strerror[1:]}"
+    return f"{exc.filename}: {cause}" if exc.filename is not None else cause
 
 
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
