@@ -7,7 +7,7 @@ failure never leaves a half-written file at the destination:
 - outputs are written to hidden temporary files beside their targets, named with the process
   id (:func:`temp_name`), and renamed onto the targets only when all of them were written;
 - a failure, SIGINT or SIGTERM removes them, and creating or removing one is never cut in
-  half by a signal (:func:`signals_held`); what a killed run (SIGKILL) left is removed by the
+  half by a signal (:class:`HeldSignals`); what a killed run (SIGKILL) left is removed by the
   next run writing the same output (:func:`remove_stale`);
 - a failed write is one OutputError naming the output and the cause ("cannot write out.tif:
   no space left on device (needs up to 145 MB)"), and what GDAL and libtiff print about it
@@ -16,6 +16,7 @@ failure never leaves a half-written file at the destination:
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import errno
 import itertools
@@ -43,7 +44,7 @@ from orthomvp.errors import InputError, OrthoMVPError, OutputError
 from orthomvp.isis import read_cube
 
 SIGNALS_HELD = (signal.SIGINT, signal.SIGTERM)
-"""The signals that :func:`signals_held` holds (Ctrl-C, and ``timeout``'s or a scheduler's)."""
+"""The signals that :class:`HeldSignals` holds (Ctrl-C, and ``timeout``'s or a scheduler's)."""
 TEMP_TAG = "orthomvp"
 """Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME."""
 _HOST = f"{zlib.crc32(socket.gethostname().encode()):08x}"
@@ -76,38 +77,91 @@ def _deliver(signum: int, handler: Any, frame: FrameType | None) -> None:
         signal.raise_signal(signum)
 
 
-@contextlib.contextmanager
-def signals_held() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM within the block and deliver them after it to the handlers of
-    before, so that the block (creating a temporary file and noting its name, or removing it)
-    is never cut in half. Only the main thread runs Python's signal handlers: in other
-    threads nothing can interrupt, and nothing is held."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    previous: dict[int, Any] = {}
-    done = False
+class HeldSignals:
+    """Within the block, SIGINT and SIGTERM are held, and delivered at its end to the handlers
+    of before; within :meth:`released` (the long work, such as writing the file) they are
+    not. So everything around that work (creating a temporary file and noting its name,
+    renaming it, removing it) is never cut in half by a signal: one arriving there waits,
+    and one arriving during the work raises where the clean-up that follows is held again.
+    Only the main thread runs Python's signal handlers: elsewhere nothing is held."""
 
-    def hold(signum: int, frame: FrameType | None) -> None:
-        if done:  # arrived while the handlers of before were being put back
-            _deliver(signum, previous[signum], frame)
-        else:
-            held.append(signum)
+    def __init__(self) -> None:
+        self.previous: dict[int, Any] = {}
+        self.held: list[int] = []
+        self.holding = False
 
-    try:
-        for sig in SIGNALS_HELD:
-            handler = signal.getsignal(sig)
-            if handler is not None:  # None: not installed from Python, cannot be put back
-                previous[sig] = handler
-                signal.signal(sig, hold)
-        yield
-    finally:
-        done = True
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        for sig in dict.fromkeys(held):
-            signal.raise_signal(sig)
+    def _hold(self, signum: int, frame: FrameType | None) -> None:
+        if self.holding:
+            self.held.append(signum)
+        else:  # left installed: a signal cut short putting the handlers back
+            _deliver(signum, self.previous[signum], frame)
+
+    def __enter__(self) -> HeldSignals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in SIGNALS_HELD:
+                handler = signal.getsignal(sig)
+                if handler is None:  # not installed from Python: cannot be put back
+                    continue
+                if handler != self._hold:  # (still installed if putting it back was cut)
+                    self.previous[sig] = handler
+                signal.signal(sig, self._hold)
+            self.holding = True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if not self.holding:  # released, and never taken back (see released)
+            return
+        self.holding = False
+        try:
+            for sig, handler in self.previous.items():
+                signal.signal(sig, handler)
+        finally:
+            held, self.held = self.held, []
+            for sig in dict.fromkeys(held):
+                signal.raise_signal(sig)
+
+    @contextlib.contextmanager
+    def released(self) -> Iterator[None]:
+        """Within this block the signals are not held (those held so far are delivered)."""
+        self.__exit__()
+        try:
+            yield
+        except GeneratorExit:  # closed by the garbage collector, long after: leave them alone
+            raise
+        except BaseException:
+            self.__enter__()
+            raise
+        self.__enter__()
+
+
+_pending: dict[Path, None] = {}
+"""This process's temporary outputs (files and directories) not yet renamed or removed."""
+
+
+def _new_temp(path: Path, tag: str = "") -> Path:
+    """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
+    tmp = temp_name(path, tag)
+    _pending[tmp] = None
+    return tmp
+
+
+def _drop(tmp: Path) -> None:
+    """Remove a temporary output (call with signals held)."""
+    _remove(tmp)
+    _pending.pop(tmp, None)
+
+
+def remove_temporaries() -> None:
+    """The last resort after an interrupt: remove every temporary output of this process that
+    is still there, and give file descriptor 2 back if it is captured (see :func:`writing`).
+
+    A signal that arrives just as a ``with`` block ends (in contextlib, before it resumes the
+    generator that would clean up) leaves that clean-up to the garbage collector, which may
+    run late or not at all; the command line calls this before it reports the interrupt, and
+    it runs at exit."""
+    for tmp in list(_pending):
+        _drop(tmp)
+    _end_capture()
 
 
 def temp_name(path: Path, tag: str = "") -> Path:
@@ -213,7 +267,8 @@ def _failed(chatter: str) -> bool:
     )
 
 
-_capture = threading.local()
+_capture: dict[str, int | None] = {"fd": None, "saved": None}
+"""The capture of file descriptor 2: its file in memory, and the real stderr."""
 _capture_lock = threading.RLock()
 
 
@@ -223,28 +278,31 @@ def _stderr_captured() -> Iterator[Callable[[], str]]:
     memory; yields a function returning what was printed so far. Blocks of other threads wait;
     nested blocks share the outer one's capture."""
     with _capture_lock:
-        if getattr(_capture, "fd", None) is not None:
-            start = os.lseek(_capture.fd, 0, os.SEEK_CUR)
-            fd = _capture.fd
+        if (fd := _capture["fd"]) is not None:
+            start = os.lseek(fd, 0, os.SEEK_CUR)
             yield lambda: os.pread(fd, 1 << 16, start).decode(errors="replace")
             return
-        saved = fd = None
-        try:
-            with signals_held():
+        with HeldSignals() as held:
+            try:
                 sys.stderr.flush()
-                fd = _memory_file()
-                saved = os.dup(2)
+                fd = _capture["fd"] = _memory_file()
+                _capture["saved"] = os.dup(2)
                 os.dup2(fd, 2)
-                _capture.fd = fd
-            yield lambda: os.pread(fd, 1 << 16, 0).decode(errors="replace")
-        finally:
-            with signals_held():
-                _capture.fd = None
-                if saved is not None:
-                    os.dup2(saved, 2)
-                    os.close(saved)
-                if fd is not None:
-                    os.close(fd)
+                with held.released():
+                    yield lambda: os.pread(fd, 1 << 16, 0).decode(errors="replace")
+            finally:
+                _end_capture()
+
+
+def _end_capture() -> None:
+    """Give file descriptor 2 back, if it is captured (call with signals held)."""
+    fd, saved = _capture["fd"], _capture["saved"]
+    _capture.update(fd=None, saved=None)
+    if saved is not None:
+        os.dup2(saved, 2)
+        os.close(saved)
+    if fd is not None:
+        os.close(fd)
 
 
 def _memory_file() -> int:
@@ -291,34 +349,32 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
             raise InputError(f"{target}: output directory {target.parent} does not exist")
     temps: list[Path] = []
     target = targets[0]
-    try:
-        per_dir: dict[Path, list] = {}  # the first target of each directory, and the total
-        for target, size in itertools.zip_longest(targets, need[: len(targets)], fillvalue=0):
-            per_dir.setdefault(target.parent, [target, 0])[1] += size
-        for target, total in per_dir.values():
-            check_space(target, total)
-        with signals_held():
+    with HeldSignals() as held:
+        try:
+            per_dir: dict[Path, list] = {}  # the first target of each directory, and the total
+            for target, size in itertools.zip_longest(targets, need[: len(targets)], fillvalue=0):
+                per_dir.setdefault(target.parent, [target, 0])[1] += size
+            for target, total in per_dir.values():
+                check_space(target, total)
             for target in targets:
                 remove_stale(target)
-                temps.append(temp_name(target))  # noted before it exists: removed in any case
+                temps.append(_new_temp(target))  # noted before it exists: removed in any case
                 os.close(os.open(temps[-1], os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
-        yield temps
-        mode = 0o666 & ~_umask()
-        for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
-            os.chmod(tmp, mode)
-        with signals_held():
-            for target, tmp in zip(targets, temps, strict=True):
+            with held.released():
+                yield temps
+            mode = 0o666 & ~_umask()
+            for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
+                os.chmod(tmp, mode)
                 os.replace(tmp, target)
-    except OrthoMVPError:
-        raise
-    except OSError as exc:
-        if exc.filename is not None and Path(exc.filename) not in temps:
+        except OrthoMVPError:
             raise
-        raise write_error(target, exc) from exc
-    finally:
-        with signals_held():
+        except OSError as exc:
+            if exc.filename is not None and Path(exc.filename) not in temps:
+                raise
+            raise write_error(target, exc) from exc
+        finally:
             for tmp in temps:
-                _remove(tmp)
+                _drop(tmp)
 
 
 @contextlib.contextmanager
@@ -344,15 +400,13 @@ def write_set(writers: dict[Path, Callable[[Path], object]]) -> None:
 def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
     """Yield a temporary name beside ``path`` (see :func:`temp_name`) for work files that
     make ``path``; whatever was written there is removed after the block."""
-    tmp: Path | None = None
-    try:
-        with signals_held():
-            tmp = temp_name(Path(path), tag)
-        yield tmp
-    finally:
-        with signals_held():
-            if tmp is not None:
-                _remove(tmp)
+    with HeldSignals() as held:
+        tmp = _new_temp(Path(path), tag)
+        try:
+            with held.released():
+                yield tmp
+        finally:
+            _drop(tmp)
 
 
 @contextlib.contextmanager
@@ -370,29 +424,31 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
         raise InputError(f"{path}: exists and is not a directory")
     check_space(path)
     tmp: Path | None = None
-    try:
-        with signals_held():
+    with HeldSignals() as held:
+        try:
             remove_stale(path)
-            tmp = temp_name(path)
+            tmp = _new_temp(path)
             tmp.mkdir()
-        yield tmp
-        os.chmod(tmp, 0o777 & ~_umask())
-        with signals_held():
+            with held.released():
+                yield tmp
+            os.chmod(tmp, 0o777 & ~_umask())
             if path.exists():
                 for item in tmp.iterdir():
                     os.replace(item, path / item.name)
             else:
                 os.replace(tmp, path)
-    except OutputError as exc:
-        raise OutputError(str(exc).replace(str(tmp), str(path))) from exc.__cause__
-    except OSError as exc:
-        if tmp is None or not str(exc.filename or "").startswith(str(tmp)):
-            raise
-        raise write_error(path / Path(exc.filename).relative_to(tmp), exc) from exc
-    finally:
-        with signals_held():
+        except OutputError as exc:
+            raise OutputError(str(exc).replace(str(tmp), str(path))) from exc.__cause__
+        except OSError as exc:
+            if tmp is None or not str(exc.filename or "").startswith(str(tmp)):
+                raise
+            raise write_error(path / Path(exc.filename).relative_to(tmp), exc) from exc
+        finally:
             if tmp is not None:
-                _remove(tmp)
+                _drop(tmp)
+
+
+atexit.register(remove_temporaries)
 
 
 def open_raster(path: str | Path) -> rasterio.DatasetReader:

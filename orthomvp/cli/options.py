@@ -335,7 +335,9 @@ def check_directory(path: Path, what: str) -> None:
         problem = "is not a directory" if directory.exists() else "does not exist"
         raise usage_error(f"{what}: the directory {directory} {problem}")
     if not os.access(directory, os.W_OK | os.X_OK):
-        raise usage_error(f"{what}: cannot write in the directory {directory} (permission denied)")
+        read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
+        cause = "a read-only file system" if read_only else "permission denied"
+        raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
     from orthomvp.raster import check_space
 
     check_space(path)
