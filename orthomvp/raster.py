@@ -207,12 +207,14 @@ def remove_stale(path: Path) -> list[Path]:
 
 
 def _remove(tmp: Path) -> None:
-    """Remove a temporary file (with the .aux.xml sidecar GDAL may leave) or directory."""
+    """Remove a temporary file (with the .aux.xml sidecar GDAL may leave) or directory, if
+    there. A failure is not reported: the error that led here is the one to report (and on
+    a read-only file system even removing what is not there fails)."""
     if tmp.is_dir() and not tmp.is_symlink():
         shutil.rmtree(tmp, ignore_errors=True)
-    else:
-        tmp.unlink(missing_ok=True)
-    Path(f"{tmp}.aux.xml").unlink(missing_ok=True)
+    for name in (tmp, Path(f"{tmp}.aux.xml")):
+        with contextlib.suppress(OSError):
+            name.unlink()
 
 
 def _size_text(size: int) -> str:
