@@ -260,11 +260,11 @@ def write_error(
 
 
 def _failed(chatter: str) -> bool:
-    """Whether what GDAL and libtiff printed tells of a failure (not of a mere warning)."""
+    """Whether what GDAL and libtiff printed tells of a failed write: libtiff's I/O procedures
+    (``_tiffWriteProc``, ``_tiffSeekProc``) complain only then, and so does a cause of
+    :data:`_CAUSES`. (Other messages, which GDAL recovers from, are let through.)"""
     return any(
-        line.startswith("ERROR")
-        or (line.startswith(("_tiff", "TIFF")) and "Warning," not in line)
-        or any(os.strerror(c) in line for c in _CAUSES)
+        line.startswith("_tiff") or any(os.strerror(c) in line for c in _CAUSES)
         for line in chatter.splitlines()
     )
 
