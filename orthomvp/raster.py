@@ -248,8 +248,9 @@ def write_error(
     code = exc.errno if isinstance(exc, OSError) and not isinstance(exc, CPLE_BaseError) else None
     if code is None:
         code = next((c for c in _CAUSES if os.strerror(c) in chatter), None)
-    if code is None and shutil.disk_usage(path.parent).free == 0:
-        code = errno.ENOSPC
+    if code is None:
+        with contextlib.suppress(OSError):
+            code = errno.ENOSPC if shutil.disk_usage(path.parent).free == 0 else None
     if code is not None:
         cause = _CAUSES.get(code) or os.strerror(code).lower()
     else:  # a GDAL error without an errno: its own words, without pointers to other lines
@@ -351,6 +352,7 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
             raise InputError(f"{target}: output directory {target.parent} does not exist")
     temps: list[Path] = []
     target = targets[0]
+    own = True  # whether an OSError is of creating or renaming (the block's pass through)
     with HeldSignals() as held:
         try:
             per_dir: dict[Path, list] = {}  # the first target of each directory, and the total
@@ -362,8 +364,10 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
                 remove_stale(target)
                 temps.append(_new_temp(target))  # noted before it exists: removed in any case
                 os.close(os.open(temps[-1], os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            own = False
             with held.released():
                 yield temps
+            own = True
             mode = 0o666 & ~_umask()
             for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
                 os.chmod(tmp, mode)
@@ -371,7 +375,7 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
         except OrthoMVPError:
             raise
         except OSError as exc:
-            if exc.filename is not None and Path(exc.filename) not in temps:
+            if not own:
                 raise
             raise write_error(target, exc) from exc
         finally:
