@@ -12,17 +12,21 @@ from __future__ import annotations
 import csv
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orthomvp.codes import classify
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
-from orthomvp.raster import atomic_path
+from orthomvp.raster import write_set
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
 from orthomvp.validate import number
 from orthomvp.visibility import Visibility, compute_visibility
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DEFAULT_EPS_VALUES = tuple(np.round(np.geomspace(0.02, 20, 19), 3))
 CSV_FIELDS = (
@@ -87,18 +91,30 @@ def _values(values: object) -> tuple:
     return values
 
 
-def write_csv(rows: list[dict], path: str | Path) -> None:
-    """Write the study as CSV."""
+def save(rows: list[dict], table: str | Path, figure: str | Path, title: str = "") -> None:
+    """Write the study as CSV (``table``) and its :func:`plot` (``figure``, PNG or another
+    format matplotlib writes, by the suffix), atomically as a set."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
     writer.writeheader()
     for r in rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    with atomic_path(path) as tmp:
-        tmp.write_text(buf.getvalue())
+    fig = plot(rows, title)
+    fmt = Path(figure).suffix.lstrip(".") or "png"
+    try:
+        write_set(
+            {
+                Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
+                Path(figure): lambda tmp: fig.savefig(tmp, dpi=90, format=fmt),
+            }
+        )
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
 
 
-def plot(rows: list[dict], path: str | Path, title: str = "") -> None:
+def plot(rows: list[dict], title: str = "") -> Figure:
     """F1 of 'visible' and of 'hidden' against epsilon, one line per view and noise level;
     the default rule's score marked at the median epsilon it used."""
     import matplotlib
@@ -132,6 +148,4 @@ def plot(rows: list[dict], path: str | Path, title: str = "") -> None:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(title or "visibility test against marched truth (dotted: default rule)")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format=Path(path).suffix.lstrip(".") or "png")
-    plt.close(fig)
+    return fig

@@ -8,6 +8,7 @@ are its own.)"""
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import shutil
@@ -15,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterator
 from contextlib import redirect_stderr, redirect_stdout
 from io import StringIO
 from pathlib import Path
@@ -206,6 +208,11 @@ def test_exit_status_of_each_kind_of_failure(
         (MemoryError, 1, ("out of memory",)),
         (KeyboardInterrupt, 130, ("interrupted; no partial output was kept",)),
         (SystemExit, 143, ("interrupted; no partial output was kept",)),
+        (
+            lambda text: OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)),
+            2,
+            ("orthomvp: error: no space left on device",),
+        ),
     ):
         monkeypatch.setattr(orthomvp.engine.tile, "compute_visibility", fail(kind))
         assert_refused(run(*args), status, *words)
@@ -288,3 +295,418 @@ def test_a_signal_during_a_long_command_keeps_nothing(
     assert proc.returncode == status, err
     assert err == "orthomvp: interrupted; no partial output was kept\n"
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------- the output writer
+def hidden(directory: Path) -> list[str]:
+    """Hidden entries (temporary files) under ``directory``."""
+    return sorted(str(p.relative_to(directory)) for p in directory.rglob(".*"))
+
+
+def one_line(result: tuple[int, str, str], capfd: pytest.CaptureFixture, *words: object) -> str:
+    """Exit 2 and one error line with the words; nothing GDAL or libtiff printed reached the
+    real stderr (file descriptor 2, where they print)."""
+    line = assert_refused(result, 2, *words)
+    printed = capfd.readouterr().err
+    assert "_tiff" not in printed and "TIFF" not in printed and "Errno" not in line, printed
+    return line
+
+
+@pytest.fixture
+def disk(tmp_path: Path) -> Iterator[Callable[[int], Path]]:
+    """``disk(free)``: a real 256 kB tmpfs with about ``free`` bytes left, mounted under
+    ``tmp_path`` (root only; skips elsewhere, where the monkeypatched tests stand in)."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("mounting a small tmpfs needs root; the monkeypatched full disk stands in")
+    proc = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)], capture_output=True
+    )
+    if proc.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({proc.stderr.strip()!r}); monkeypatched stands in")
+
+    def fill(free: int) -> Path:
+        for p in mnt.iterdir():
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        now = shutil.disk_usage(mnt).free
+        with open(mnt / "fill", "wb") as fh:
+            fh.write(bytes(max(now - free, 0)))
+        return mnt
+
+    try:
+        yield fill
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=True)
+
+
+def test_a_full_disk_is_refused_before_any_work(
+    scene: Path, crater_dir: Path, disk: Callable[[int], Path], capfd: pytest.CaptureFixture
+) -> None:
+    full = disk(0)
+    dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+    cases = [
+        (["visibility", dem, image, camera, "-o", full / "v.tif"], "v.tif"),
+        (["ortho", dem, image, camera, "-o", full / "o.tif"], "o.tif"),
+        (["mosaic", dem, *views(scene), "-o", scene / "m.tif", "--source", full / "s.tif"],
+         "s.tif"),
+        (["fit", dem, *views(scene), "-o", full / "f.tif"], "f.tif"),
+        (["fit", dem, *views(scene), "-o", scene / "f.tif", "--uncertainty", full / "u.tif"],
+         "u.tif"),
+        (["mesh", dem, "-o", full / "m.obj"], "m.obj"),
+        (["render", dem, "-o", full / "r.png"], "r.png"),
+        (["synth", "crater", full / "s"], "s"),
+        (["demo", full / "d"], "d"),
+        (["eps-study", crater_dir, "-o", full / "e"], "e.csv"),
+    ]  # fmt: skip
+    for args, name in cases:
+        one_line(run(*args), capfd, f"cannot write {full / name}: no space left on device")
+        assert sorted(p.name for p in full.iterdir()) == ["fill"], args
+    assert not (scene / "m.tif").exists() and not (scene / "f.tif").exists()
+
+
+@pytest.mark.slow
+def test_a_disk_that_fills_up_while_writing(
+    scene: Path, crater_dir: Path, disk: Callable[[int], Path], capfd: pytest.CaptureFixture
+) -> None:
+    """About 40 kB free (12 kB for eps-study): enough to start, not to finish. GDAL's and
+    libtiff's complaints (also of a failure they do not raise) become one line naming the
+    output."""
+    dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+    cases = [
+        (lambda d: ["ortho", dem, image, camera, "-o", d / "o.tif", "--visibility", d / "v.tif"]),
+        (lambda d: ["ortho", dem, image, camera, "-o", d / "o.tif", "--format", "gtiff",
+                    "--compress", "none"]),
+        (lambda d: ["mosaic", dem, *views(scene), "-o", d / "m.tif", "--source", d / "s.tif"]),
+        (lambda d: ["mesh", dem, "-o", d / "m.obj", "--texture", dem]),
+        (lambda d: ["mesh", dem, "-o", d / "m.ply", "--texture", dem]),
+        (lambda d: ["mesh", dem, "-o", d / "m.glb"]),
+        (lambda d: ["synth", "crater", d / "s", "--size", "64"]),
+    ]  # fmt: skip
+    # the table fits, its plot not
+    cases.append(lambda d: ["eps-study", crater_dir, "-o", d / "e", "--eps", "1"])
+    for case in cases:
+        full = disk(12_000 if case is cases[-1] else 40_000)
+        args = case(full)
+        line = one_line(run(*args), capfd, "cannot write", "no space left on device")
+        assert str(full) in line
+        assert sorted(p.name for p in full.iterdir()) == ["fill"], (args, line)
+
+
+def test_a_failing_write_is_one_line_naming_the_output(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture
+) -> None:
+    """Where no small disk can be mounted: GDAL's write and Python's fail with ENOSPC."""
+    import rasterio.io
+
+    def full(*a: object, **k: object) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.setattr(rasterio.io.DatasetWriter, "write", full)
+    line = one_line(
+        run("visibility", dem, image, camera, "-o", out / "v.tif"),
+        capfd,
+        f"cannot write {out / 'v.tif'}: no space left on device (needs up to",
+    )
+    assert line.endswith("kB)")
+    monkeypatch.setattr(Path, "write_bytes", full)
+    one_line(
+        run("mesh", dem, "-o", out / "m.ply"),
+        capfd,
+        f"cannot write {out / 'm.ply'}: no space left on device (needs up to",
+    )
+    assert list(out.iterdir()) == []
+
+
+def test_what_gdal_and_libtiff_print_becomes_the_error(
+    tmp_path: Path, capfd: pytest.CaptureFixture
+) -> None:
+    """libtiff prints its I/O errors on file descriptor 2 and GDAL may not raise (a full disk
+    at close): within :func:`orthomvp.raster.writing` they become one OutputError naming the
+    output and the cause, and nothing reaches stderr; messages of no failure pass through."""
+    from orthomvp.errors import OutputError
+    from orthomvp.raster import writing
+
+    out = tmp_path / "o.tif"
+    with pytest.raises(OutputError) as caught:
+        with writing(out, 145_000_000):
+            os.write(2, b"_tiffSeekProc: No space left on device.\n" * 3)
+    assert str(caught.value) == (
+        f"cannot write {out}: no space left on device (needs up to 145 MB)"
+    )
+    with pytest.raises(OutputError, match=f"cannot write {out}: disk quota exceeded$"):
+        with writing(out):
+            os.write(2, f"TIFFAppendToStrip: {os.strerror(errno.EDQUOT)}.\n".encode())
+            raise __import__("rasterio").errors.RasterioIOError("Write failed. See previous")
+    assert capfd.readouterr().err == ""
+    with writing(out):
+        os.write(2, b"Warning 1: something GDAL recovered from\n")
+    assert capfd.readouterr().err == "Warning 1: something GDAL recovered from\n"
+
+
+def test_the_second_of_two_outputs_failing_keeps_neither(
+    scene: Path, crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture,
+) -> None:  # fmt: skip
+    """The second output fails when it is created, or at its first tile: the first one,
+    written or not, is not kept either."""
+    import rasterio
+    import rasterio.io
+
+    out = tmp_path / "out"
+    out.mkdir()
+    second = ("second.tif", "second.png")
+    opened, written = rasterio.open, rasterio.io.DatasetWriter.write
+
+    def fail_second(name: object) -> None:
+        if Path(str(name)).name.startswith(tuple(f".{s}." for s in second)):
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+
+    def open_(path: object, mode: str = "r", *a: object, **k: object) -> object:
+        if mode == "w":
+            fail_second(path)
+        return opened(path, mode, *a, **k)
+
+    def write(self: rasterio.io.DatasetWriter, *a: object, **k: object) -> None:
+        fail_second(self.name)
+        written(self, *a, **k)
+
+    def savefig(self: object, fname: object, *a: object, **k: object) -> None:
+        fail_second(fname)
+        Path(str(fname)).write_bytes(b"png")
+
+    dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+    first, sec = out / "first.tif", out / "second.tif"
+    cases = [
+        (rasterio, "open", open_, ["ortho", dem, image, camera, "-o", first, "--visibility", sec]),
+        (rasterio.io.DatasetWriter, "write", write,
+         ["ortho", dem, image, camera, "-o", first, "--visibility", sec]),
+        (rasterio.io.DatasetWriter, "write", write,
+         ["mosaic", dem, *views(scene), "-o", first, "--source", sec]),
+        (rasterio, "open", open_,
+         ["-q", "fit", dem, *views(scene), "-o", first, "--cost", sec]),
+        (rasterio, "open", open_,
+         ["-q", "fit", dem, *views(scene), "-o", first, "--uncertainty", sec]),
+        (__import__("matplotlib.figure").figure.Figure, "savefig", savefig,
+         ["eps-study", crater_dir, "-o", out / "second", "--eps", "1"]),
+    ]  # fmt: skip
+    for owner, name, fake, args in cases:
+        with monkeypatch.context() as patch:
+            patch.setattr(owner, name, fake)
+            path = out / "second.png" if "eps-study" in args else sec
+            one_line(run(*args), capfd, f"cannot write {path}: input/output error")
+        assert list(out.iterdir()) == [], args
+    # mesh: the OBJ and its .mtl are written, its texture image fails
+    real_write_bytes = Path.write_bytes
+
+    def write_bytes(self: Path, data: bytes) -> int:
+        if self.name.startswith(".m.png."):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    one_line(
+        run("mesh", dem, "-o", out / "m.obj", "--texture", dem),
+        capfd,
+        f"cannot write {out / 'm.png'}: no space left on device",
+    )
+    assert list(out.iterdir()) == []
+
+
+def test_a_read_only_directory(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture
+) -> None:
+    """Refused before any work; and when it became read-only after that check, the write
+    fails with one line naming the output. Root writes anywhere on a writable file system,
+    so as root the directory is a read-only tmpfs; as a user, a directory without write
+    permission."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    if os.geteuid() == 0:
+        proc = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(locked)],
+            capture_output=True,
+        )
+        if proc.returncode:
+            pytest.skip(f"cannot mount a read-only tmpfs here ({proc.stderr.strip()!r})")
+        cause = "read-only file system"
+    else:
+        locked.chmod(0o555)
+        cause = "permission denied"
+    try:
+        dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+        args = ["visibility", dem, image, camera, "-o", locked / "v.tif"]
+        refused = "a read-only file system" if os.geteuid() == 0 else cause
+        one_line(run(*args), capfd, locked, f"cannot write in the directory {locked}", refused)
+        monkeypatch.setattr(os, "access", lambda *a, **k: True)
+        one_line(run(*args), capfd, f"cannot write {locked / 'v.tif'}: {cause}")
+        assert list(locked.iterdir()) == []
+    finally:
+        if os.geteuid() == 0:
+            subprocess.run(["umount", "-l", str(locked)], check=True)
+
+
+def test_stale_temporaries_of_a_killed_run_are_removed(scene: Path, tmp_path: Path) -> None:
+    """A run killed with SIGKILL in the middle of its write leaves its temporary file; the
+    next run writing that output removes it (its process is gone), not one of a live run;
+    so are temporary directories (synth, demo)."""
+    from orthomvp.raster import temp_name
+
+    out = tmp_path / "out"
+    out.mkdir()
+    image, camera, *_ = views(scene)
+    script = (
+        "import os, signal, sys, rasterio.io\n"
+        "write = rasterio.io.DatasetWriter.write\n"
+        "def killed(self, *a, **k):\n"
+        "    write(self, *a, **k)\n"
+        "    os.kill(os.getpid(), signal.SIGKILL)\n"
+        "rasterio.io.DatasetWriter.write = killed\n"
+        "from orthomvp.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    args = ["visibility", scene / "dem.tif", image, camera, "-o", out / "v.tif"]
+    proc = subprocess.run(
+        [sys.executable, "-c", script, *map(str, args)], capture_output=True, timeout=120
+    )
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    stale = leftovers(out)
+    assert stale and all(name.startswith(".v.tif.orthomvp-") for name in stale), stale
+    live = temp_name(out / "v.tif")  # this process's: alive
+    live.write_bytes(b"in progress")
+    code, _, err = run(*args)
+    assert code == 0, err
+    assert leftovers(out) == [live.name] and (out / "v.tif").is_file()
+    # a temporary directory (synth, demo) of a process that is gone
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    name = temp_name(out / "scene").name.replace(f"-{os.getpid()}-", f"-{gone.pid}-", 1)
+    (out / name / "sub").mkdir(parents=True)
+    code, _, err = run("-q", "synth", "planar", out / "scene", "--size", "16")
+    assert code == 0, err
+    assert leftovers(out) == [live.name] and (out / "scene" / "dem.tif").is_file()
+
+
+def _traced(files: tuple[str, ...], at: int, sig: signal.Signals, opcodes: bool) -> list[int]:
+    """Trace lines (or opcodes) in ``files``; at event number ``at`` raise ``sig`` in this
+    process. Returns a one-item list counting the events seen, growing while tracing."""
+    seen = [0]
+
+    def trace(frame, event, arg):  # noqa: ANN001, ANN202
+        if frame.f_code.co_filename not in files:
+            return None
+        frame.f_trace_opcodes = opcodes
+        if event in ("line", "opcode"):
+            seen[0] += 1
+            if seen[0] == at:
+                signal.raise_signal(sig)
+        return trace
+
+    sys.settrace(trace)
+    return seen
+
+
+def signal_at_every_step(
+    write: Callable[[], None],
+    check: Callable[[], None],
+    out: Path,
+    opcodes: bool,
+    signals: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM),
+) -> int:
+    """Run ``write`` again and again with each of ``signals`` (SIGTERM with the CLI's handler, see
+    :func:`orthomvp.cli.sigterm_raises`) raised at its first, second, ... traced step in the
+    output writer (``orthomvp.raster`` and contextlib), until a run ends before the step;
+    after an interrupt, :func:`orthomvp.raster.remove_temporaries` runs, as the CLI runs it.
+    After each: the signal was not lost, the handlers of before still get the signals,
+    stderr is the one of before, no temporary file is left, and ``check`` passes. Returns the
+    number of steps."""
+    import contextlib as ctx
+
+    import orthomvp.raster
+    from orthomvp.cli import Terminated, sigterm_raises
+
+    files = (orthomvp.raster.__file__, ctx.__file__)
+    stderr = os.fstat(2)
+    kinds = {signal.SIGINT: KeyboardInterrupt, signal.SIGTERM: Terminated}
+    for sig in signals:
+        kind, at = kinds[sig], 1
+        while True:
+            with sigterm_raises():
+                seen = _traced(files, at, sig, opcodes)
+                try:
+                    write()
+                    interrupted = False
+                except kind:
+                    interrupted = True
+                    orthomvp.raster.remove_temporaries()  # as orthomvp.cli.main does
+                finally:
+                    sys.settrace(None)
+                # the handlers of before still get the signals
+                with pytest.raises(KeyboardInterrupt):
+                    signal.raise_signal(signal.SIGINT)
+                if interrupted and sig == signal.SIGTERM:  # the CLI's handler: once only
+                    assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+                else:
+                    with pytest.raises(Terminated):
+                        signal.raise_signal(signal.SIGTERM)
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            assert interrupted == (seen[0] >= at), f"{sig.name} at step {at} was lost"
+            assert (os.fstat(2).st_ino, os.fstat(2).st_dev) == (stderr.st_ino, stderr.st_dev)
+            assert hidden(out) == [], f"{sig.name} at step {at} of {seen[0]}"
+            check()
+            if not interrupted:
+                break
+            at += 1
+    return at
+
+
+def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: Path) -> None:
+    """SIGTERM (with the CLI's handler) arriving at every line of creating, writing, renaming
+    and removing a set of two outputs: both or neither are there, and no temporary file
+    (SIGINT at every opcode: the slow test below)."""
+    from orthomvp.raster import write_set
+
+    out = tmp_path / "out"
+    out.mkdir()
+    a, b = out / "a.txt", out / "b.txt"
+
+    def write() -> None:
+        for p in (a, b):
+            p.unlink(missing_ok=True)
+        write_set({a: lambda t: t.write_text("a"), b: lambda t: t.write_text("b")})
+
+    def check() -> None:
+        assert sorted(p.name for p in out.iterdir()) in ([], ["a.txt", "b.txt"])
+        assert not a.exists() or (a.read_text(), b.read_text()) == ("a", "b")
+
+    assert signal_at_every_step(write, check, out, False, (signal.SIGTERM,)) > 100
+
+
+@pytest.mark.slow
+def test_a_signal_at_any_opcode_of_write_geotiff_leaves_nothing_partial(tmp_path: Path) -> None:
+    """The race of issue 16: SIGINT at every bytecode instruction of
+    :func:`orthomvp.raster.write_geotiff`'s temporary file handling never leaves
+    ``.o.tif.*.tif``; the output is there complete or not at all."""
+    import numpy as np
+    import rasterio
+    from affine import Affine
+
+    from orthomvp.raster import write_geotiff
+
+    out = tmp_path / "out"
+    out.mkdir()
+    data = np.arange(64, dtype=np.float32).reshape(8, 8)
+
+    def write() -> None:
+        (out / "o.tif").unlink(missing_ok=True)
+        write_geotiff(out / "o.tif", data, Affine(1, 0, 0, 0, -1, 0), "EPSG:4326")
+
+    def check() -> None:
+        if (out / "o.tif").exists():
+            with rasterio.open(out / "o.tif") as src:
+                assert (src.read(1) == data).all()
+
+    assert signal_at_every_step(write, check, out, True, (signal.SIGINT,)) > 1000

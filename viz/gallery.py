@@ -18,7 +18,7 @@ from PIL import Image
 
 from orthomvp.camera import read_camera
 from orthomvp.demo import run_demo
-from orthomvp.epsstudy import eps_study, plot, write_csv
+from orthomvp.epsstudy import eps_study, save
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
 from orthomvp.raster import read_image
 from orthomvp.synthetic import make_scene
@@ -54,9 +54,9 @@ def eps_pictures(tmp: Path) -> None:
     scene = tmp / "crater"
     make_scene("crater").write(scene)
     rows = eps_study(scene, noise=(0.0, 5.0, 10.0))
-    write_csv(rows, HERE / "eps-study.csv")
-    plot(
+    save(
         rows,
+        HERE / "eps-study.csv",
         HERE / "eps-study.png",
         "crater scene, oblique view: visibility test vs marched truth (dotted: default)",
     )

@@ -10,7 +10,8 @@ Every error is one line on stderr, and the exit status says what kind it was:
   library reports (bad files, impossible geometry, an output that cannot be written:
   ``orthomvp: error: message``);
 - 130 on Ctrl-C (SIGINT), 143 on SIGTERM (as sent by ``timeout``, batch schedulers and Dask's
-  nanny): ``orthomvp: interrupted; no partial output was kept``. SIGTERM raises
+  nanny): ``orthomvp: interrupted; no partial output was kept`` (any temporary output
+  whose clean-up the signal cut short is removed first). SIGTERM raises
   :class:`Terminated`, a ``KeyboardInterrupt``, so that everything that cleans up on Ctrl-C
   (the atomic outputs' temporary files, thread pools) cleans up on SIGTERM too.
 
@@ -81,6 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OSError as exc:  # from a library below us, e.g. a file that vanished
             return _error(_os_error_text(exc))
         except (KeyboardInterrupt, click.exceptions.Abort) as exc:
+            _remove_temporaries()
             print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
             return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
         except MemoryError as exc:
@@ -102,6 +104,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _remove_temporaries() -> None:
+    """:func:`orthomvp.raster.remove_temporaries`, when that module was imported (``--help``
+    and usage errors do not import it)."""
+    raster = sys.modules.get("orthomvp.raster")
+    if raster is not None:
+        raster.remove_temporaries()
+
+
 def _error(message: object, status: int = EXIT_USER) -> int:
     """Report ``message`` as one line on stderr; returns ``status``."""
     text = " ".join(str(message).split())
@@ -110,10 +120,12 @@ def _error(message: object, status: int = EXIT_USER) -> int:
 
 
 def _os_error_text(exc: OSError) -> str:
-    """``PATH: cause`` of an OSError that names a file, its own text otherwise."""
-    if exc.filename is not None and exc.strerror:
-        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
-    return str(exc)
+    """``PATH: cause`` of an OSError that names a file, the cause alone otherwise (never the
+    raw ``[Errno N]`` text)."""
+    if not exc.strerror:
+        return str(exc)
+    cause = f"{exc.strerror[:1].lower()}{exc.strerror[1:]}"
+    return f"{exc.filename}: {cause}" if exc.filename is not None else cause
 
 
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:

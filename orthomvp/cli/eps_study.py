@@ -57,8 +57,7 @@ def eps_study(
     check_outputs([Output("-o", csv, ()), Output("-o", png, ())])
     values = eps or epsstudy.DEFAULT_EPS_VALUES
     rows = epsstudy.eps_study(scene, eps_values=values, noise=dem_noise)
-    epsstudy.write_csv(rows, csv)
-    epsstudy.plot(rows, png)
+    epsstudy.save(rows, csv, png)
     for r in rows:
         if r["eps"] == "default":
             print(

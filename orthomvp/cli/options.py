@@ -324,7 +324,7 @@ def check_outputs(
                 f"{path}: {out.option} writes {out.name}; name it "
                 f"{' or '.join(out.suffixes)}" + (f", not {path.suffix}" if path.suffix else "")
             )
-        check_directory(path.parent, f"{path}: {out.option}")
+        check_directory(path, f"{path}: {out.option}")
 
 
 def check_outdir(path: Path, option: str) -> None:
@@ -332,17 +332,23 @@ def check_outdir(path: Path, option: str) -> None:
     is missing or not writable (a usage error naming it)."""
     if path.exists() and not path.is_dir():
         raise usage_error(f"{path}: {option} is a file, not a directory")
-    check_directory(path.parent, f"{path}: {option}")
+    check_directory(path, f"{path}: {option}")
 
 
-def check_directory(directory: Path, what: str) -> None:
-    """A usage error ``"{what} ..."`` unless ``directory`` exists and is writable."""
-    directory = directory if str(directory) else Path(".")
+def check_directory(path: Path, what: str) -> None:
+    """A usage error ``"{what} ..."`` unless the directory of the output ``path`` exists and
+    is writable; an OutputError naming ``path`` when its disk has no space left."""
+    directory = path.parent
     if not directory.is_dir():
         problem = "is not a directory" if directory.exists() else "does not exist"
         raise usage_error(f"{what}: the directory {directory} {problem}")
     if not os.access(directory, os.W_OK | os.X_OK):
-        raise usage_error(f"{what}: cannot write in the directory {directory} (permission denied)")
+        read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
+        cause = "a read-only file system" if read_only else "permission denied"
+        raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
+    from orthomvp.raster import check_space
+
+    check_space(path)
 
 
 def same_file(a: Path, b: Path) -> bool:

@@ -7,8 +7,6 @@ a run's outputs are renamed onto their targets only when all of them succeeded.
 from __future__ import annotations
 
 import contextlib
-import os
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +22,7 @@ from orthomvp.engine.grid import OutputGrid
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
-from orthomvp.raster import atomic_path
+from orthomvp.raster import atomic_paths, check_written, scratch_path, writing
 
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
@@ -165,11 +163,24 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
     return [make[kind](path) for kind, path in outputs.paths().items()]
 
 
-class _Output:
-    """One output being written: its dataset open for windowed writes."""
+def _size(layer: Layer, grid: OutputGrid, outputs: Any) -> int:
+    """Bytes an output takes on disk at most while it is written: uncompressed, with its
+    overviews, and for a COG twice (the tiled work file and the copy)."""
+    rows, cols = grid.shape
+    size = rows * cols * layer.count * np.dtype(layer.dtype).itemsize * 4 // 3
+    return 2 * size if outputs.format == "cog" else size
 
-    def __init__(self, layer: Layer, grid: OutputGrid, outputs: Any, final: Path, work: Path):
+
+class _Output:
+    """One output being written: its dataset open for windowed writes. Every step that
+    writes reports a failure as one OutputError naming the output (see
+    :func:`orthomvp.raster.writing`)."""
+
+    def __init__(
+        self, layer: Layer, grid: OutputGrid, outputs: Any, final: Path, work: Path, size: int
+    ):
         self.layer, self.final, self.work, self.outputs = layer, final, work, outputs
+        self.size = size
         self.dtype, self.resampling = layer.dtype, layer.resampling
         rows, cols = grid.shape
         self.profile = {
@@ -186,18 +197,31 @@ class _Output:
             "blockysize": outputs.blocksize,
             **_creation(outputs, self.dtype),
         }
-        self.dataset = rasterio.open(work, "w", **self.profile)
-        for band, name in enumerate(layer.names, start=1):
-            self.dataset.set_band_description(band, name)
+        with writing(layer.path, size):
+            self.dataset = rasterio.open(work, "w", **self.profile)
+            for band, name in enumerate(layer.names, start=1):
+                self.dataset.set_band_description(band, name)
 
     def write(self, result: Any) -> None:
         r0, r1, c0, c1 = result.window
         data = self.layer.data(result)
         data = data[None] if data.ndim == 2 else data
-        self.dataset.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
+        with writing(self.layer.path, self.size):
+            self.dataset.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
+
+    def close(self) -> None:
+        """Close the dataset after a failure, quietly (its temporary file goes anyway)."""
+        with contextlib.suppress(OSError), writing(self.layer.path):
+            self.dataset.close()
 
     def finish(self) -> None:
-        """Overviews, then (COG) the streaming copy onto the final temporary file."""
+        """Overviews, then (COG) the streaming copy onto the final temporary file; then the
+        final file is checked to open (see :func:`orthomvp.raster.check_written`)."""
+        with writing(self.layer.path, self.size):
+            self._finish()
+            check_written(self.final)
+
+    def _finish(self) -> None:
         factors = _overview_factors(self.dataset.shape, self.outputs.blocksize)
         self.dataset.close()
         if self.outputs.format == "gtiff":
@@ -244,20 +268,17 @@ def output_files(grid: OutputGrid, layers: list[Layer], outputs: Any) -> Iterato
     are made and every output is renamed onto its target; when anything fails, no target is
     touched and every temporary file is removed."""
     with contextlib.ExitStack() as stack:
+        sizes = [_size(layer, grid, outputs) for layer in layers]
+        # what surely is needed: only uncompressed sizes are known before writing
+        need = sizes if outputs.compress == "none" else []
+        finals = stack.enter_context(atomic_paths([layer.path for layer in layers], need))
         items = []
-        for layer in layers:
-            path = layer.path
-            final = stack.enter_context(atomic_path(path))
+        for layer, final, size in zip(layers, finals, sizes, strict=True):
             work = final
             if outputs.format == "cog":
-                fd, name = tempfile.mkstemp(
-                    prefix=f".{path.name}.", suffix=".tiled.tif", dir=final.parent
-                )
-                os.close(fd)
-                work = Path(name)
-                stack.callback(work.unlink, missing_ok=True)
-            item = _Output(layer, grid, outputs, final, work)
-            stack.callback(item.dataset.close)
+                work = stack.enter_context(scratch_path(layer.path, ".tiled"))
+            item = _Output(layer, grid, outputs, final, work, size)
+            stack.callback(item.close)
             items.append(item)
         yield Writer(items)
         for item in items:

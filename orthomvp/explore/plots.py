@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from orthomvp.explore.session import Curve, ExploreError, PathPoint, Surface
-from orthomvp.raster import atomic_path
+from orthomvp.raster import write_set
 
 FORMATS = ("png", "svg", "pdf")
 
@@ -31,19 +31,25 @@ class Plot:
 
     def save(self, path: str | Path) -> tuple[Path, Path]:
         """Write the figure (format from the suffix: PNG, SVG or PDF) and the data as CSV beside
-        it (same name, ``.csv``); both atomically. Returns both paths."""
+        it (same name, ``.csv``), atomically as a set. Returns both paths."""
         path = Path(path)
         fmt = path.suffix.lower().lstrip(".")
         if fmt not in FORMATS:
             raise ExploreError(f"save: {path.name}: use a .png, .svg or .pdf name")
         data = path.with_suffix(".csv")
-        with atomic_path(path) as tmp:
-            self.figure.savefig(tmp, format=fmt, dpi=110)
-        with atomic_path(data) as tmp, open(tmp, "w", newline="") as fh:
+        write_set(
+            {
+                path: lambda tmp: self.figure.savefig(tmp, format=fmt, dpi=110),
+                data: self._write_csv,
+            }
+        )
+        return path, data
+
+    def _write_csv(self, path: Path) -> None:
+        with open(path, "w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(self.header)
             writer.writerows(self.rows)
-        return path, data
 
 
 def _title(ax, what: str, where: str) -> None:  # noqa: ANN001

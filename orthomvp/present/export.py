@@ -6,6 +6,7 @@ trimesh, Open3D and scipy.spatial are imported only here, when a mesh is written
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,7 +16,7 @@ from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh
 from orthomvp.optional import require
 from orthomvp.present.colours import NAN_RGB, post_colours
-from orthomvp.raster import atomic_path
+from orthomvp.raster import atomic_path, write_set
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -67,8 +68,9 @@ def export_mesh(
         # offset, in full precision, as the node's transform.
         scene = trimesh.Scene()
         scene.add_geometry(mesh, transform=trimesh.transformations.translation_matrix(offset))
-        with atomic_path(path) as tmp:
-            tmp.write_bytes(scene.export(file_type="glb"))
+        blob = scene.export(file_type="glb")
+        with atomic_path(path, size=len(blob)) as tmp:
+            tmp.write_bytes(blob)
         return
     mesh.vertices = mesh.vertices + offset
     if suffix == ".obj":
@@ -125,22 +127,21 @@ def write_ply(mesh: trimesh.Trimesh, path: str | Path) -> None:
         "property list uchar int vertex_indices",
         "end_header\n",
     ]
-    with atomic_path(path) as tmp:
-        tmp.write_bytes("\n".join(header).encode("ascii") + vert.tobytes() + face.tobytes())
+    blob = "\n".join(header).encode("ascii") + vert.tobytes() + face.tobytes()
+    with atomic_path(path, size=len(blob)) as tmp:
+        tmp.write_bytes(blob)
 
 
 def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
-    """OBJ with its material and texture image beside it, each file written atomically."""
+    """OBJ with its material and texture image beside it, atomic as a set: all files are
+    renamed only when all were written (see :func:`orthomvp.raster.write_set`)."""
     from trimesh.exchange.obj import export_obj
 
     text, files = export_obj(
         mesh, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl"
     )
-    for name, blob in files.items():
-        with atomic_path(path.parent / name) as tmp:
-            tmp.write_bytes(blob)
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+    blobs = {path: text.encode(), **{path.parent / name: blob for name, blob in files.items()}}
+    write_set({target: functools.partial(Path.write_bytes, data=b) for target, b in blobs.items()})
 
 
 def decimate(

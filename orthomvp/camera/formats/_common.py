@@ -133,9 +133,7 @@ def build_distortion(
 
 def write_text(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8, ``\\n`` line ends) to ``path`` through
-    :func:`orthomvp.raster.atomic_path`; InputError if it cannot be written."""
-    try:
-        with atomic_path(path) as tmp:
-            tmp.write_text(text, encoding="utf-8", newline="\n")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot write camera file ({exc.strerror})") from exc
+    :func:`orthomvp.raster.atomic_path`; OutputError (naming the path and the cause) if it
+    cannot be written."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8", newline="\n")
