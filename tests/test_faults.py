@@ -412,7 +412,10 @@ def test_a_failing_write_is_one_line_naming_the_output(
         f"cannot write {out / 'v.tif'}: no space left on device (needs up to",
     )
     assert line.endswith("kB)")
+    import orthomvp.mesh_stream
+
     monkeypatch.setattr(Path, "write_bytes", full)
+    monkeypatch.setattr(orthomvp.mesh_stream, "open", full, raising=False)  # the streamed PLY
     one_line(
         run("mesh", dem, "-o", out / "m.ply"),
         capfd,

@@ -23,7 +23,7 @@ LAYERS = [
     ("orthomvp.mosaic",),
     ("orthomvp.ortho", "orthomvp.mvp"),
     ("orthomvp.engine", "orthomvp.explore", "orthomvp.present", "orthomvp.synthetic"),
-    ("orthomvp.epsstudy", "orthomvp.check"),
+    ("orthomvp.epsstudy", "orthomvp.check", "orthomvp.mesh_stream"),
     ("orthomvp.bench", "orthomvp.demo"),
     ("orthomvp.cli",),
     ("orthomvp.__main__",),

@@ -99,6 +99,9 @@ def mesh(
     inputs = [("DEM", dem.path), ("--texture", texture), ("--error-against", error_against)]
     mesh_output = Output("-o", output, MESH_SUFFIXES, "a mesh")
     check_outputs([mesh_output], inputs, overwrite)
+    if output.suffix.lower() == ".ply" and decimate is None:
+        _stream(dem, output, texture, error_against, kind, error_limit, local_origin)
+        return
     terrain = dem.read()
     tmesh = terrain_mesh(terrain)
     if error_against:
@@ -122,3 +125,36 @@ def mesh(
         print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
     if local_origin:
         print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*tmesh.origin))
+
+
+def _stream(
+    dem: DemInput,
+    output: Path,
+    texture: Path | None,
+    error_against: Path | None,
+    kind: str,
+    error_limit: float | None,
+    local_origin: bool,
+) -> None:
+    """A PLY of any DEM size, block by block (:mod:`orthomvp.mesh_stream`)."""
+    from orthomvp.codes import WorldFrame
+    from orthomvp.engine.grid import scan_dem
+    from orthomvp.mesh_stream import code_colours, image_stretch, write_ply_stream
+    from orthomvp.mesh_stream import error_against as error_colours_of
+
+    world = WorldFrame.BODY if dem.world == "auto" else WorldFrame(dem.world)
+    source = scan_dem(dem.path, dem.crs, dem.radius_values, world)
+    colours, limit = None, None
+    if error_against:
+        truth = scan_dem(error_against, dem.crs, dem.radius_values, world)
+        colours, limit = error_colours_of(truth, source, error_limit)
+    elif texture and kind == "visibility":
+        colours = code_colours(texture, source.shape)
+    elif texture:
+        colours = image_stretch(texture, source.shape)
+    n_vert, n_face, origin = write_ply_stream(source, output, colours=colours, local=local_origin)
+    print(f"wrote {output}: {n_vert:,} vertices, {n_face:,} triangles")
+    if limit is not None:
+        print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
+    if local_origin:
+        print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*origin))

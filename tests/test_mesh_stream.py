@@ -1,0 +1,81 @@
+"""The streamed PLY of a DEM (orthomvp.mesh_stream) is byte for byte the file that the in-memory
+mesh and its PLY writer make, also with holes in the DEM and blocks of a few rows."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+import orthomvp.mesh_stream as mesh_stream
+from orthomvp.engine.grid import scan_dem
+from orthomvp.mesh import terrain_mesh
+from orthomvp.present.colours import height_error
+from orthomvp.present.export import export_mesh
+from orthomvp.raster import read_image
+from orthomvp.terrain import Terrain
+
+
+def _holey(crater_dir: Path, tmp_path: Path) -> Path:
+    """The crater DEM with holes (a block, a row, scattered posts) and a gap at one corner."""
+    with rasterio.open(crater_dir / "dem.tif") as src:
+        profile, values = src.profile, src.read(1).astype(np.float32)
+    values[10:14, 20:30] = np.nan
+    values[40, :] = np.nan
+    values[np.random.default_rng(1).random(values.shape) < 0.01] = np.nan
+    values[:3, :5] = np.nan
+    profile.update(dtype="float32", nodata=np.nan)
+    path = tmp_path / "holey.tif"
+    with rasterio.open(path, "w", **profile) as dst:
+        dst.write(values, 1)
+    return path
+
+
+@pytest.mark.parametrize("local", [False, True])
+@pytest.mark.parametrize("colour", ["none", "image", "visibility", "error"])
+def test_streamed_ply_equals_the_in_memory_file(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, local: bool, colour: str
+) -> None:
+    monkeypatch.setattr(mesh_stream, "BLOCK_POSTS", 64 * 7)  # 7 rows a block: many blocks
+    dem = _holey(crater_dir, tmp_path)
+    source = scan_dem(dem)
+    terrain = Terrain.read(dem)
+    texture, colours, kind = None, None, "image"
+    if colour == "image":
+        colours = mesh_stream.image_stretch(crater_dir / "truth_radiance.tif", source.shape)
+        texture = read_image(crater_dir / "truth_radiance.tif")
+    elif colour == "visibility":
+        colours = mesh_stream.code_colours(crater_dir / "oblique.visibility.tif", source.shape)
+        texture, kind = read_image(crater_dir / "oblique.visibility.tif"), "visibility"
+    elif colour == "error":
+        truth = crater_dir / "dem.tif"
+        colours, limit = mesh_stream.error_against(scan_dem(truth), source, None)
+        texture, kind = height_error(terrain, Terrain.read(truth)), "error"
+    n_vert, n_face, origin = mesh_stream.write_ply_stream(
+        source, tmp_path / "a.ply", colours=colours, local=local
+    )
+    tmesh = terrain_mesh(terrain)
+    export_mesh(tmesh, tmp_path / "b.ply", texture=texture, local=local, colour_kind=kind)
+    assert (n_vert, n_face) == (len(tmesh.vertices), len(tmesh.faces))
+    np.testing.assert_array_equal(origin, tmesh.origin)
+    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+
+
+def test_the_mesh_command_streams_plys(crater_dir: Path, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    """`orthomvp mesh -o X.ply` never builds the whole mesh in memory."""
+    import orthomvp.mesh
+    from orthomvp.cli import cli
+
+    def refuse(*a: object, **k: object) -> None:
+        raise AssertionError("the whole mesh was built")
+
+    monkeypatch.setattr(orthomvp.mesh, "terrain_mesh", refuse)
+    out = tmp_path / "m.ply"
+    from click.testing import CliRunner
+
+    result = CliRunner().invoke(cli, ["mesh", str(crater_dir / "dem.tif"), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "4,096 vertices, 7,938 triangles" in result.output
+    assert out.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
