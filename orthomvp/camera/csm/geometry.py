@@ -18,11 +18,12 @@ pixels (u, v) = (column, row) put it at (0, 0): u = sample - 0.5, v = line - 0.5
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
 from orthomvp.camera.csm.distortion import CsmDistortion
-from orthomvp.camera.csm.ephemeris import lagrange, lagrange_weights, xyzw_matrix
+from orthomvp.camera.csm.ephemeris import lagrange_polynomials, polynomial_values, xyzw_matrix
 from orthomvp.errors import InputError
 
 EDGE = 1e-6
@@ -204,25 +205,30 @@ class Trajectory:
         end_q = self.t0_quat + (len(self.quaternions) - 1) * self.dt_quat
         return max(self.t0_ephem, self.t0_quat), min(end_e, end_q)
 
+    @cached_property
+    def _position_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.positions, self.order)
+
+    @cached_property
+    def _velocity_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.velocities, self.order)
+
+    @cached_property
+    def _quaternion_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.quaternions, self.order)
+
     def position(self, t: np.ndarray) -> np.ndarray:
         """Sensor positions (M, 3), metres, at times ``t`` (M,)."""
-        nodes, w = lagrange_weights(
-            t, self.t0_ephem, self.dt_ephem, len(self.positions), self.order
-        )
-        return lagrange(self.positions, nodes, w)
+        return polynomial_values(self._position_poly, t, self.t0_ephem, self.dt_ephem)
 
     def velocity(self, t: np.ndarray) -> np.ndarray:
         """Sensor velocities (M, 3), m/s, at times ``t`` (M,)."""
-        nodes, w = lagrange_weights(
-            t, self.t0_ephem, self.dt_ephem, len(self.positions), self.order
-        )
-        return lagrange(self.velocities, nodes, w)
+        return polynomial_values(self._velocity_poly, t, self.t0_ephem, self.dt_ephem)
 
     def rotation(self, t: np.ndarray) -> np.ndarray:
         """Camera-to-body rotation matrices (M, 3, 3) at times ``t`` (M,)."""
-        order = self.order if len(self.quaternions) >= 2 else 4
-        nodes, w = lagrange_weights(t, self.t0_quat, self.dt_quat, len(self.quaternions), order)
-        return xyzw_matrix(lagrange(self.quaternions, nodes, w))
+        q = polynomial_values(self._quaternion_poly, t, self.t0_quat, self.dt_quat)
+        return xyzw_matrix(q)
 
 
 @dataclass(frozen=True, eq=False)

@@ -31,6 +31,10 @@ PRECISION = 1e-6
 """usgscsm's desired precision of ground to image, lines."""
 _MAX_SECANT = 15  # usgscsm's iteration limit
 _CONVERGED = 1e-3  # lines: a larger final correction means the iteration failed (NaN)
+_MAX_POLISH = 4  # exact Newton steps after the table's iteration (one suffices on orbits)
+_POLISH_MARGIN = 0.5  # lines beyond the image where a table solution is still polished
+TABLE_KNOTS = 1024
+"""Fewest knots of the sensor-state table (one per line for longer images)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,20 +148,55 @@ class LineScanCamera(CsmImage):
             self.look_sign * cam[:, 2],
         )
 
-    def _approximate_line(self, xyz: np.ndarray) -> np.ndarray:
-        """A first line for every point: of 33 lines spread over the image, the one whose
-        exposure sees the point closest to the detector line (sensor states computed once)."""
-        candidates = np.linspace(0.0, float(self.lines), 33)
-        t = self.image_time(candidates)
-        positions, rotations = self.trajectory.position(t), self.trajectory.rotation(t)
-        best, best_err = np.full(len(xyz), self.lines / 2.0), np.full(len(xyz), np.inf)
-        for c, p, r in zip(candidates, positions, rotations, strict=True):
-            cam = (xyz - p) @ r
-            dx, dy = self.focal_plane.view(cam)
-            err = np.abs(self.focal_plane.detector_line(dx, dy))
-            better = (err < best_err) & (self.look_sign * cam[:, 2] > 0)
-            best, best_err = np.where(better, c, best), np.where(better, err, best_err)
-        return best
+    @cached_property
+    def _table(self) -> tuple[float, np.ndarray]:
+        """Sensor states sampled along the image for ground to image: the knot spacing in
+        CSM lines (one line, finer for images of fewer than :data:`TABLE_KNOTS` lines) and the
+        positions (metres) and camera-to-body rotations (row-major) at the knots, (knots, 12)."""
+        step = min(1.0, self.lines / TABLE_KNOTS)
+        knots = np.linspace(0.0, float(self.lines), round(self.lines / step) + 1)
+        t = self.image_time(knots)
+        states = np.hstack(
+            [self.trajectory.position(t), self.trajectory.rotation(t).reshape(-1, 9)]
+        )
+        return float(knots[1] - knots[0]), states
+
+    def _table_error(self, line: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+        """:meth:`_line_error`'s detector line offset (M,) with the sensor state interpolated
+        linearly between the knots of :attr:`_table` (extrapolated beyond the image)."""
+        step, states = self._table
+        x = line / step
+        k = np.clip(np.floor(np.nan_to_num(x)), 0, len(states) - 2).astype(np.int64)
+        lo = states[k]
+        s = lo + (x - k)[:, None] * (states[k + 1] - lo)
+        rel = xyz - s[:, :3]
+        cam = [
+            s[:, 3 + i] * rel[:, 0] + s[:, 6 + i] * rel[:, 1] + s[:, 9 + i] * rel[:, 2]
+            for i in range(3)
+        ]
+        dx, dy = self.focal_plane.view(np.stack(cam, -1))
+        return self.focal_plane.detector_line(dx, dy)
+
+    def _table_line(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """usgscsm's secant iteration on the line, on :meth:`_table_error`, from the first and
+        last lines: the line (M,) whose exposure sees each point on the detector line (to
+        :data:`PRECISION`; NaN without convergence) and the last secant slope there."""
+        t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), float(self.lines))
+        e0, e1 = self._table_error(t0, xyz), self._table_error(t1, xyz)
+        active = np.abs(e1) > PRECISION
+        for _ in range(_MAX_SECANT):
+            active &= (e1 != e0) & np.isfinite(e1)
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            t2 = t1[idx] - e1[idx] * (t1[idx] - t0[idx]) / (e1[idx] - e0[idx])
+            e2 = self._table_error(t2, xyz[idx])
+            t0[idx], e0[idx] = t1[idx], e1[idx]
+            t1[idx], e1[idx] = t2, e2
+            active[idx] = np.abs(e2) > PRECISION
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = (e1 - e0) / (t1 - t0)
+        return np.where(np.abs(e1) <= PRECISION, t1, np.nan), slope
 
     def csm_ground_to_image(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSM (line, sample) and camera-frame depth (metres) of ground points (..., 3)
@@ -172,32 +211,29 @@ class LineScanCamera(CsmImage):
         return out[..., 0], out[..., 1], out[..., 2]
 
     def _ground_to_image_block(self, xyz: np.ndarray) -> np.ndarray:
-        line0 = self._approximate_line(xyz)
-        t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), 0.1)
-        e0 = self._line_error(line0 + t0, xyz)[0]
-        e1 = self._line_error(line0 + t1, xyz)[0]
-        active = np.abs(e1) > PRECISION
-        for _ in range(1, _MAX_SECANT):
-            active &= e1 != e0
-            idx = np.flatnonzero(active)
-            if idx.size == 0:
+        """The secant iteration on :meth:`_table_error`, then Newton steps on the exact
+        :meth:`_line_error` (with the table's slope) until its offset is within
+        :data:`PRECISION`, as usgscsm's iteration ends; the line is then usgscsm's: the line
+        of that exposure plus the point's detector line offset."""
+        line, slope = self._table_line(xyz)
+        out, last = np.full((len(xyz), 3), np.nan), np.full(len(xyz), np.nan)
+        todo = np.flatnonzero((line >= -_POLISH_MARGIN) & (line <= self.lines + _POLISH_MARGIN))
+        for _ in range(_MAX_POLISH):
+            if todo.size == 0:
                 break
-            t2 = t1[idx] - e1[idx] * (t1[idx] - t0[idx]) / (e1[idx] - e0[idx])
-            e2 = self._line_error(line0[idx] + t2, xyz[idx])[0]
-            t0[idx], e0[idx] = t1[idx], e1[idx]
-            t1[idx], e1[idx] = t2, e2
-            active[idx] = np.abs(e2) > PRECISION
-        line = line0 + t1
-        update, focal, depth = self._line_error(line, xyz)
-        line = line + update
-        sample = self.focal_plane.detector_sample(focal[:, 0], focal[:, 1])
+            update, focal, depth = self._line_error(line[todo], xyz[todo])
+            sample = self.focal_plane.detector_sample(focal[:, 0], focal[:, 1])
+            out[todo], last[todo] = np.stack([line[todo] + update, sample, depth], -1), update
+            more = np.abs(update) > PRECISION
+            line[todo[more]] -= update[more] / slope[todo[more]]
+            todo = todo[more & np.isfinite(line[todo])]
         ok = (
-            self._valid_line(line)
-            & (np.abs(update) <= _CONVERGED)
-            & (depth > 0)
-            & np.isfinite(sample)
+            self._valid_line(out[:, 0])
+            & (np.abs(last) <= _CONVERGED)
+            & (out[:, 2] > 0)
+            & np.isfinite(out[:, 1])
         )
-        return np.where(ok[:, None], np.stack([line, sample, depth], -1), np.nan)
+        return np.where(ok[:, None], out, np.nan)
 
     # --- the orthomvp Camera protocol --------------------------------------------------------
     def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
