@@ -57,7 +57,7 @@ def lagrange(values: np.ndarray, nodes: np.ndarray, weights: np.ndarray) -> np.n
 
 def lagrange_polynomials(values: np.ndarray, max_order: int) -> np.ndarray:
     """usgscsm's Lagrange interpolants of node values (count, k) as one polynomial per node
-    interval: coefficients (count - 1, 8, k) of powers 0..7 of s = (t - t0) / dt - i on
+    interval: coefficients (8, count - 1, k) of powers 0..7 of s = (t - t0) / dt - i on
     interval i (the nodes and order of :func:`lagrange_weights` there; times before the first
     or after the last interval extrapolate its polynomial, as usgscsm does). Evaluated by
     :func:`polynomial_values`, equal to :func:`lagrange` up to rounding (about 1e-15 of the
@@ -83,20 +83,19 @@ def lagrange_polynomials(values: np.ndarray, max_order: int) -> np.ndarray:
         first = sel - n // 2 + 1
         local = values[first[:, None] + np.arange(n)]  # (intervals, n, k)
         coeffs[sel, :n] = np.einsum("jd,ijk->idk", basis, local)
-    return coeffs
+    return np.ascontiguousarray(coeffs.transpose(1, 0, 2))
 
 
 def polynomial_values(coeffs: np.ndarray, times: np.ndarray, t0: float, dt: float) -> np.ndarray:
     """Values (M, k) at ``times`` (M,) of :func:`lagrange_polynomials`' ``coeffs`` for nodes
     at t0 + i dt (Horner's scheme on each time's interval)."""
     fndex = (np.asarray(times, dtype=np.float64) - t0) / dt
-    index = np.clip(np.trunc(np.nan_to_num(fndex)), 0, len(coeffs) - 1).astype(np.int64)
+    index = np.clip(np.trunc(np.nan_to_num(fndex)), 0, coeffs.shape[1] - 1).astype(np.int64)
     s = (fndex - index)[:, None]  # NaN times give NaN values
-    c = coeffs[index]  # (M, 8, k)
-    out = c[:, 7].copy()
+    out = coeffs[7][index]
     for d in range(6, -1, -1):
         out *= s
-        out += c[:, d]
+        out += coeffs[d][index]
     return out
 
 

@@ -33,6 +33,9 @@ _MAX_SECANT = 15  # usgscsm's iteration limit
 _CONVERGED = 1e-3  # lines: a larger final correction means the iteration failed (NaN)
 _MAX_POLISH = 4  # exact Newton steps after the table's iteration (one suffices on orbits)
 _POLISH_MARGIN = 0.5  # lines beyond the image where a table solution is still polished
+GSD_LINES = 0.05
+"""Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (the range changes
+by far less than a pixel over them)."""
 TABLE_KNOTS = 1024
 """Fewest knots of the sensor-state table (one per line for longer images)."""
 
@@ -177,13 +180,50 @@ class LineScanCamera(CsmImage):
         dx, dy = self.focal_plane.view(np.stack(cam, -1))
         return self.focal_plane.detector_line(dx, dy)
 
-    def _table_line(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """usgscsm's secant iteration on the line, on :meth:`_table_error`, from the first and
-        last lines: the line (M,) whose exposure sees each point on the detector line (to
-        :data:`PRECISION`; NaN without convergence) and the last secant slope there."""
-        t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), float(self.lines))
-        e0, e1 = self._table_error(t0, xyz), self._table_error(t1, xyz)
-        active = np.abs(e1) > PRECISION
+    @cached_property
+    def _first_guess(self) -> tuple[np.ndarray, float] | None:
+        """The line as an affine function of body-fixed metres, fitted by least squares to
+        the lines of a 9 x 9 lattice of pixels seen at three heights (+-5% of the range and
+        0), and the secant slope of :meth:`_table_error` at the image centre: a first line
+        and a first Newton step for ground to image (None if the lattice misses the body)."""
+        line, sample = np.meshgrid(
+            np.linspace(0, self.lines, 9), np.linspace(0, self.samples, 9), indexing="ij"
+        )
+        origin, _ = self.csm_locus(np.array(self.lines / 2), np.array(self.samples / 2))
+        ground0 = self.csm_image_to_ground(np.array(self.lines / 2), np.array(self.samples / 2))
+        reach = 0.05 * float(np.linalg.norm(origin - ground0))
+        pts = [self.csm_image_to_ground(line, sample, h).reshape(-1, 3) for h in (-reach, 0, reach)]
+        xyz, lines = np.concatenate(pts), np.tile(line.ravel(), 3)
+        ok = np.isfinite(xyz).all(axis=1)
+        if ok.sum() < 8 or not np.isfinite(ground0).all():
+            return None
+        design = np.hstack([xyz[ok] - ground0, np.ones((ok.sum(), 1))])
+        coef = np.linalg.lstsq(design, lines[ok], rcond=None)[0]
+        mid = np.array([self.lines / 2 - 0.5, self.lines / 2 + 0.5])
+        e = self._table_error(mid, np.stack([ground0, ground0]))
+        slope = float(e[1] - e[0])
+        if not np.isfinite(coef).all() or not np.isfinite(slope) or slope == 0:
+            return None
+        return np.concatenate([coef, ground0]), slope
+
+    def _table_line(
+        self, xyz: np.ndarray, precision: float = PRECISION
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """usgscsm's secant iteration on the line, on :meth:`_table_error`, from
+        :attr:`_first_guess` (or the first and last lines): the line (M,) whose exposure sees
+        each point on the detector line (to ``precision`` lines; NaN without convergence) and
+        the last secant slope there."""
+        guess = self._first_guess
+        if guess is None:  # from the first and last lines
+            t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), float(self.lines))
+            e0, e1 = self._table_error(t0, xyz), self._table_error(t1, xyz)
+        else:  # from the affine guess and one Newton step with the centre's slope
+            (coef, ground0), slope = (guess[0][:4], guess[0][4:]), guess[1]
+            t0 = (xyz - ground0) @ coef[:3] + coef[3]
+            e0 = self._table_error(t0, xyz)
+            t1 = t0 - e0 / slope
+            e1 = self._table_error(t1, xyz)
+        active = np.abs(e1) > precision
         for _ in range(_MAX_SECANT):
             active &= (e1 != e0) & np.isfinite(e1)
             idx = np.flatnonzero(active)
@@ -193,10 +233,10 @@ class LineScanCamera(CsmImage):
             e2 = self._table_error(t2, xyz[idx])
             t0[idx], e0[idx] = t1[idx], e1[idx]
             t1[idx], e1[idx] = t2, e2
-            active[idx] = np.abs(e2) > PRECISION
+            active[idx] = np.abs(e2) > precision
         with np.errstate(divide="ignore", invalid="ignore"):
             slope = (e1 - e0) / (t1 - t0)
-        return np.where(np.abs(e1) <= PRECISION, t1, np.nan), slope
+        return np.where(np.abs(e1) <= precision, t1, np.nan), slope
 
     def csm_ground_to_image(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSM (line, sample) and camera-frame depth (metres) of ground points (..., 3)
@@ -262,13 +302,24 @@ class LineScanCamera(CsmImage):
 
     def gsd(self, xyz: np.ndarray) -> np.ndarray:
         """Metres per pixel at world points (..., 3) across the line of sight: range from the
-        sensor at the time the point is imaged over the focal length in pixels; NaN where
-        not imaged."""
-        line, _, _ = self.csm_ground_to_image(xyz)
-        rng = np.linalg.norm(
-            np.asarray(xyz, np.float64) - self.sensor_position(np.nan_to_num(line)), axis=-1
-        )
-        return np.where(np.isfinite(line), rng / self.focal_plane.focal_pixels, np.nan)
+        sensor at the time the point is imaged (found to :data:`GSD_LINES`) over the focal
+        length in pixels; NaN where not imaged."""
+        xyz = as_points(xyz, "gsd", 3)
+        flat = xyz.reshape(-1, 3)
+        out = np.empty(len(flat))
+        step, states = self._table
+        for start in range(0, len(flat), CHUNK):
+            block = flat[start : start + CHUNK]
+            line, _ = self._table_line(block, GSD_LINES)
+            k = np.clip(np.rint(np.nan_to_num(line) / step), 0, len(states) - 1).astype(np.int64)
+            rng = np.linalg.norm(block - states[k, :3], axis=-1)
+            ok = self._valid_line(line) & (
+                np.einsum("mi,mi->m", states[k][:, [5, 8, 11]], block - states[k, :3])
+                * self.look_sign
+                > 0
+            )
+            out[start : start + CHUNK] = np.where(ok, rng / self.focal_plane.focal_pixels, np.nan)
+        return out.reshape(xyz.shape[:-1])
 
 
 def posts_per_second(camera: LineScanCamera, *, posts: int = 1_000_000, seed: int = 0) -> float:
