@@ -15,11 +15,12 @@ import numpy as np
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
+from orthomvp.synthetic import linescan
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
 from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
 from orthomvp.synthetic.rendering import fine_terrain, render_image
@@ -40,6 +41,8 @@ SCENE_BYTES_PER_POST = 20_000
 mesh and ray caster, the truth marcher; about 17,000 measured), bytes."""
 IMAGE_BYTES_PER_PIXEL = 100
 """Memory of the rendered images per pixel (4 views), bytes."""
+SENSORS = ("frame", "linescan")
+"""The sensors a scene's views may have."""
 SUN_ELEVATION = 40.0
 """Sun elevation above the horizon at the tile centre, degrees."""
 SUN_AZIMUTH = 120.0
@@ -52,17 +55,19 @@ class Scene:
     ``terrain`` (geographic, heights above the sphere: the true heights at its posts), the
     ``views`` and their ``cameras`` (by view name, with image sizes) of ground sample distance
     ``gsd`` metres, the DEM's post ``spacing`` in metres, the ``seed``, and the ``facts`` of
-    the kind that the summary records (crater radius, plane normal, ...)."""
+    the kind that the summary records (crater radius, plane normal, ...), and the ``sensor`` of
+    its views (:data:`SENSORS`)."""
 
     kind: str
     surface: LocalSurface
     terrain: Terrain
     views: tuple[ViewSpec, ...]
-    cameras: dict[str, PinholeCamera]
+    cameras: dict[str, Camera]
     spacing: float
     gsd: float
     seed: int
     facts: dict
+    sensor: str = "frame"
 
     def post_local(self) -> tuple[np.ndarray, np.ndarray]:
         """Local (x, y) metres of every DEM post, each (rows, cols)."""
@@ -83,7 +88,7 @@ class Scene:
     def _caster(self) -> RayCaster:
         return RayCaster(terrain_mesh(self.fine))
 
-    def visibility_truth(self, camera: PinholeCamera, step: float | None = None) -> np.ndarray:
+    def visibility_truth(self, camera: Camera, step: float | None = None) -> np.ndarray:
         """Truth visibility codes (rows, cols) uint8 of the DEM posts for ``camera``, marched
         against the analytic surface every ``step`` metres (default a quarter of the post
         spacing); see :func:`orthomvp.synthetic.truth.visibility_truth`."""
@@ -97,7 +102,7 @@ class Scene:
             step or min(self.terrain.post_spacing()) / 4,
         )
 
-    def render(self, camera: PinholeCamera, supersample: int = 3) -> np.ndarray:
+    def render(self, camera: Camera, supersample: int = 3) -> np.ndarray:
         """One image (rows, cols) float32 of ``camera``: see
         :func:`orthomvp.synthetic.rendering.render_image`."""
         return render_image(self.surface, self._caster, camera, supersample)
@@ -115,17 +120,23 @@ def make_scene(
     gsd_ratio: float = 0.8,
     seed: int = 0,
     lonlat_deg: tuple[float, float] = (3.6, 26.1),
+    *,
+    sensor: str = "frame",
 ) -> Scene:
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings. The same arguments give the same scene.
+    spacings. The same arguments give the same scene. ``sensor``: ``frame`` (the kind's
+    pinhole views) or ``linescan`` (the line scanners of
+    :data:`orthomvp.synthetic.linescan.VIEWS`).
 
     Ranges (InputError outside them, and for a scene too large for the memory): ``size`` an
     integer >= 8, ``spacing`` :data:`SPACING_RANGE` metres, ``gsd_ratio``
     :data:`GSD_RATIO_RANGE`, ``seed`` an integer >= 0; None takes the kind's default."""
     if kind not in KINDS:
         raise InputError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
+    if sensor not in SENSORS:
+        raise InputError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
     d_size, d_spacing = DEFAULTS[kind]
     size = d_size if size is None else number(size, "scene size (posts)", minimum=8, integer=True)
     lo, hi = SPACING_RANGE
@@ -152,9 +163,13 @@ def make_scene(
     x, y = surface.lonlat_to_local(*grid.pixel_to_lonlat(*grid.grid()))
     terrain = grid.with_values(height(x, y))
     gsd = gsd_ratio * spacing
-    views = VIEWS[kind]
-    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
-    return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts)
+    if sensor == "linescan":
+        views = linescan.VIEWS
+        cameras = {v.name: linescan.orbital_line_scanner(terrain, v, gsd) for v in views}
+    else:
+        views = VIEWS[kind]
+        cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
+    return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts, sensor)
 
 
 def sun_direction(lon0: float, lat0: float) -> np.ndarray:
