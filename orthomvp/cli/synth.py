@@ -66,7 +66,8 @@ SENSORS = ("frame", "linescan")
     type=click.Choice(SENSORS),
     default="frame",
     help="frame: the kind's pinhole views (.tsai); linescan: one line scanner (USGS CSM ISD "
-    "linescan.json) on a circular orbit looking 55 degrees off nadir across track",
+    "linescan.json) on a circular orbit looking 55 degrees off nadir across track, at the "
+    "crater's oblique frame's geometry",
 )
 @click.option(
     "--supersample",

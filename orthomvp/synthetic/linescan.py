@@ -26,8 +26,9 @@ NODES = 41
 NODE_MARGIN = 4
 """Nodes before the first and after the last line, so that every line's states are
 interpolated with the full Lagrange order."""
-VIEWS = (ViewSpec("linescan", 55.0, 270.0),)
-"""The line-scan views of ``orthomvp synth KIND --sensor linescan``."""
+VIEWS = (ViewSpec("linescan", 55.0, 200.0),)
+"""The line-scan views of ``orthomvp synth KIND --sensor linescan``: the geometry of the
+crater's oblique frame at the centre line."""
 
 
 def _orbit(
