@@ -20,9 +20,10 @@ from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
-from orthomvp.synthetic import linescan
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
 from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
+from orthomvp.synthetic.linescan import VIEWS as LINESCAN_VIEWS
+from orthomvp.synthetic.linescan import orbital_line_scanner
 from orthomvp.synthetic.rendering import fine_terrain, render_image
 from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, local_frame
 from orthomvp.synthetic.truth import visibility_truth
@@ -164,8 +165,8 @@ def make_scene(
     terrain = grid.with_values(height(x, y))
     gsd = gsd_ratio * spacing
     if sensor == "linescan":
-        views = linescan.VIEWS
-        cameras = {v.name: linescan.orbital_line_scanner(terrain, v, gsd) for v in views}
+        views = LINESCAN_VIEWS
+        cameras = {v.name: orbital_line_scanner(terrain, v, gsd) for v in views}
     else:
         views = VIEWS[kind]
         cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
