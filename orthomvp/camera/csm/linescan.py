@@ -149,10 +149,9 @@ class LineScanCamera(CsmImage):
         focal-plane x, y and camera-frame depth (M, 3); the sensor states from
         :meth:`_states` (``table``: from :attr:`_table` whatever :attr:`_use_table` says)."""
         pos, rot = self._states(line, table=table or None)
-        rel = xyz - pos
+        rel = (xyz - pos).T
         cam = [
-            rot[:, 0, i] * rel[:, 0] + rot[:, 1, i] * rel[:, 1] + rot[:, 2, i] * rel[:, 2]
-            for i in range(3)
+            rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2] for i in range(3)
         ]
         dx, dy = self.focal_plane.view(np.stack(cam, -1))
         view = np.stack([dx, dy, self.look_sign * cam[2]], -1)
@@ -167,10 +166,10 @@ class LineScanCamera(CsmImage):
         step = min(1.0, self.lines / TABLE_KNOTS)
         knots = np.linspace(0.0, float(self.lines), round(self.lines / step) + 1)
         t = self.image_time(knots)
-        states = np.hstack(
-            [self.trajectory.position(t), self.trajectory.rotation(t).reshape(-1, 9)]
+        states = np.vstack(
+            [self.trajectory.position(t).T, self.trajectory.rotation(t).reshape(-1, 9).T]
         )
-        return float(knots[1] - knots[0]), states, np.diff(states, axis=0)
+        return float(knots[1] - knots[0]), states, np.diff(states, axis=1)
 
     def _states(
         self, line: np.ndarray, *, table: bool | None = None, columns: int = 12
@@ -185,11 +184,11 @@ class LineScanCamera(CsmImage):
             return pos, self.trajectory.rotation(t) if columns > 3 else None
         step, states, diffs = self._table
         x = line / step
-        k = np.clip(np.floor(np.nan_to_num(x)), 0, len(diffs) - 1).astype(np.int64)
-        s = np.take(diffs[:, :columns], k, axis=0)
-        s *= (x - k)[:, None]
-        s += np.take(states[:, :columns], k, axis=0)
-        return s[:, :3], s[:, 3:].reshape(-1, 3, 3) if columns > 3 else None
+        k = np.clip(np.floor(np.nan_to_num(x)), 0, diffs.shape[1] - 1).astype(np.int64)
+        s = np.take(diffs[:columns], k, axis=1)  # (columns, M): one row per component
+        s *= x - k
+        s += np.take(states[:columns], k, axis=1)
+        return s[:3].T, s[3:].T.reshape(-1, 3, 3) if columns > 3 else None
 
     @cached_property
     def table_error(self) -> float:
@@ -198,7 +197,7 @@ class LineScanCamera(CsmImage):
         altitude plus the rotation error (Frobenius), times the focal length in pixels;
         infinite for a sensor not above the ellipsoid."""
         step, states, _ = self._table
-        mid = (np.arange(len(states) - 1) + 0.5) * step
+        mid = (np.arange(states.shape[1] - 1) + 0.5) * step
         pos_t, rot_t = self._states(mid, table=True)
         pos, rot = self._states(mid, table=False)
         radius = max(self.ellipsoid.semi_major, self.ellipsoid.semi_minor)
@@ -256,7 +255,8 @@ class LineScanCamera(CsmImage):
             e0 = self._line_error(t0, xyz, table=True)[0]
         else:  # from the affine guess and one Newton step with the centre's slope
             (coef, ground0), slope = (guess[0][:4], guess[0][4:]), guess[1]
-            t0 = (xyz - ground0) @ coef[:3] + coef[3]
+            rel = xyz - ground0  # no BLAS: the same rounding for any number of points
+            t0 = rel[:, 0] * coef[0] + rel[:, 1] * coef[1] + rel[:, 2] * coef[2] + coef[3]
             e0 = self._line_error(t0, xyz, table=True)[0]
             t1 = t0 - e0 / slope
         e1, v1 = self._line_error(t1, xyz, table=True)
