@@ -22,7 +22,8 @@ def lagrange_weights(
     """usgscsm's ``lagrangeInterp`` on ``count`` uniform nodes t0 + i dt at ``times`` (M,):
     node indices (M, 8) and weights (M, 8) (unused slots: index 0, weight 0). The order is 8,
     lowered near the ends (6, 4, 2) as usgscsm does, and at most ``max_order``. Times outside
-    the nodes extrapolate, as usgscsm's do; callers mask them."""
+    the nodes extrapolate, as usgscsm's do; callers mask them. The reference form: the models
+    evaluate the same interpolants as :func:`lagrange_polynomials`."""
     fndex = (np.asarray(times, dtype=np.float64) - t0) / dt
     index = np.clip(np.trunc(fndex), 0, count - 2).astype(np.int64)
     order = np.full(index.shape, 2, dtype=np.int64)

@@ -5,6 +5,12 @@ durations), from the sensor position and pointing interpolated there (usgscsm's 
 polynomials of order 8 on uniform nodes). Ground to image solves for the line by usgscsm's
 secant iteration, for all points at once; points whose line falls outside the image (no
 exposure time there) get NaN, never an extrapolated pixel.
+
+Speed: the iteration runs on a table of sensor states sampled once per line (finer for short
+images), interpolated linearly, from a first line given by an affine fit of a pixel lattice.
+Where the table reproduces the ephemeris within :data:`TABLE_PIXELS` (orbital images) it
+serves rays and origins too; otherwise ground to image ends with Newton steps on the exact
+model and rays use the exact ephemeris.
 """
 
 from __future__ import annotations
