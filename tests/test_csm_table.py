@@ -95,3 +95,16 @@ def _beyond_last_line(camera: LineScanCamera) -> np.ndarray:
     shift = camera.sensor_position(line) - camera.sensor_position(np.full(2, camera.lines - 0.5))
     ground = camera.ellipsoid.intersect(origin, camera.look_sign * direction, np.zeros(2))
     return ground + shift
+
+
+def test_window_copies_share_the_model_tables(scanner: LineScanCamera) -> None:
+    """Cropped and resized copies (one per engine tile) reuse the model's table and first
+    guess, and project as the whole image does, shifted by the window."""
+    rng = np.random.default_rng(2)
+    uv = rng.uniform([-0.5, -0.5], [scanner.samples - 0.5, scanner.lines - 0.5], (200, 2))
+    ground = scanner.image_to_ground(uv)
+    whole = scanner.project(ground)[0]
+    crop = scanner.crop(3, 5, 20, 30)
+    assert crop._table is scanner._table and crop._first_guess is scanner._first_guess
+    np.testing.assert_array_equal(crop.project(ground)[0], whole - [3, 5])
+    assert scanner.with_image_size(10, 10)._table is scanner._table

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import ClassVar
 
 import numpy as np
 
@@ -273,9 +274,20 @@ class CsmImage:
         u, v = uv[..., 0], uv[..., 1]
         return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
 
+    _WINDOW_FREE: ClassVar[tuple[str, ...]] = ()
+    """Cached properties that depend on the model only, not on the window: copies made by
+    :meth:`with_image_size` and :meth:`crop` (one per engine tile) keep them."""
+
+    def _window(self, **changes: int | None) -> CsmImage:
+        copy = replace(self, **changes)
+        for name in self._WINDOW_FREE:
+            if name in self.__dict__:
+                copy.__dict__[name] = self.__dict__[name]
+        return copy
+
     def with_image_size(self, width: int | None, height: int | None) -> CsmImage:
         """A copy with the image (window) size set, pixels."""
-        return replace(self, width=width, height=height)
+        return self._window(width=width, height=height)
 
     def crop(self, c0: int, r0: int, width: int, height: int) -> CsmImage:
         """The camera of the ``width`` x ``height`` window whose first pixel is (``c0``,
@@ -283,8 +295,7 @@ class CsmImage:
         for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
                 raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
-        return replace(
-            self,
+        return self._window(
             col0=self.col0 + int(c0),
             row0=self.row0 + int(r0),
             width=int(width),

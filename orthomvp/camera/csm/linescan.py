@@ -60,6 +60,8 @@ class LineScanCamera(CsmImage):
     ``center_time``: the ISD's ``center_ephemeris_time`` (ephemeris seconds).
     """
 
+    _WINDOW_FREE = ("look_sign", "_table", "table_error", "_use_table", "_first_guess")
+
     focal_plane: FocalPlane
     ellipsoid: Ellipsoid
     trajectory: Trajectory
