@@ -4,6 +4,7 @@ runs the real entry point, ``python -m orthomvp``, in a subprocess."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from contextlib import redirect_stderr, redirect_stdout
@@ -251,6 +252,10 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
         "80",
         "--mvp-size",
         "40",
+        "--linescan-size",
+        "80",
+        "--linescan-points",
+        "20000",
         "--json",
         str(tmp_path / "b.json"),
     )
@@ -258,7 +263,10 @@ def test_bench_prints_ratios(tmp_path: Path) -> None:
     assert "embree" in proc.stdout and "open3d" in proc.stdout and "ratio" in proc.stdout
     assert "occlusion-aware orthophoto" in proc.stdout
     assert "MVP fit" in proc.stdout
-    assert (tmp_path / "b.json").is_file()
+    assert "line scan: ground to image of 20,000 points" in proc.stdout
+    row = json.loads((tmp_path / "b.json").read_text())["linescan"]
+    assert row["posts"] == 80 * 80 and row["table_error_px"] < 1e-4
+    assert row["ratio"] == pytest.approx(row["linescan_ortho_s"] / row["frame_ortho_s"])
 
 
 def test_bench_peer_data_default(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

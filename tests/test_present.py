@@ -166,7 +166,11 @@ def test_without_libusb_only_decimation_and_the_open3d_backend_fail(
         "fit": ["fit", dem, *views, "-o", tmp_path / "f.tif", "--hwin", "3", "--levels", "1"],
         "mesh": ["mesh", dem, "-o", tmp_path / "m.ply", "--texture", tmp_path / "o.tif"],
         "render": ["render", dem, "-o", tmp_path / "r.png", "--size", "64", "48"],
-        "bench": ["bench", "--size", "20", "--rays", "100", "--ortho-size", "0", "--mvp-size", "0"],
+        "bench": [
+            "bench",
+            *("--size", "20", "--rays", "100", "--ortho-size", "0", "--mvp-size", "0"),
+            *("--linescan-size", "0"),
+        ],
         "decimate": ["mesh", dem, "-o", tmp_path / "d.ply", "--decimate", "100"],
     }
     script = NO_LIBUSB + (

@@ -1,8 +1,9 @@
 """Regenerate every picture used in the README into viz/.
 
-Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``, ``eps``
-and ``explore`` (default: all). Pictures from the real data are made when it is present: the
-directory named by ORTHOMVP_DATA, by default ``../shared/data`` beside the repository.
+Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``, ``eps``,
+``explore`` and ``linescan`` (default: all). Pictures from the real data are made when it is
+present: the directory named by ORTHOMVP_DATA, by default ``../shared/data`` beside the
+repository.
 """
 
 from __future__ import annotations
@@ -89,7 +90,51 @@ def explore_pictures(tmp: Path) -> None:
     run_commands(ExplorerShell(explorer), commands)
 
 
-PARTS = {"demo": demo_pictures, "eps": eps_pictures, "explore": explore_pictures}
+def linescan_pictures(tmp: Path) -> None:
+    """The line-scan crater through the command line, as the README shows it: its visibility
+    in 3D (occluded posts green, facing away orange) and, side by side, the line-scan image,
+    the naive orthophoto and the occlusion-aware one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from orthomvp.cli import main as cli
+
+    scene = tmp / "linescan"
+    views = [scene / "dem.tif", scene / "linescan.tif", scene / "linescan.json"]
+    for args in (
+        ["synth", "crater", scene, "--sensor", "linescan"],
+        ["visibility", *views, "-o", tmp / "vis.tif"],
+        ["ortho", *views, "-o", tmp / "ortho.tif"],
+        ["ortho", *views, "-o", tmp / "naive.tif", "--no-occlusion"],
+        ["render", scene / "dem.tif", "--visibility", tmp / "vis.tif", "--exaggerate", "1.5"]
+        + ["--azimuth", "20", "--elevation", "50"]
+        + ["--crop", "-o", HERE / "linescan-visibility.png"],
+    ):
+        if cli([str(a) for a in args]) != 0:
+            sys.exit(f"gallery: orthomvp {args[0]} failed")
+    panels = [
+        (read_image(scene / "linescan.tif")[0], "line-scan image (rows = lines = time)"),
+        (read_image(tmp / "naive.tif")[0], "naive orthophoto"),
+        (read_image(tmp / "ortho.tif")[0], "occlusion-aware orthophoto"),
+    ]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.4))
+    for ax, (image, title) in zip(axes, panels, strict=True):
+        ax.imshow(image, cmap="gray", vmin=0, vmax=float(np.nanpercentile(image, 99.5)))
+        ax.set_title(title)
+        ax.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(HERE / "linescan-orthophotos.png", dpi=90)
+    plt.close(fig)
+
+
+PARTS = {
+    "demo": demo_pictures,
+    "eps": eps_pictures,
+    "explore": explore_pictures,
+    "linescan": linescan_pictures,
+}
 
 
 def main(parts: list[str]) -> None:

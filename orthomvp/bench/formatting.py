@@ -37,6 +37,21 @@ def format_ortho(row: dict) -> str:
     )
 
 
+def format_linescan(row: dict) -> str:
+    """A text summary of :func:`~orthomvp.bench.linescan.bench_linescan`."""
+    return "\n".join(
+        [
+            f"line scan: ground to image of {row['project_points']:,} points: "
+            f"{row['project_points_per_s'] / 1e6:.2f} M points/s ({row['lines']:,} lines, "
+            f"sensor-state table within {row['table_error_px']:.1e} px)",
+            f"  orthophoto with occlusion, {row['posts']:,} posts: frame camera "
+            f"{row['frame_ortho_s']:.2f} s, line scanner {row['linescan_ortho_s']:.2f} s, "
+            f"ratio {row['ratio']:.2f}",
+            "ratio = line-scan orthophoto time / frame orthophoto time, same grid, same run",
+        ]
+    )
+
+
 def format_mvp(row: dict) -> str:
     """A text summary of :func:`~orthomvp.bench.mvp.bench_mvp`."""
     return "\n".join(

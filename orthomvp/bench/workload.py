@@ -8,8 +8,10 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.camera.csm import LineScanCamera
 from orthomvp.memory import check_memory, count_text
 from orthomvp.synthetic import MOON_CRS, MOON_RADIUS, ViewSpec, orbital_camera
+from orthomvp.synthetic.linescan import orbital_line_scanner
 from orthomvp.terrain import Terrain, unit_vector
 from orthomvp.validate import number
 
@@ -77,3 +79,10 @@ def bench_camera(terrain: Terrain, emission_deg: float = 30.0) -> PinholeCamera:
     (about one pixel per post) covers the whole DEM."""
     view = ViewSpec("bench", emission_deg, 90.0)
     return orbital_camera(terrain, view, float(np.mean(terrain.post_spacing())))
+
+
+def bench_line_scanner(terrain: Terrain, emission_deg: float = 30.0) -> LineScanCamera:
+    """A line scanner 110 km up on a north-south orbit, looking ``emission_deg`` off the
+    vertical towards the east as :func:`bench_camera` does, about one pixel per post."""
+    view = ViewSpec("bench", emission_deg, 90.0)
+    return orbital_line_scanner(terrain, view, float(np.mean(terrain.post_spacing())))

@@ -44,6 +44,20 @@ def peer_data_default() -> Path | None:
     help="orthophoto DEM posts per side (0 skips)",
 )
 @click.option(
+    "--linescan-size",
+    type=SizeOrZero(2),
+    default=1000,
+    metavar="N",
+    help="line-scan vs frame orthophoto DEM posts per side (0 skips)",
+)
+@click.option(
+    "--linescan-points",
+    type=click.IntRange(min=1),
+    default=1_000_000,
+    metavar="N",
+    help="ground points projected through the line scanner",
+)
+@click.option(
     "--mvp-size",
     type=SizeOrZero(8),
     default=96,
@@ -102,6 +116,8 @@ def bench(
     size: int,
     rays: int,
     ortho_size: int,
+    linescan_size: int,
+    linescan_points: int,
     mvp_size: int,
     peer: str | None,
     peer_data: Path | None,
@@ -113,7 +129,9 @@ def bench(
 ) -> None:
     """Ray casting: rays per second through orthomvp's first_hit and through the bare backend
     call on the same rays, for Embree and Open3D. Orthophoto: the occlusion-aware orthophoto
-    of one image against the bare Embree cast of one ray per post, in the same run. MVP: the
+    of one image against the bare Embree cast of one ray per post, in the same run. Line
+    scan: ground-to-image points per second of a USGS CSM line scanner, and its orthophoto
+    against a frame camera's of the same grid (same emission angle), in the same run. MVP: the
     plane fit of a synthetic hills DEM from its 4 views against bare cv2.remap of as many
     bilinear samples from the same images, in the same run. --peer orthority runs instead the
     side-by-side comparison with Orthority (when installed): one ngi-aerial frame (or, without
@@ -130,6 +148,8 @@ def bench(
         check_raycast_memory(size, rays, "choose a smaller --size or fewer --rays")
         if ortho_size:
             check_ortho_memory(ortho_size, "choose a smaller --ortho-size (0 skips)")
+        if linescan_size:
+            check_ortho_memory(linescan_size, "choose a smaller --linescan-size (0 skips)")
         if mvp_size:
             check_scene_memory(mvp_size, 0.8, "choose a smaller --mvp-size (0 skips)")
     if peer:
@@ -142,6 +162,9 @@ def bench(
         if ortho_size:
             results["ortho"] = b.bench_ortho(size=ortho_size)
             print(b.format_ortho(results["ortho"]))
+        if linescan_size:
+            results["linescan"] = b.bench_linescan(size=linescan_size, posts=linescan_points)
+            print(b.format_linescan(results["linescan"]))
         if mvp_size:
             results["mvp"] = b.bench_mvp(size=mvp_size)
             print(b.format_mvp(results["mvp"]))

@@ -14,7 +14,8 @@ KINDS = ("planar", "crater", "hills", "city")
 SPACING_RANGE = (0.01, 10_000.0)
 GSD_RATIO_RANGE = (0.05, 20.0)
 MAX_SUPERSAMPLE = 16
-"""the ranges of :mod:`orthomvp.synthetic` (tests check that they agree)"""
+SENSORS = ("frame", "linescan")
+"""the ranges and sensors of :mod:`orthomvp.synthetic` (tests check that they agree)"""
 
 
 @click.command(cls=Command, short_help="write a synthetic scene with exact ground truth")
@@ -62,6 +63,14 @@ MAX_SUPERSAMPLE = 16
     help="random seed of terrain and albedo",
 )
 @click.option(
+    "--sensor",
+    type=click.Choice(SENSORS),
+    default="frame",
+    help="frame: the kind's pinhole views (.tsai); linescan: one line scanner (USGS CSM ISD "
+    "linescan.json) on a circular orbit looking 55 degrees off nadir across track, at the "
+    "crater's oblique frame's geometry",
+)
+@click.option(
     "--supersample",
     type=click.IntRange(min=1, max=MAX_SUPERSAMPLE),
     default=3,
@@ -75,11 +84,13 @@ def synth(
     spacing: float | None,
     gsd_ratio: float,
     seed: int,
+    sensor: str,
     supersample: int,
 ) -> None:
     """Write a synthetic scene: DEM GeoTIFF (heights in metres; lunar kinds above the
     1737400 m sphere, city in UTM 33N with cameras in its map frame), rendered images (float32
-    TIFF), cameras (.tsai), truth rasters (radiance, per-camera visibility: 0 outside image, 1
+    TIFF), cameras (.tsai, or ISD .json for --sensor linescan: each line rendered from its own
+    sensor position), truth rasters (radiance, per-camera visibility: 0 outside image, 1
     visible, 2 occluded, 3 facing away) and scene.json."""
     from orthomvp.raster import atomic_dir
     from orthomvp.synthetic import make_scene
@@ -88,7 +99,9 @@ def synth(
 
     check_outdir(outdir, "OUTDIR")
     check_scene_memory(size or DEFAULTS[kind][0], gsd_ratio, "choose a smaller --size")
-    scene = make_scene(kind, size=size, spacing=spacing, gsd_ratio=gsd_ratio, seed=seed)
+    scene = make_scene(
+        kind, size=size, spacing=spacing, gsd_ratio=gsd_ratio, seed=seed, sensor=sensor
+    )
     with atomic_dir(outdir) as tmp:
         summary = scene.write(tmp, supersample=supersample, progress=not quiet())
     print(f"wrote {kind} scene with {len(summary['views'])} views to {outdir}")

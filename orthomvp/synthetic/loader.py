@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, read_camera
+from orthomvp.camera import Camera, read_camera
 from orthomvp.errors import InputError
 from orthomvp.raster import read_image
 from orthomvp.terrain import Terrain
@@ -22,7 +22,7 @@ class SceneView:
 
     name: str
     image: np.ndarray
-    camera: PinholeCamera
+    camera: Camera
     truth: np.ndarray
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from affine import Affine
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic.surface import LocalSurface
 from orthomvp.terrain import Terrain
@@ -35,11 +35,12 @@ def fine_terrain(surface: LocalSurface, terrain: Terrain) -> Terrain:
 
 
 def render_image(
-    surface: LocalSurface, caster: RayCaster, camera: PinholeCamera, supersample: int = 3
+    surface: LocalSurface, caster: RayCaster, camera: Camera, supersample: int = 3
 ) -> np.ndarray:
     """The image (rows, cols) float32 that ``camera`` (with its image size) takes of
     ``surface``: per pixel the mean radiance of ``supersample`` x ``supersample`` rays cast on
-    ``caster``'s mesh of the surface (0 where a ray hits nothing)."""
+    ``caster``'s mesh of the surface (0 where a ray hits nothing), each from its own origin
+    (a line scanner's sub-pixel rows from the sensor positions of their times)."""
     w, h = camera.width, camera.height
     k = number(
         supersample,

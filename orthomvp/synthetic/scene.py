@@ -15,7 +15,7 @@ import numpy as np
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import terrain_mesh
@@ -23,6 +23,8 @@ from orthomvp.raycast import RayCaster
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
 from orthomvp.synthetic.city import CityScene, make_city
 from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
+from orthomvp.synthetic.linescan import VIEWS as LINESCAN_VIEWS
+from orthomvp.synthetic.linescan import orbital_line_scanner
 from orthomvp.synthetic.rendering import fine_terrain, render_image
 from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, local_frame
 from orthomvp.synthetic.truth import visibility_truth
@@ -41,6 +43,8 @@ SCENE_BYTES_PER_POST = 20_000
 mesh and ray caster, the truth marcher; about 17,000 measured), bytes."""
 IMAGE_BYTES_PER_PIXEL = 100
 """Memory of the rendered images per pixel (4 views), bytes."""
+SENSORS = ("frame", "linescan")
+"""The sensors a scene's views may have."""
 SUN_ELEVATION = 40.0
 """Sun elevation above the horizon at the tile centre, degrees."""
 SUN_AZIMUTH = 120.0
@@ -53,17 +57,19 @@ class Scene:
     ``terrain`` (geographic, heights above the sphere: the true heights at its posts), the
     ``views`` and their ``cameras`` (by view name, with image sizes) of ground sample distance
     ``gsd`` metres, the DEM's post ``spacing`` in metres, the ``seed``, and the ``facts`` of
-    the kind that the summary records (crater radius, plane normal, ...)."""
+    the kind that the summary records (crater radius, plane normal, ...), and the ``sensor`` of
+    its views (:data:`SENSORS`)."""
 
     kind: str
     surface: LocalSurface
     terrain: Terrain
     views: tuple[ViewSpec, ...]
-    cameras: dict[str, PinholeCamera]
+    cameras: dict[str, Camera]
     spacing: float
     gsd: float
     seed: int
     facts: dict
+    sensor: str = "frame"
 
     def post_local(self) -> tuple[np.ndarray, np.ndarray]:
         """Local (x, y) metres of every DEM post, each (rows, cols)."""
@@ -92,7 +98,7 @@ class Scene:
             "centre_lonlat_deg": [np.degrees(self.surface.lon0), np.degrees(self.surface.lat0)],
         }
 
-    def visibility_truth(self, camera: PinholeCamera, step: float | None = None) -> np.ndarray:
+    def visibility_truth(self, camera: Camera, step: float | None = None) -> np.ndarray:
         """Truth visibility codes (rows, cols) uint8 of the DEM posts for ``camera``, marched
         against the analytic surface every ``step`` metres (default a quarter of the post
         spacing); see :func:`orthomvp.synthetic.truth.visibility_truth`."""
@@ -106,7 +112,7 @@ class Scene:
             step or min(self.terrain.post_spacing()) / 4,
         )
 
-    def render(self, camera: PinholeCamera, supersample: int = 3) -> np.ndarray:
+    def render(self, camera: Camera, supersample: int = 3) -> np.ndarray:
         """One image (rows, cols) float32 of ``camera``: see
         :func:`orthomvp.synthetic.rendering.render_image`."""
         return render_image(self.surface, self._caster, camera, supersample)
@@ -124,11 +130,15 @@ def make_scene(
     gsd_ratio: float = 0.8,
     seed: int = 0,
     lonlat_deg: tuple[float, float] = (3.6, 26.1),
+    *,
+    sensor: str = "frame",
 ) -> Scene | CityScene:
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings. The same arguments give the same scene. ``city`` is a
+    spacings. The same arguments give the same scene. ``sensor``: ``frame`` (the kind's
+    pinhole views) or ``linescan`` (the line scanners of
+    :data:`orthomvp.synthetic.linescan.VIEWS`; lunar kinds only). ``city`` is a
     :class:`~orthomvp.synthetic.city.CityScene` in its own projected CRS (``lonlat_deg`` does
     not apply).
 
@@ -137,6 +147,8 @@ def make_scene(
     :data:`GSD_RATIO_RANGE`, ``seed`` an integer >= 0; None takes the kind's default."""
     if kind not in KINDS:
         raise InputError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
+    if sensor not in SENSORS:
+        raise InputError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
     d_size, d_spacing = DEFAULTS[kind]
     size = d_size if size is None else number(size, "scene size (posts)", minimum=8, integer=True)
     lo, hi = SPACING_RANGE
@@ -150,6 +162,8 @@ def make_scene(
     seed = number(seed, "seed", minimum=0, integer=True)
     check_scene_memory(size, gsd_ratio)
     if kind == "city":
+        if sensor != "frame":
+            raise InputError("the city scene has frame cameras only (--sensor frame)")
         return make_city(size, spacing, gsd_ratio, seed)
     rng = np.random.default_rng(seed)
     lon0, lat0 = np.radians(lonlat_deg[0]), np.radians(lonlat_deg[1])
@@ -165,9 +179,13 @@ def make_scene(
     x, y = surface.lonlat_to_local(*grid.pixel_to_lonlat(*grid.grid()))
     terrain = grid.with_values(height(x, y))
     gsd = gsd_ratio * spacing
-    views = VIEWS[kind]
-    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
-    return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts)
+    if sensor == "linescan":
+        views = LINESCAN_VIEWS
+        cameras = {v.name: orbital_line_scanner(terrain, v, gsd) for v in views}
+    else:
+        views = VIEWS[kind]
+        cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
+    return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts, sensor)
 
 
 def sun_direction(lon0: float, lat0: float) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 ``dem.tif`` (heights: the analytic truth at the posts), ``truth_radiance.tif``
 (float32 radiance at the posts), for each view ``NAME.tif`` (float32 image), ``NAME.tsai``
-(camera) and ``NAME.visibility.tif`` (uint8 truth :class:`~orthomvp.codes.Code` on the DEM
-grid), and ``scene.json``: the summary that names them, read back by
+(a frame camera) or ``NAME.json`` (a line scanner's USGS CSM ISD), and
+``NAME.visibility.tif`` (uint8 truth :class:`~orthomvp.codes.Code` on the DEM grid), and
+``scene.json``: the summary that names them, read back by
 :func:`orthomvp.synthetic.loader.load_scene`.
 """
 
@@ -18,6 +19,7 @@ from affine import Affine
 from tqdm import tqdm
 
 from orthomvp.camera import write_tsai
+from orthomvp.camera.csm import LineScanCamera, write_isd
 from orthomvp.codes import Code
 from orthomvp.raster import atomic_path, write_geotiff
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
@@ -56,12 +58,17 @@ def write_scene(
         name, cam = view.name, scene.cameras[view.name]
         image = scene.render(cam, supersample)
         write_geotiff(outdir / f"{name}.tif", image, Affine.identity(), None)
-        write_tsai(cam, outdir / f"{name}.tsai")
+        if isinstance(cam, LineScanCamera):
+            camera_file = f"{name}.json"
+            write_isd(cam, outdir / camera_file)
+        else:
+            camera_file = f"{name}.tsai"
+            write_tsai(cam, outdir / camera_file)
         vis = scene.visibility_truth(cam)
         write_geotiff(outdir / f"{name}.visibility.tif", vis, t.transform, t.crs, nodata=None)
         views[name] = {
             "image": f"{name}.tif",
-            "camera": f"{name}.tsai",
+            "camera": camera_file,
             "visibility": f"{name}.visibility.tif",
             "emission_deg": view.emission,
             "gsd_m": scene.gsd,
@@ -69,6 +76,9 @@ def write_scene(
         }
     summary = {
         "kind": scene.kind,
+        "sensor": "linescan"
+        if any(isinstance(c, LineScanCamera) for c in scene.cameras.values())
+        else "frame",
         **scene.frame_facts(),
         "dem": "dem.tif",
         "truth_heights": "dem.tif",

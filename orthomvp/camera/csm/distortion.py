@@ -65,10 +65,14 @@ class CsmDistortion:
             raise InputError(f"{self.model} distortion coefficients must be finite")
         c.setflags(write=False)
         object.__setattr__(self, "coefficients", c)
+        # all-zero coefficients are no distortion, except for transverse's polynomials
+        object.__setattr__(self, "_identity", self.model != "transverse" and not c.any())
 
     def distort(self, x: np.ndarray, y: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
         """Distorted focal-plane coordinates (mm) of undistorted ones (``focal`` in mm)."""
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        if self._identity:
+            return x, y
         return _APPLY[self.model](x, y, self.coefficients, focal)
 
     def undistort(
@@ -76,6 +80,8 @@ class CsmDistortion:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Undistorted focal-plane coordinates (mm) of distorted ones (``focal`` in mm)."""
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        if self._identity:
+            return x, y
         return _REMOVE[self.model](x, y, self.coefficients, focal)
 
 

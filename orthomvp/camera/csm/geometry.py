@@ -18,11 +18,13 @@ pixels (u, v) = (column, row) put it at (0, 0): u = sample - 0.5, v = line - 0.5
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import ClassVar
 
 import numpy as np
 
 from orthomvp.camera.csm.distortion import CsmDistortion
-from orthomvp.camera.csm.ephemeris import lagrange, lagrange_weights, xyzw_matrix
+from orthomvp.camera.csm.ephemeris import lagrange_polynomials, polynomial_values, xyzw_matrix
 from orthomvp.errors import InputError
 
 EDGE = 1e-6
@@ -204,25 +206,30 @@ class Trajectory:
         end_q = self.t0_quat + (len(self.quaternions) - 1) * self.dt_quat
         return max(self.t0_ephem, self.t0_quat), min(end_e, end_q)
 
+    @cached_property
+    def _position_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.positions, self.order)
+
+    @cached_property
+    def _velocity_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.velocities, self.order)
+
+    @cached_property
+    def _quaternion_poly(self) -> np.ndarray:
+        return lagrange_polynomials(self.quaternions, self.order)
+
     def position(self, t: np.ndarray) -> np.ndarray:
         """Sensor positions (M, 3), metres, at times ``t`` (M,)."""
-        nodes, w = lagrange_weights(
-            t, self.t0_ephem, self.dt_ephem, len(self.positions), self.order
-        )
-        return lagrange(self.positions, nodes, w)
+        return polynomial_values(self._position_poly, t, self.t0_ephem, self.dt_ephem)
 
     def velocity(self, t: np.ndarray) -> np.ndarray:
         """Sensor velocities (M, 3), m/s, at times ``t`` (M,)."""
-        nodes, w = lagrange_weights(
-            t, self.t0_ephem, self.dt_ephem, len(self.positions), self.order
-        )
-        return lagrange(self.velocities, nodes, w)
+        return polynomial_values(self._velocity_poly, t, self.t0_ephem, self.dt_ephem)
 
     def rotation(self, t: np.ndarray) -> np.ndarray:
         """Camera-to-body rotation matrices (M, 3, 3) at times ``t`` (M,)."""
-        order = self.order if len(self.quaternions) >= 2 else 4
-        nodes, w = lagrange_weights(t, self.t0_quat, self.dt_quat, len(self.quaternions), order)
-        return xyzw_matrix(lagrange(self.quaternions, nodes, w))
+        q = polynomial_values(self._quaternion_poly, t, self.t0_quat, self.dt_quat)
+        return xyzw_matrix(q)
 
 
 @dataclass(frozen=True, eq=False)
@@ -267,9 +274,20 @@ class CsmImage:
         u, v = uv[..., 0], uv[..., 1]
         return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
 
+    _WINDOW_FREE: ClassVar[tuple[str, ...]] = ()
+    """Cached properties that depend on the model only, not on the window: copies made by
+    :meth:`with_image_size` and :meth:`crop` (one per engine tile) keep them."""
+
+    def _window(self, **changes: int | None) -> CsmImage:
+        copy = replace(self, **changes)
+        for name in self._WINDOW_FREE:
+            if name in self.__dict__:
+                copy.__dict__[name] = self.__dict__[name]
+        return copy
+
     def with_image_size(self, width: int | None, height: int | None) -> CsmImage:
         """A copy with the image (window) size set, pixels."""
-        return replace(self, width=width, height=height)
+        return self._window(width=width, height=height)
 
     def crop(self, c0: int, r0: int, width: int, height: int) -> CsmImage:
         """The camera of the ``width`` x ``height`` window whose first pixel is (``c0``,
@@ -277,8 +295,7 @@ class CsmImage:
         for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer):
                 raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
-        return replace(
-            self,
+        return self._window(
             col0=self.col0 + int(c0),
             row0=self.row0 + int(r0),
             width=int(width),

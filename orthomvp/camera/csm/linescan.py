@@ -5,6 +5,12 @@ durations), from the sensor position and pointing interpolated there (usgscsm's 
 polynomials of order 8 on uniform nodes). Ground to image solves for the line by usgscsm's
 secant iteration, for all points at once; points whose line falls outside the image (no
 exposure time there) get NaN, never an extrapolated pixel.
+
+Speed: the iteration runs on a table of sensor states sampled once per line (finer for short
+images), interpolated linearly, from a first line given by an affine fit of a pixel lattice.
+Where the table reproduces the ephemeris within :data:`TABLE_PIXELS` (orbital images) it
+serves rays and origins too; otherwise ground to image ends with Newton steps on the exact
+model and rays use the exact ephemeris.
 """
 
 from __future__ import annotations
@@ -31,6 +37,17 @@ PRECISION = 1e-6
 """usgscsm's desired precision of ground to image, lines."""
 _MAX_SECANT = 15  # usgscsm's iteration limit
 _CONVERGED = 1e-3  # lines: a larger final correction means the iteration failed (NaN)
+_MAX_POLISH = 4  # exact Newton steps after the table's iteration (one suffices on orbits)
+_POLISH_MARGIN = 0.5  # lines beyond the image where a table solution is still polished
+GSD_LINES = 1e-3
+"""Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
+Newton step; the range moves by far less than 1e-6 of itself over them)."""
+TABLE_KNOTS = 1024
+"""Fewest knots of the sensor-state table (one per line for longer images)."""
+TABLE_PIXELS = 1e-4
+"""Largest interpolation error (pixels) of the sensor-state table for which it stands in for
+the ephemeris everywhere; beyond it, ground to image polishes with the exact model and rays
+use it."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +59,8 @@ class LineScanCamera(CsmImage):
     seconds per line); the time of CSM line L in segment i is start_i + dt_i (L - line_i + 0.5).
     ``center_time``: the ISD's ``center_ephemeris_time`` (ephemeris seconds).
     """
+
+    _WINDOW_FREE = ("look_sign", "_table", "table_error", "_use_table", "_first_guess")
 
     focal_plane: FocalPlane
     ellipsoid: Ellipsoid
@@ -110,11 +129,13 @@ class LineScanCamera(CsmImage):
         line, sample = np.broadcast_arrays(
             np.asarray(line, np.float64), np.asarray(sample, np.float64)
         )
-        t = self.image_time(line).ravel()
-        look = self.focal_plane.camera_look(np.zeros_like(t), sample.ravel())
-        direction = np.einsum("mij,mj->mi", self.trajectory.rotation(t), look)
-        origin = self.trajectory.position(t)
-        bad = ~self._valid_line(line.ravel())
+        flat = line.ravel()
+        look = self.focal_plane.camera_look(np.zeros_like(flat), sample.ravel())
+        origin, rotation = self._states(flat)
+        direction = np.einsum("mij,mj->mi", rotation, look)
+        if self._use_table:  # the interpolated rotation is orthonormal to ~1e-10 only
+            direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+        bad = ~self._valid_line(flat)
         origin[bad], direction[bad] = np.nan, np.nan
         return origin.reshape(line.shape + (3,)), direction.reshape(line.shape + (3,))
 
@@ -129,35 +150,138 @@ class LineScanCamera(CsmImage):
         )
 
     def _line_error(
-        self, line: np.ndarray, xyz: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """usgscsm ``calcDetectorLineErr``: the detector line offset at which ``xyz`` (M, 3)
-        appears when seen at the time of CSM ``line`` (M,), the distorted focal-plane x, y
-        and the camera-frame depth."""
-        t = self.image_time(line)
-        rel = xyz - self.trajectory.position(t)
-        cam = np.einsum("mji,mj->mi", self.trajectory.rotation(t), rel)
-        dx, dy = self.focal_plane.view(cam)
-        return (
-            self.focal_plane.detector_line(dx, dy),
-            np.stack([dx, dy], -1),
-            self.look_sign * cam[:, 2],
-        )
+        self, line: np.ndarray, xyz: np.ndarray, *, table: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """usgscsm ``calcDetectorLineErr``: the detector line offset (M,) at which ``xyz``
+        (M, 3) appears when seen at the time of CSM ``line`` (M,), and the distorted
+        focal-plane x, y and camera-frame depth (M, 3); the sensor states from
+        :meth:`_states` (``table``: from :attr:`_table` whatever :attr:`_use_table` says)."""
+        pos, rot = self._states(line, table=table or None)
+        rel = (xyz - pos).T
+        cam = [
+            rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2] for i in range(3)
+        ]
+        dx, dy = self.focal_plane.view(np.stack(cam, -1))
+        view = np.stack([dx, dy, self.look_sign * cam[2]], -1)
+        return self.focal_plane.detector_line(dx, dy), view
 
-    def _approximate_line(self, xyz: np.ndarray) -> np.ndarray:
-        """A first line for every point: of 33 lines spread over the image, the one whose
-        exposure sees the point closest to the detector line (sensor states computed once)."""
-        candidates = np.linspace(0.0, float(self.lines), 33)
-        t = self.image_time(candidates)
-        positions, rotations = self.trajectory.position(t), self.trajectory.rotation(t)
-        best, best_err = np.full(len(xyz), self.lines / 2.0), np.full(len(xyz), np.inf)
-        for c, p, r in zip(candidates, positions, rotations, strict=True):
-            cam = (xyz - p) @ r
-            dx, dy = self.focal_plane.view(cam)
-            err = np.abs(self.focal_plane.detector_line(dx, dy))
-            better = (err < best_err) & (self.look_sign * cam[:, 2] > 0)
-            best, best_err = np.where(better, c, best), np.where(better, err, best_err)
-        return best
+    @cached_property
+    def _table(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """Sensor states sampled along the image: the knot spacing in CSM lines (one line,
+        finer for images of fewer than :data:`TABLE_KNOTS` lines), the positions (metres)
+        and camera-to-body rotations (row-major) at the knots, (knots, 12), and their
+        differences to the next knot, (knots - 1, 12)."""
+        step = min(1.0, self.lines / TABLE_KNOTS)
+        knots = np.linspace(0.0, float(self.lines), round(self.lines / step) + 1)
+        t = self.image_time(knots)
+        states = np.vstack(
+            [self.trajectory.position(t).T, self.trajectory.rotation(t).reshape(-1, 9).T]
+        )
+        return float(knots[1] - knots[0]), states, np.diff(states, axis=1)
+
+    def _states(
+        self, line: np.ndarray, *, table: bool | None = None, columns: int = 12
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor positions (M, 3), metres, and camera-to-body rotations (M, 3, 3) at CSM
+        lines (M,): from the interpolated ephemeris, or (``table``; None: where
+        :attr:`_use_table`) linearly between the knots of :attr:`_table` (extrapolated
+        beyond the image); ``columns=3``: positions only (rotations None)."""
+        if not (self._use_table if table is None else table):
+            t = self.image_time(line)
+            pos = self.trajectory.position(t)
+            return pos, self.trajectory.rotation(t) if columns > 3 else None
+        step, states, diffs = self._table
+        x = line / step
+        k = np.clip(np.floor(np.nan_to_num(x)), 0, diffs.shape[1] - 1).astype(np.int64)
+        s = np.take(diffs[:columns], k, axis=1)  # (columns, M): one row per component
+        s *= x - k
+        s += np.take(states[:columns], k, axis=1)
+        return s[:3].T, s[3:].T.reshape(-1, 3, 3) if columns > 3 else None
+
+    @cached_property
+    def table_error(self) -> float:
+        """The largest error of :attr:`_table`'s interpolation against the ephemeris, in
+        pixels: at the midpoints between knots, the position error over half the sensor's
+        altitude plus the rotation error (Frobenius), times the focal length in pixels;
+        infinite for a sensor not above the ellipsoid."""
+        step, states, _ = self._table
+        mid = (np.arange(states.shape[1] - 1) + 0.5) * step
+        pos_t, rot_t = self._states(mid, table=True)
+        pos, rot = self._states(mid, table=False)
+        radius = max(self.ellipsoid.semi_major, self.ellipsoid.semi_minor)
+        altitude = np.linalg.norm(pos, axis=1) - radius
+        if not (altitude > 0).all():
+            return float("inf")
+        err = np.linalg.norm(pos_t - pos, axis=1) / (altitude / 2)
+        err += np.linalg.norm((rot_t - rot).reshape(-1, 9), axis=1)
+        return float(np.max(err) * self.focal_plane.focal_pixels)
+
+    @cached_property
+    def _use_table(self) -> bool:
+        """Whether :attr:`_table` stands in for the ephemeris everywhere (its
+        :attr:`table_error` within :data:`TABLE_PIXELS`: orbital images, a knot per line)."""
+        return self.table_error <= TABLE_PIXELS
+
+    @cached_property
+    def _first_guess(self) -> tuple[np.ndarray, float] | None:
+        """The line as an affine function of body-fixed metres, fitted by least squares to
+        the lines of a 9 x 9 lattice of pixels seen at three heights (+-5% of the range and
+        0), and the secant slope of the table's :meth:`_line_error` at the image centre: a
+        first line and a first Newton step for ground to image (None if the lattice misses
+        the body)."""
+        line, sample = np.meshgrid(
+            np.linspace(0, self.lines, 9), np.linspace(0, self.samples, 9), indexing="ij"
+        )
+        origin, _ = self.csm_locus(np.array(self.lines / 2), np.array(self.samples / 2))
+        ground0 = self.csm_image_to_ground(np.array(self.lines / 2), np.array(self.samples / 2))
+        reach = 0.05 * float(np.linalg.norm(origin - ground0))
+        pts = [self.csm_image_to_ground(line, sample, h).reshape(-1, 3) for h in (-reach, 0, reach)]
+        xyz, lines = np.concatenate(pts), np.tile(line.ravel(), 3)
+        ok = np.isfinite(xyz).all(axis=1)
+        if ok.sum() < 8 or not np.isfinite(ground0).all():
+            return None
+        design = np.hstack([xyz[ok] - ground0, np.ones((ok.sum(), 1))])
+        coef = np.linalg.lstsq(design, lines[ok], rcond=None)[0]
+        mid = np.array([self.lines / 2 - 0.5, self.lines / 2 + 0.5])
+        e, _ = self._line_error(mid, np.stack([ground0, ground0]), table=True)
+        slope = float(e[1] - e[0])
+        if not np.isfinite(coef).all() or not np.isfinite(slope) or slope == 0:
+            return None
+        return np.concatenate([coef, ground0]), slope
+
+    def _table_line(
+        self, xyz: np.ndarray, precision: float = PRECISION
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """usgscsm's secant iteration on the line, on the table's :meth:`_line_error`, from
+        :attr:`_first_guess` (or the first and last lines), to ``precision`` lines: the line
+        (M,) whose exposure sees each point on the detector line (NaN without convergence),
+        the point's detector line offset and view (focal x, y, depth) there, and the last
+        secant slope."""
+        guess = self._first_guess
+        if guess is None:  # from the first and last lines
+            t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), float(self.lines))
+            e0 = self._line_error(t0, xyz, table=True)[0]
+        else:  # from the affine guess and one Newton step with the centre's slope
+            (coef, ground0), slope = (guess[0][:4], guess[0][4:]), guess[1]
+            rel = xyz - ground0  # no BLAS: the same rounding for any number of points
+            t0 = rel[:, 0] * coef[0] + rel[:, 1] * coef[1] + rel[:, 2] * coef[2] + coef[3]
+            e0 = self._line_error(t0, xyz, table=True)[0]
+            t1 = t0 - e0 / slope
+        e1, v1 = self._line_error(t1, xyz, table=True)
+        active = np.abs(e1) > precision
+        for _ in range(_MAX_SECANT):
+            active &= (e1 != e0) & np.isfinite(e1)
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            t2 = t1[idx] - e1[idx] * (t1[idx] - t0[idx]) / (e1[idx] - e0[idx])
+            e2, v1[idx] = self._line_error(t2, xyz[idx], table=True)
+            t0[idx], e0[idx] = t1[idx], e1[idx]
+            t1[idx], e1[idx] = t2, e2
+            active[idx] = np.abs(e2) > precision
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = (e1 - e0) / (t1 - t0)
+        return np.where(np.abs(e1) <= precision, t1, np.nan), e1, v1, slope
 
     def csm_ground_to_image(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSM (line, sample) and camera-frame depth (metres) of ground points (..., 3)
@@ -172,32 +296,32 @@ class LineScanCamera(CsmImage):
         return out[..., 0], out[..., 1], out[..., 2]
 
     def _ground_to_image_block(self, xyz: np.ndarray) -> np.ndarray:
-        line0 = self._approximate_line(xyz)
-        t0, t1 = np.zeros(len(xyz)), np.full(len(xyz), 0.1)
-        e0 = self._line_error(line0 + t0, xyz)[0]
-        e1 = self._line_error(line0 + t1, xyz)[0]
-        active = np.abs(e1) > PRECISION
-        for _ in range(1, _MAX_SECANT):
-            active &= e1 != e0
-            idx = np.flatnonzero(active)
-            if idx.size == 0:
-                break
-            t2 = t1[idx] - e1[idx] * (t1[idx] - t0[idx]) / (e1[idx] - e0[idx])
-            e2 = self._line_error(line0[idx] + t2, xyz[idx])[0]
-            t0[idx], e0[idx] = t1[idx], e1[idx]
-            t1[idx], e1[idx] = t2, e2
-            active[idx] = np.abs(e2) > PRECISION
-        line = line0 + t1
-        update, focal, depth = self._line_error(line, xyz)
-        line = line + update
-        sample = self.focal_plane.detector_sample(focal[:, 0], focal[:, 1])
+        """The secant iteration on the table; unless :attr:`_use_table`, then Newton steps
+        on the exact :meth:`_line_error` (with the table's slope) until its offset is within
+        :data:`PRECISION`, as usgscsm's iteration ends. The line is usgscsm's: the line of
+        that exposure plus the point's detector line offset."""
+        line, update, view, slope = self._table_line(xyz)
+        if self._use_table:
+            last = update
+        else:
+            last = np.full(len(xyz), np.nan)
+            todo = np.flatnonzero((line >= -_POLISH_MARGIN) & (line <= self.lines + _POLISH_MARGIN))
+            for _ in range(_MAX_POLISH):
+                if todo.size == 0:
+                    break
+                last[todo], view[todo] = self._line_error(line[todo], xyz[todo])
+                more = np.abs(last[todo]) > PRECISION
+                line[todo[more]] -= last[todo[more]] / slope[todo[more]]
+                todo = todo[more & np.isfinite(line[todo])]
+        sample = self.focal_plane.detector_sample(view[:, 0], view[:, 1])
+        out = np.stack([line + last, sample, view[:, 2]], -1)
         ok = (
-            self._valid_line(line)
-            & (np.abs(update) <= _CONVERGED)
-            & (depth > 0)
+            self._valid_line(out[:, 0])
+            & (np.abs(last) <= _CONVERGED)
+            & (out[:, 2] > 0)
             & np.isfinite(sample)
         )
-        return np.where(ok[:, None], np.stack([line, sample, depth], -1), np.nan)
+        return np.where(ok[:, None], out, np.nan)
 
     # --- the orthomvp Camera protocol --------------------------------------------------------
     def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +340,7 @@ class LineScanCamera(CsmImage):
         """The sensor positions (..., 3), metres, at the times of the lines of pixels ``uv``;
         NaN for lines outside the image."""
         line, _ = self._to_csm(as_points(uv, "origins", 2))
-        pos = self.sensor_position(line)
+        pos = self._states(line.ravel(), columns=3)[0].reshape(line.shape + (3,))
         return np.where(self._valid_line(line)[..., None], pos, np.nan)
 
     def image_to_ground(self, uv: np.ndarray, height: np.ndarray | float = 0.0) -> np.ndarray:
@@ -226,13 +350,18 @@ class LineScanCamera(CsmImage):
 
     def gsd(self, xyz: np.ndarray) -> np.ndarray:
         """Metres per pixel at world points (..., 3) across the line of sight: range from the
-        sensor at the time the point is imaged over the focal length in pixels; NaN where
-        not imaged."""
-        line, _, _ = self.csm_ground_to_image(xyz)
-        rng = np.linalg.norm(
-            np.asarray(xyz, np.float64) - self.sensor_position(np.nan_to_num(line)), axis=-1
-        )
-        return np.where(np.isfinite(line), rng / self.focal_plane.focal_pixels, np.nan)
+        sensor at the time the point is imaged (its line found on the table to
+        :data:`GSD_LINES`) over the focal length in pixels; NaN where not imaged."""
+        xyz = as_points(xyz, "gsd", 3)
+        flat = xyz.reshape(-1, 3)
+        out = np.empty(len(flat))
+        for start in range(0, len(flat), CHUNK):
+            block = flat[start : start + CHUNK]
+            line, _, view, _ = self._table_line(block, GSD_LINES)
+            rng = np.linalg.norm(block - self._states(line, table=True, columns=3)[0], axis=-1)
+            ok = self._valid_line(line) & (view[:, 2] > 0)
+            out[start : start + CHUNK] = np.where(ok, rng / self.focal_plane.focal_pixels, np.nan)
+        return out.reshape(xyz.shape[:-1])
 
 
 def posts_per_second(camera: LineScanCamera, *, posts: int = 1_000_000, seed: int = 0) -> float:

@@ -1,0 +1,154 @@
+"""The line-scan crater (``orthomvp synth crater --sensor linescan``): an oblique USGS CSM line
+scanner whose lines are each rendered from their own sensor position, scored against
+visibility truth marched towards the sensor position at the time each post is imaged, and
+against the analytic radiance; the tiled engine against the in-memory result."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from orthomvp.camera import read_camera
+from orthomvp.camera.csm import LineScanCamera
+from orthomvp.cli import main
+from orthomvp.codes import Code
+from orthomvp.engine import Outputs, plan_ortho, run_plan
+from orthomvp.ortho import orthorectify
+from orthomvp.synthetic import (
+    Scene,
+    away_from_boundaries,
+    classification_scores,
+    load_scene,
+    make_scene,
+)
+from orthomvp.visibility import compute_visibility
+
+
+@pytest.fixture(scope="module")
+def made() -> Scene:
+    return make_scene("crater", size=64, spacing=80.0, sensor="linescan")
+
+
+@pytest.fixture(scope="module")
+def scene_dir(made: Scene, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("linescan-crater")
+    made.write(out, supersample=2)
+    return out
+
+
+@pytest.fixture(scope="module")
+def scene(scene_dir: Path):
+    return load_scene(scene_dir)
+
+
+def test_scene_is_a_line_scanner_that_hides_terrain(scene_dir: Path, scene) -> None:
+    """The camera file is an ISD read back as a line scanner whose sensor moves between the
+    first and last lines; its truth has occluded posts behind the rim and the peak."""
+    camera = read_camera(scene_dir / "linescan.json")
+    assert isinstance(camera, LineScanCamera)
+    view = scene.views["linescan"]
+    assert scene.summary["sensor"] == "linescan"
+    assert (view.camera.width, view.camera.height) == (camera.samples, camera.lines)
+    first, last = camera.origins(np.array([[0.0, 0.0], [0.0, camera.lines - 1.0]]))
+    assert np.linalg.norm(last - first) > 1000.0  # metres flown during the image
+    counts = np.bincount(view.truth.ravel(), minlength=4)
+    assert counts[Code.NODATA] == 0  # the image holds the whole DEM
+    assert counts[Code.OCCLUDED] > 0.03 * view.truth.size
+
+
+def test_truth_is_marched_towards_each_posts_line(made, scene) -> None:
+    """The written truth marches each post towards the sensor position at the time of its
+    line: marching towards the position at the image centre's line instead changes codes."""
+    view = scene.views["linescan"]
+    written = made.visibility_truth(made.cameras["linescan"])
+    np.testing.assert_array_equal(written, view.truth)
+    centre = view.camera.origins(np.array([view.camera.width / 2, view.camera.height / 2]))
+    one_centre = made.visibility_truth(_FixedOrigin(view.camera, centre))
+    # the sensor flies about 5 km during the image, 190 km from the tile: 5 posts change here
+    assert (one_centre != view.truth).sum() >= 3
+
+
+@dataclass(frozen=True)
+class _FixedOrigin:
+    """A line scanner whose every pixel is taken as seen from one ``origin`` (a pinhole's
+    assumption), through the Camera protocol."""
+
+    camera: LineScanCamera
+    origin: np.ndarray
+
+    def project(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.camera.project(xyz)
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        return self.camera.in_image(uv)
+
+    def origins(self, uv: np.ndarray) -> np.ndarray:
+        finite = np.isfinite(uv).all(axis=-1)[..., None]
+        return np.where(finite, np.broadcast_to(self.origin, uv.shape[:-1] + (3,)), np.nan)
+
+
+def test_visibility_f1_against_marched_truth(scene) -> None:
+    view = scene.views["linescan"]
+    vis = compute_visibility(scene.terrain, view.camera)
+    keep = away_from_boundaries(view.truth)
+    scores = classification_scores(vis.codes, view.truth, keep)
+    assert scores["f1_visible"] >= 0.99, scores
+    assert scores["f1_hidden"] >= 0.95, scores
+
+
+def test_orthophoto_has_no_ghosts_and_matches_radiance(scene) -> None:
+    view = scene.views["linescan"]
+    ortho = orthorectify(scene.terrain, view.image, view.camera)
+    keep = away_from_boundaries(view.truth)
+    hidden = (view.truth == Code.OCCLUDED) & keep
+    ghosts = int((np.isfinite(ortho.data[0]) & hidden).sum())
+    assert hidden.sum() > 50
+    assert ghosts == 0, f"{ghosts} ghosts among {hidden.sum()} hidden posts"
+    naive = orthorectify(scene.terrain, view.image, view.camera, occlusion=False)
+    assert np.isfinite(naive.data[0][hidden]).all()  # what a naive orthophoto paints there
+    visible = np.isfinite(ortho.data[0]) & keep
+    corr = np.corrcoef(ortho.data[0][visible], scene.radiance[visible])[0, 1]
+    assert corr >= 0.98, f"orthophoto vs true radiance: r = {corr:.4f}"
+
+
+def test_tiled_engine_equals_in_memory(scene_dir: Path, scene, tmp_path: Path) -> None:
+    """Tiles of 12 posts, whose DEM windows reach beyond them by the occluder halo, give the
+    in-memory codes and orthophoto, with the camera read from the ISD by path."""
+    dem, image, isd = scene_dir / "dem.tif", scene_dir / "linescan.tif", scene_dir / "linescan.json"
+    plan = plan_ortho(dem, [(image, isd)], tile=12)
+    grown = [
+        job for job in plan.tiles if job.dem is not None and _size(job.dem) > _size(job.window)
+    ]
+    assert grown, "the halo reaches beyond the tiles"
+    outputs = Outputs(ortho=tmp_path / "o.tif", visibility=tmp_path / "v.tif")
+    run_plan(plan, outputs, progress=False)
+    view = scene.views["linescan"]
+    with rasterio.open(tmp_path / "v.tif") as src:
+        codes = src.read(1)
+    with rasterio.open(tmp_path / "o.tif") as src:
+        ortho = src.read()
+    np.testing.assert_array_equal(codes, compute_visibility(scene.terrain, view.camera).codes)
+    expected = orthorectify(scene.terrain, view.image, view.camera).data
+    np.testing.assert_allclose(ortho, expected, rtol=1e-6, equal_nan=True)
+
+
+def _size(window: tuple[int, int, int, int]) -> int:
+    r0, r1, c0, c1 = window
+    return (r1 - r0) * (c1 - c0)
+
+
+def test_command_line_on_the_scene(scene_dir: Path, scene, tmp_path: Path) -> None:
+    """``orthomvp visibility`` and ``ortho`` take the scene's ISD as the frame scenes' .tsai."""
+    files = [str(scene_dir / n) for n in ("dem.tif", "linescan.tif", "linescan.json")]
+    assert main(["visibility", *files, "-o", tmp_path / "v.tif"]) == 0
+    assert main(["ortho", *files, "-o", tmp_path / "o.tif"]) == 0
+    assert np.isfinite(rasterio.open(tmp_path / "o.tif").read(1)).mean() > 0.8
+    truth = scene.views["linescan"].truth
+    with rasterio.open(tmp_path / "v.tif") as src:
+        codes = src.read(1)
+    keep = away_from_boundaries(truth)
+    assert classification_scores(codes, truth, keep)["f1_visible"] >= 0.99
