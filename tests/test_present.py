@@ -14,6 +14,7 @@ import pytest
 from affine import Affine
 from pyproj import CRS
 
+from orthomvp import embree
 from orthomvp.codes import CODE_RGB, Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
@@ -63,7 +64,7 @@ def test_trimesh_view_is_built_once_from_the_arrays() -> None:
 USES = {
     "trimesh": lambda tm, tmp: export_mesh(tm, tmp / "m.ply"),
     "open3d": lambda tm, tmp: RayCaster(tm, "open3d"),
-    "embreex.rtcore_scene": lambda tm, tmp: RayCaster(tm),
+    "embreex": lambda tm, tmp: RayCaster(tm),
     "pyvista": lambda tm, tmp: snapshot(plain_terrain()),
 }
 """A feature that needs each optional module."""
@@ -75,6 +76,7 @@ def test_missing_library_fails_when_used_naming_the_package(
 ) -> None:
     tm = terrain_mesh(plain_terrain())
     monkeypatch.setitem(sys.modules, module, None)  # as if not installed
+    monkeypatch.setattr(embree, "_state", {})  # the Embree library not loaded yet
     package = module.partition(".")[0]
     with pytest.raises(InputError, match=f"pip install {package}"):
         USES[module](tm, tmp_path)
