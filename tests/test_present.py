@@ -51,6 +51,25 @@ def test_core_modules_import_no_heavy_library() -> None:
     assert out.stdout.strip() == "[]"
 
 
+ORTHO_PATH_SPARE = (*HEAVY, "scipy", "embreex", "orthomvp.mvp", "orthomvp.engine.fit")
+"""What an orthophoto run never loads: the heavy libraries, scipy at all, embreex's Python
+modules (only its Embree library), and the MVP fit."""
+
+
+def test_orthophoto_run_loads_no_heavy_module(crater_dir: Path, tmp_path: Path) -> None:
+    """The whole `orthomvp ortho` command, occlusion on, in a fresh process."""
+    d = crater_dir
+    args = [str(d / "dem.tif"), str(d / "oblique.tif"), str(d / "oblique.tsai")]
+    code = (
+        "import sys; from orthomvp.cli import main; "
+        f"assert main(['--quiet', 'ortho', *{args!r}, '-o', {str(tmp_path / 'o.tif')!r}]) == 0; "
+        f"print([m for m in {ORTHO_PATH_SPARE!r} if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+    assert (tmp_path / "o.tif").exists()
+
+
 def test_trimesh_view_is_built_once_from_the_arrays() -> None:
     tm = terrain_mesh(plain_terrain())
     assert tm.vertices.dtype == np.float64 and tm.faces.shape[1] == 3
