@@ -273,9 +273,9 @@ def test_bad_backend() -> None:
         RayCaster(terrain_mesh(sphere_terrain(4, 20.0, 10.0)), "optix")
 
 
-@pytest.mark.parametrize("n", [0, 1, 15, 16, 17, 5000])
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 5000])
 def test_embree_scene_matches_embreex(small, n) -> None:
-    """The zero-copy scene and its 16-ray packets give embreex's own answers bit for bit:
+    """The zero-copy scene and its 8-ray packets give embreex's own answers bit for bit:
     the same triangles, distances and barycentrics, for any number of rays (partial packets),
     hits and misses alike."""
     from embreex import mesh_construction, rtcore_scene
