@@ -27,7 +27,7 @@ class TerrainMesh:
     """A DEM triangulated in the world frame.
 
     ``vertices`` (n, 3) float64 are local: world metres minus ``origin`` (3,). ``faces`` (m, 3)
-    int64 index the vertices, wound so that normals point up. ``vertex_post`` gives, for each
+    int32 index the vertices, wound so that normals point up. ``vertex_post`` gives, for each
     vertex, its flat post index ``r * cols + c`` in the DEM grid of ``grid_shape`` (rows, cols).
     Each grid cell with four valid corners gives two triangles; a triangle with a hole at any
     corner is left out.
@@ -60,17 +60,26 @@ class TerrainMesh:
 
 
 def grid_triangles(valid: np.ndarray) -> np.ndarray:
-    """Triangles (as flat post indices, (n, 3)) of a grid, two per cell, skipping holes.
+    """Triangles (as flat post indices, (n, 3) int32) of a grid, two per cell, skipping holes.
 
     Cell (c, r)-(c+1, r+1) splits along the diagonal from (c+1, r) to (c, r+1).
     """
     rows, cols = valid.shape
-    idx = np.arange(rows * cols).reshape(rows, cols)
-    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
-    d, e = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    tris = np.concatenate([np.column_stack([a, d, b]), np.column_stack([b, d, e])])
-    ok = valid.ravel()[tris].all(axis=1)
-    return tris[ok]
+    if rows * cols >= 2**31:
+        raise InputError(f"a mesh of {rows} x {cols} posts is too large (2**31 posts at most)")
+    idx = np.arange(rows * cols, dtype=np.int32).reshape(rows, cols)
+    a, b = idx[:-1, :-1], idx[:-1, 1:]
+    d, e = idx[1:, :-1], idx[1:, 1:]
+    cells = (rows - 1) * (cols - 1)
+    tris = np.empty((2, rows - 1, cols - 1, 3), np.int32)
+    for k, corners in enumerate(((a, d, b), (b, d, e))):
+        for j, corner in enumerate(corners):
+            tris[k, ..., j] = corner
+    tris = tris.reshape(2 * cells, 3)
+    if valid.all():
+        return tris
+    v = valid.ravel()
+    return tris[v[tris[:, 0]] & v[tris[:, 1]] & v[tris[:, 2]]]
 
 
 def terrain_mesh(
@@ -93,17 +102,21 @@ def terrain_mesh(
         r, c = np.nonzero(valid)
         k = np.argmin((r - (rows - 1) / 2) ** 2 + (c - (cols - 1) / 2) ** 2)
         origin = pts[r[k] * cols + c[k]]
-    origin = np.asarray(origin, dtype=np.float64)
-    in_use = np.zeros(len(pts), bool)
-    in_use[tris.ravel()] = True
-    used = np.flatnonzero(in_use)
-    faces = (np.cumsum(in_use) - 1)[tris]
-    local = pts[used] - origin
+    origin = np.array(origin, dtype=np.float64)  # a copy: pts changes below
+    if valid.all():  # every post is a vertex, in grid order: no remapping
+        used, faces, local = np.arange(len(pts)), tris, pts
+        local -= origin  # pts is this function's own array
+    else:
+        in_use = np.zeros(len(pts), bool)
+        in_use[tris.ravel()] = True
+        used = np.flatnonzero(in_use)
+        faces = (np.cumsum(in_use, dtype=np.int32) - 1)[tris]
+        local = pts[used] - origin
     # Wind faces so that the normals point up. All faces share one winding (the grid is regular);
     # decide it by an area-weighted vote of faces spread over the grid, since a single face can
     # be degenerate (posts at a pole coincide) and then tells nothing.
     v = local[faces[:: max(1, len(faces) // 1000)]]
     n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     if np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0:
-        faces = faces[:, ::-1]
+        faces = np.ascontiguousarray(faces[:, ::-1])  # Embree shares contiguous faces
     return TerrainMesh(local, faces, origin, used, t.shape)

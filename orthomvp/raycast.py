@@ -1,6 +1,7 @@
-"""First-hit ray casting against a terrain mesh: Embree (embreex, default) or Open3D.
+"""First-hit ray casting against a terrain mesh: Embree (default; the library bundled with
+embreex, through :mod:`orthomvp.embree`) or Open3D.
 
-The backend's library (embreex or Open3D) is imported when a caster is built. Both backends work
+The backend's library is loaded when a caster is built. Both backends work
 in float32, so the scene is built in the mesh's local frame (see
 :mod:`orthomvp.mesh`) and each ray origin is first moved, in float64, along its ray to the
 near side of the mesh's bounding sphere. The float32 cast then spans only the scene's own size:
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from orthomvp.embree import Scene, vertex_buffer
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh
 from orthomvp.optional import require
@@ -54,37 +56,32 @@ class RayCaster:
         self.tmesh = tmesh
         self.backend = backend
         self.threads = threads or os.cpu_count() or 1
-        self._verts = np.asarray(tmesh.vertices, dtype=np.float64)
-        self._faces = np.asarray(tmesh.faces, dtype=np.int64)
-        lo, hi = self._verts.min(axis=0), self._verts.max(axis=0)
+        verts = np.asarray(tmesh.vertices, dtype=np.float64)
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
         self._centre = (lo + hi) / 2
         self._radius = float(np.linalg.norm(hi - lo) / 2) * 1.001 + 1.0
-        v32 = self._verts.astype(np.float32)
-        f32 = self._faces.astype(np.int32)
+        faces = np.asarray(tmesh.faces, dtype=np.int32)
         if backend == "embree":
-            rtcore_scene = require("embreex.rtcore_scene", "Embree ray casting", "embreex")
-            mesh_construction = require(
-                "embreex.mesh_construction", "Embree ray casting", "embreex"
-            )
-            self._scene = rtcore_scene.EmbreeScene()
-            mesh_construction.TriangleMesh(self._scene, v32, f32)
+            v32 = vertex_buffer(len(verts))
+            v32[:] = verts
+            self._scene = Scene(v32, faces)  # shares v32 and faces; builds the BVH
         else:
             self._o3d = o3d = require("open3d", "Open3D ray casting")
             self._scene = o3d.t.geometry.RaycastingScene()
-            self._scene.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f32.astype(np.uint32)))
-        # The first query builds the acceleration structure; do it now, on one thread.
-        self.raw_cast(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+            self._scene.add_triangles(
+                o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.view(np.uint32))
+            )
+            # The first query builds the acceleration structure; do it now, on one thread.
+            self.raw_cast(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
 
     def raw_cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The bare backend call on float32 local-frame rays: (t, triangle, u, v)."""
+        """The bare backend call on float32 local-frame rays: (t, triangle, u, v), triangle
+        -1 on a miss."""
         if self.backend == "embree":
-            out = self._scene.run(origins, directions, output=1)
-            tri = out["primID"].astype(np.int64)
-            return out["tfar"], tri, out["u"], out["v"]
+            return self._scene.intersect(origins, directions)
         rays = self._o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
         out = self._scene.cast_rays(rays, nthreads=self.threads)
-        tri = out["primitive_ids"].numpy().astype(np.int64)
-        tri[tri == np.iinfo(np.uint32).max] = -1
+        tri = out["primitive_ids"].numpy().view(np.int32)  # uint32 max on a miss: -1
         uv = out["primitive_uvs"].numpy()
         return out["t_hit"].numpy(), tri, uv[:, 0], uv[:, 1]
 

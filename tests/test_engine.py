@@ -227,7 +227,7 @@ def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
     plan = plan_ortho(crater["dem"], [view], tile=64, res=(0.0009, 0.0007), progress=False)
     cog = tmp_path / "cog.tif"
-    run_plan(plan, Outputs(ortho=cog, blocksize=64, compress="zstd"), progress=False)
+    run_plan(plan, Outputs(ortho=cog, blocksize=64), progress=False)  # zstd, level 1: the default
     with rasterio.open(cog) as src:
         assert src.tags(ns="IMAGE_STRUCTURE")["LAYOUT"] == "COG"
         assert src.compression.name == "zstd" and src.block_shapes[0] == (64, 64)
@@ -245,6 +245,11 @@ def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
     assert (codes[empty] == 0).all() and (codes[~empty] >= 1).all()
     expected = np.clip(np.rint(reference[~empty]), 1, 255)
     np.testing.assert_array_equal(codes[~empty], expected)
+    slow = tmp_path / "slow.tif"  # deflate, GDAL's default level, when asked for
+    run_plan(plan, Outputs(ortho=slow, blocksize=64, compress="deflate"), progress=False)
+    with rasterio.open(slow) as src:
+        assert src.compression.name == "deflate"
+        np.testing.assert_array_equal(src.read(1), reference)
     plan16 = plan_ortho(crater["dem"], [view], tile=16, progress=False)
     out = Outputs(ortho=tmp_path / "i16.tif", compress="none", dtype="int16")
     run_plan(plan16, out, progress=False)

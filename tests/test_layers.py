@@ -17,7 +17,7 @@ LAYERS = [
     ("orthomvp.raster",),
     ("orthomvp.terrain",),
     ("orthomvp.world", "orthomvp.camera"),
-    ("orthomvp.mesh",),
+    ("orthomvp.mesh", "orthomvp.embree"),
     ("orthomvp.raycast",),
     ("orthomvp.visibility",),
     ("orthomvp.mosaic",),

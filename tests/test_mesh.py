@@ -38,11 +38,11 @@ LON0, LAT0 = 30.0, 10.0  # upper-left corner, degrees
 STEP = np.degrees(20.0 / R)  # 20 m posts
 
 
-def small_terrain(north_up: bool = True) -> Terrain:
-    """5 x 6 posts, 20 m apart, on the lunar sphere with two holes."""
+def small_terrain(north_up: bool = True, holes: bool = True) -> Terrain:
+    """5 x 6 posts, 20 m apart, on the lunar sphere with two holes (or none)."""
     rng = np.random.default_rng(3)
     values = rng.uniform(-40, 40, (ROWS, COLS))
-    for r, c in HOLES:
+    for r, c in HOLES if holes else ():
         values[r, c] = np.nan
     e = -STEP if north_up else STEP
     return Terrain(values, Affine(STEP, 0, LON0, 0, e, LAT0), MOON)
@@ -78,17 +78,19 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
 
 
+@pytest.mark.parametrize("holes", [True, False], ids=["holes", "no-holes"])
 @pytest.mark.parametrize("north_up", [True, False], ids=["north-up", "south-up"])
-def test_triangulation_holes_positions_winding(north_up: bool) -> None:
-    t = small_terrain(north_up)
+def test_triangulation_holes_positions_winding(north_up: bool, holes: bool) -> None:
+    t = small_terrain(north_up, holes)
     tm = terrain_mesh(t)
     faces_posts = tm.vertex_post[tm.faces]
     expected = brute_triangles(np.isfinite(t.values))
     # 20 cells x 2 = 40; each hole removes the 6 triangles that use it (counted by hand)
-    assert len(tm.faces) == len(expected) == 28
+    assert len(tm.faces) == len(expected) == (28 if holes else 40)
     assert {tuple(sorted(f)) for f in faces_posts} == expected
-    holes = {r * COLS + c for r, c in HOLES}
-    assert not holes & set(faces_posts.ravel())
+    hole_posts = {r * COLS + c for r, c in HOLES} if holes else set()
+    assert not hole_posts & set(faces_posts.ravel())
+    assert tm.faces.dtype == np.int32 and tm.faces.flags.c_contiguous  # as Embree shares it
     # every vertex is a distinct used post
     assert len(np.unique(tm.vertex_post)) == len(tm.vertex_post) == len(np.unique(faces_posts))
     r, c = np.divmod(tm.vertex_post, COLS)

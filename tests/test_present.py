@@ -14,6 +14,7 @@ import pytest
 from affine import Affine
 from pyproj import CRS
 
+from orthomvp import embree
 from orthomvp.codes import CODE_RGB, Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.mesh import terrain_mesh
@@ -50,6 +51,25 @@ def test_core_modules_import_no_heavy_library() -> None:
     assert out.stdout.strip() == "[]"
 
 
+ORTHO_PATH_SPARE = (*HEAVY, "scipy", "embreex", "orthomvp.mvp", "orthomvp.engine.fit")
+"""What an orthophoto run never loads: the heavy libraries, scipy at all, embreex's Python
+modules (only its Embree library), and the MVP fit."""
+
+
+def test_orthophoto_run_loads_no_heavy_module(crater_dir: Path, tmp_path: Path) -> None:
+    """The whole `orthomvp ortho` command, occlusion on, in a fresh process."""
+    d = crater_dir
+    args = [str(d / "dem.tif"), str(d / "oblique.tif"), str(d / "oblique.tsai")]
+    code = (
+        "import sys; from orthomvp.cli import main; "
+        f"assert main(['--quiet', 'ortho', *{args!r}, '-o', {str(tmp_path / 'o.tif')!r}]) == 0; "
+        f"print([m for m in {ORTHO_PATH_SPARE!r} if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+    assert (tmp_path / "o.tif").exists()
+
+
 def test_trimesh_view_is_built_once_from_the_arrays() -> None:
     tm = terrain_mesh(plain_terrain())
     assert tm.vertices.dtype == np.float64 and tm.faces.shape[1] == 3
@@ -63,7 +83,7 @@ def test_trimesh_view_is_built_once_from_the_arrays() -> None:
 USES = {
     "trimesh": lambda tm, tmp: export_mesh(tm, tmp / "m.ply"),
     "open3d": lambda tm, tmp: RayCaster(tm, "open3d"),
-    "embreex.rtcore_scene": lambda tm, tmp: RayCaster(tm),
+    "embreex": lambda tm, tmp: RayCaster(tm),
     "pyvista": lambda tm, tmp: snapshot(plain_terrain()),
 }
 """A feature that needs each optional module."""
@@ -75,6 +95,7 @@ def test_missing_library_fails_when_used_naming_the_package(
 ) -> None:
     tm = terrain_mesh(plain_terrain())
     monkeypatch.setitem(sys.modules, module, None)  # as if not installed
+    monkeypatch.setattr(embree, "_state", {})  # the Embree library not loaded yet
     package = module.partition(".")[0]
     with pytest.raises(InputError, match=f"pip install {package}"):
         USES[module](tm, tmp_path)

@@ -9,6 +9,7 @@ from conftest import open3d_missing, require_open3d
 from pyproj import CRS
 
 from orthomvp import raycast
+from orthomvp.embree import Scene, _padded, vertex_buffer
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh, terrain_mesh
 from orthomvp.raycast import BACKENDS, RayCaster
@@ -270,3 +271,47 @@ def test_threaded_chunks_equal_small_batches(backend, small) -> None:
 def test_bad_backend() -> None:
     with pytest.raises(InputError):
         RayCaster(terrain_mesh(sphere_terrain(4, 20.0, 10.0)), "optix")
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 5000])
+def test_embree_scene_matches_embreex(small, n) -> None:
+    """The zero-copy scene and its 8-ray packets give embreex's own answers bit for bit:
+    the same triangles, distances and barycentrics, for any number of rays (partial packets),
+    hits and misses alike."""
+    from embreex import mesh_construction, rtcore_scene
+
+    v32 = vertex_buffer(len(small.vertices))
+    v32[:] = small.vertices
+    faces = small.faces.astype(np.int32)
+    scene = Scene(v32, faces)
+    assert np.shares_memory(scene._vertices, v32) and np.shares_memory(scene._faces, faces)
+    reference = rtcore_scene.EmbreeScene()
+    mesh_construction.TriangleMesh(reference, v32, faces)
+    rng = np.random.default_rng(15)
+    up = small.origin / np.linalg.norm(small.origin)  # local frame: up is not +z
+    size = np.ptp(small.vertices, axis=0).max()
+    o = rng.normal(0, size / 4, (n, 3)) + 3 * size * up
+    targets = small.vertices[rng.integers(0, len(small.vertices), n)]
+    d = targets + rng.normal(0, size / 3, (n, 3)) - o  # some pass beside the tile
+    o, d = o.astype(np.float32), (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    t, tri, u, v = scene.intersect(o, d)
+    ref = reference.run(o, d, output=1)
+    np.testing.assert_array_equal(tri, ref["primID"])
+    hit = tri >= 0
+    np.testing.assert_array_equal(t[hit], ref["tfar"][hit])
+    np.testing.assert_array_equal(u[hit], ref["u"][hit])
+    np.testing.assert_array_equal(v[hit], ref["v"][hit])
+    assert np.all(t[~hit] == np.inf)
+    if n == 5000:
+        assert 0.2 < hit.mean() < 0.95
+
+
+def test_embree_vertex_buffer_is_padded() -> None:
+    """Embree reads 16 bytes at the last float32 vertex: arrays without 4 spare bytes after
+    them are copied once into a padded buffer, padded ones are shared."""
+    v = vertex_buffer(10)
+    assert v.base.nbytes >= v.nbytes + 4 and _padded(v) is v
+    plain = np.zeros((10, 3), np.float32)
+    padded = _padded(plain)
+    assert padded is not plain and padded.base.nbytes >= plain.nbytes + 4
+    assert _padded(plain[:5]).base is plain  # a view with spare bytes after it is shared

@@ -14,11 +14,27 @@ The MVP fit runs the same way (:mod:`orthomvp.engine.fit_plan`, :mod:`orthomvp.e
     report = run_fit(plan, FitOutputs(heights="fitted.tif", uncertainty="sigma.tif"))
 """
 
-from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
-from orthomvp.engine.fit_plan import FitPlan, plan_fit
-from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
-from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
-from orthomvp.engine.writer import Outputs
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_HOMES = {
+    "FitOutputs": "fit",
+    "FitReport": "fit",
+    "run_fit": "fit",
+    "FitPlan": "fit_plan",
+    "plan_fit": "fit_plan",
+    "HaloWarning": "plan",
+    "Plan": "plan",
+    "TileJob": "plan",
+    "plan_ortho": "plan",
+    "RunReport": "run",
+    "WorkerError": "run",
+    "dask_client": "run",
+    "run_plan": "run",
+    "Outputs": "writer",
+}
+"""The module of each name below: imported on first use, so that the orthophoto path does not
+load the MVP fit (and scipy.ndimage with it)."""
 
 __all__ = [
     "FitOutputs",
@@ -36,3 +52,16 @@ __all__ = [
     "run_fit",
     "run_plan",
 ]
+
+if TYPE_CHECKING:
+    from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
+    from orthomvp.engine.fit_plan import FitPlan, plan_fit
+    from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
+    from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
+    from orthomvp.engine.writer import Outputs
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)

