@@ -99,11 +99,108 @@ def terrain_mesh(
     used = np.flatnonzero(in_use)
     faces = (np.cumsum(in_use) - 1)[tris]
     local = pts[used] - origin
-    # Wind faces so that the normals point up. All faces share one winding (the grid is regular);
-    # decide it by an area-weighted vote of faces spread over the grid, since a single face can
-    # be degenerate (posts at a pole coincide) and then tells nothing.
+    return TerrainMesh(local, _wound_up(t, local, faces, origin), origin, used, t.shape)
+
+
+def _wound_up(t: Terrain, local: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """``faces`` wound so that their normals point up."""
+    # All faces share one winding (the grid is regular); decide it by an area-weighted vote of
+    # faces spread over the grid, since a single face can be degenerate (posts at a pole
+    # coincide) and then tells nothing.
     v = local[faces[:: max(1, len(faces) // 1000)]]
     n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     if np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0:
-        faces = faces[:, ::-1]
-    return TerrainMesh(local, faces, origin, used, t.shape)
+        return faces[:, ::-1]
+    return faces
+
+
+STEP_SLOPE = 3.0
+"""Rise over run between two neighbouring posts (71.6 degrees) above which the occluder
+surface takes the step between them as a wall halfway between them (:func:`occluder_mesh`)."""
+
+
+def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> TerrainMesh:
+    """The surface that visibility casts on: the DEM mesh, with every step between two
+    neighbouring posts steeper than :data:`STEP_SLOPE` made a wall halfway between them.
+
+    The point halfway along a step takes the higher post's height, and the centre of a cell
+    with a step on any edge the highest of its four posts; such a cell is a fan of eight
+    triangles about its centre, so the step stands at full height from the line halfway between
+    the posts, where a wall between posts stands (the DEM posts as cells, pixel-is-area),
+    instead of a slope spread over the whole cell that lets the wall's shadow fall short.
+    Posts keep their own heights. Cells without a step keep the plain mesh's two triangles
+    (:func:`terrain_mesh`); a neighbour of a stepped cell fans about its diagonal's midpoint
+    through the midpoint of the edge they share (at the mean of its posts where the edge is no
+    step), which leaves its surface that of the plain mesh and the mesh without cracks; a cell
+    with a hole keeps its plain triangles and closes such an edge with the triangle from its
+    posts to the midpoint. Without steps this is the plain mesh. Heights are DEM heights or
+    means of two: never above the DEM's highest post. Each edge's slope uses only its two posts,
+    so the surface over a window of the DEM is that of the whole DEM (tiling gives the same
+    result). ``vertex_post`` indexes the refined grid of (2 rows - 1, 2 cols - 1) points
+    (posts, edge midpoints, cell centres). Why: see :func:`orthomvp.visibility.default_eps`."""
+    of_type(terrain, Terrain, "terrain")
+    v = terrain.values
+    rows, cols = v.shape
+    p = terrain.world_points()
+
+    def halfway(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> tuple:
+        """Heights halfway between posts a and b, and whether the edge is a step."""
+        rise = np.abs(a - b)
+        span = np.linalg.norm(pa - pb, axis=-1)
+        with np.errstate(invalid="ignore"):
+            step = rise > STEP_SLOPE * np.sqrt(np.maximum(span * span - rise * rise, 0.0))
+        return np.where(step, np.maximum(a, b), (a + b) / 2), step
+
+    fine = np.empty((2 * rows - 1, 2 * cols - 1))
+    fine[::2, ::2] = v
+    fine[1::2, ::2], down = halfway(v[:-1], v[1:], p[:-1], p[1:])  # (rows - 1, cols)
+    fine[::2, 1::2], across = halfway(v[:, :-1], v[:, 1:], p[:, :-1], p[:, 1:])  # (rows, cols - 1)
+    stepped = down[:, :-1] | down[:, 1:] | across[:-1] | across[1:]  # per cell
+    top = np.maximum(np.maximum(v[:-1, :-1], v[:-1, 1:]), np.maximum(v[1:, :-1], v[1:, 1:]))
+    fine[1::2, 1::2] = np.where(stepped, top, (v[:-1, 1:] + v[1:, :-1]) / 2)
+    # an edge is split at its midpoint when a cell on either side has a step
+    split_down = np.zeros(down.shape, bool)
+    split_down[:, :-1] |= stepped
+    split_down[:, 1:] |= stepped
+    split_across = np.zeros(across.shape, bool)
+    split_across[:-1] |= stepped
+    split_across[1:] |= stepped
+    width = 2 * cols - 1
+    cr, cc = np.mgrid[0 : rows - 1, 0 : cols - 1]
+    a, m = 2 * cr * width + 2 * cc, (2 * cr + 1) * width + 2 * cc + 1  # corner (r, c), centre
+    b, d = a + 2, a + 2 * width
+    e = d + 2
+    # the cell's sides in one turn: (from, midpoint, to, split)
+    sides = (
+        (a, a + 1, b, split_across[:-1]),
+        (b, m + 1, e, split_down[:, 1:]),
+        (e, d + 1, d, split_across[1:]),
+        (d, m - 1, a, split_down[:, :-1]),
+    )
+    fan = np.zeros(stepped.shape, bool)
+    for *_, split in sides:
+        fan |= split
+    fan &= np.isfinite(fine[1::2, 1::2])  # a cell with a hole does not fan
+    plain = np.concatenate([np.stack([a, d, b], -1)[~fan], np.stack([b, d, e], -1)[~fan]])
+    tris = [plain]
+    for s0, mid, s1, split in sides:
+        tris += [
+            np.stack([m, mid, s0], -1)[fan & split],
+            np.stack([m, s1, mid], -1)[fan & split],
+            np.stack([m, s1, s0], -1)[fan & ~split],
+            np.stack([s0, s1, mid], -1)[~fan & split],  # a hole's cell closes its side
+        ]
+    tris = np.concatenate(tris)
+    tris = tris[np.isfinite(fine.ravel()[tris]).all(axis=1)]
+    if len(tris) == 0:
+        raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
+    used, faces = np.unique(tris, return_inverse=True)
+    faces = faces.reshape(tris.shape)
+    fr, fc = np.divmod(used, width)
+    pts = terrain.to_world(fc / 2.0, fr / 2.0, fine.ravel()[used])
+    if origin is None:  # the meshed point nearest the grid centre
+        k = np.argmin((fr - (rows - 1)) ** 2 + (fc - (cols - 1)) ** 2)
+        origin = pts[k]
+    origin = np.asarray(origin, dtype=np.float64)
+    local = pts - origin
+    return TerrainMesh(local, _wound_up(terrain, local, faces, origin), origin, used, fine.shape)
