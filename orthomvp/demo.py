@@ -29,7 +29,6 @@ from orthomvp.present.figures import height_error_maps, ortho_comparison, scene_
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
 from orthomvp.present.webpage import write_index
 from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
-from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import (
     SceneData,
     away_from_boundaries,
@@ -38,6 +37,7 @@ from orthomvp.synthetic import (
     make_scene,
 )
 from orthomvp.synthetic.scoring import HIDDEN
+from orthomvp.visibility import occluder_caster
 
 DEMO_SIZE = 120
 DEMO_SPACING = 50.0
@@ -80,7 +80,7 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
 def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
     """Visibility, orthophotos and the mosaic of the oblique and nadir views, scored."""
     terrain = scene.terrain
-    caster = RayCaster(terrain_mesh(terrain))
+    caster = occluder_caster(terrain)
     oblique, nadir = scene.views["oblique"], scene.views["nadir"]
     aware = orthorectify(terrain, oblique.image, oblique.camera, caster=caster)
     naive = orthorectify(terrain, oblique.image, oblique.camera, occlusion=False, caster=caster)

@@ -23,11 +23,15 @@ from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import terrain_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
-from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, Visibility, compute_visibility
+from orthomvp.visibility import (
+    VISIBILITY_BYTES_PER_POST,
+    Visibility,
+    compute_visibility,
+    occluder_caster,
+)
 
 BYTES_PER_BAND_POST = 12
 """Memory of an orthophoto per band and post beyond its visibility: the float32 result and the
@@ -164,7 +168,7 @@ def mosaic(
     """One orthophoto from several (image, camera) views: each post from its best visible view
     (smallest emission angle). All images must have the same number of bands. ``eps`` and
     ``interp`` as in :func:`orthorectify`; ``caster`` reuses a ray caster built on this
-    terrain's mesh (one is built otherwise)."""
+    terrain's occluder surface (one is built otherwise)."""
     interp = Interp(interp)
     of_type(terrain, Terrain, "terrain")
     if not isinstance(views, (list, tuple)) or not views:
@@ -176,7 +180,7 @@ def mosaic(
     bands = {img.shape[0] for img, _ in views}
     if len(bands) != 1:
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
-    caster = caster or RayCaster(terrain_mesh(terrain))
+    caster = caster or occluder_caster(terrain)
     rows, cols = terrain.shape
     data = np.full((bands.pop(), rows, cols), np.nan, np.float32)
     source = np.zeros((rows, cols), np.uint8)
