@@ -123,21 +123,22 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     """The surface that visibility casts on: the DEM mesh, with every step between two
     neighbouring posts steeper than :data:`STEP_SLOPE` made a wall halfway between them.
 
-    The point halfway along a step takes the higher post's height, and the centre of a cell
-    with a step on any edge the highest of its four posts; such a cell is a fan of eight
-    triangles about its centre, so the step stands at full height from the line halfway between
-    the posts, where a wall between posts stands (the DEM posts as cells, pixel-is-area),
-    instead of a slope spread over the whole cell that lets the wall's shadow fall short.
-    Posts keep their own heights. Cells without a step keep the plain mesh's two triangles
+    The point halfway along a step takes the higher post's height, and the centre of a cell with
+    a step on any edge the highest of its four posts; such a cell is a fan of eight triangles
+    about its centre, so the step stands at full height from the line halfway between the posts,
+    where a wall between posts stands (the DEM posts as cells, pixel-is-area), instead of a
+    slope spread over the whole cell that lets the wall's shadow fall short. Posts keep their
+    own heights. Cells without a step keep the plain mesh's two triangles
     (:func:`terrain_mesh`); a neighbour of a stepped cell fans about its diagonal's midpoint
     through the midpoint of the edge they share (at the mean of its posts where the edge is no
     step), which leaves its surface that of the plain mesh and the mesh without cracks; a cell
     with a hole keeps its plain triangles and closes such an edge with the triangle from its
-    posts to the midpoint. Without steps this is the plain mesh. Heights are DEM heights or
-    means of two: never above the DEM's highest post. Each edge's slope uses only its two posts,
-    so the surface over a window of the DEM is that of the whole DEM (tiling gives the same
-    result). ``vertex_post`` indexes the refined grid of (2 rows - 1, 2 cols - 1) points
-    (posts, edge midpoints, cell centres). Why: see :func:`orthomvp.visibility.default_eps`."""
+    posts to the midpoint. A DEM without a step gets :func:`terrain_mesh`'s mesh. Heights are
+    DEM heights or means of two: never above the DEM's highest post. Each edge's slope uses only
+    its two posts, so the surface over a window of the DEM is that of the whole DEM (tiling
+    gives the same result). With steps, ``vertex_post`` indexes the refined grid of (2 rows - 1,
+    2 cols - 1) points (posts, edge midpoints, cell centres). Why: see
+    :func:`orthomvp.visibility.default_eps`."""
     of_type(terrain, Terrain, "terrain")
     v = terrain.values
     rows, cols = v.shape
@@ -158,6 +159,8 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     stepped = down[:, :-1] | down[:, 1:] | across[:-1] | across[1:]  # per cell
     top = np.maximum(np.maximum(v[:-1, :-1], v[:-1, 1:]), np.maximum(v[1:, :-1], v[1:, 1:]))
     fine[1::2, 1::2] = np.where(stepped, top, (v[:-1, 1:] + v[1:, :-1]) / 2)
+    if not stepped.any():
+        return terrain_mesh(terrain, origin=origin)
     # an edge is split at its midpoint when a cell on either side has a step
     split_down = np.zeros(down.shape, bool)
     split_down[:, :-1] |= stepped
@@ -166,30 +169,38 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     split_across[:-1] |= stepped
     split_across[1:] |= stepped
     width = 2 * cols - 1
-    cr, cc = np.mgrid[0 : rows - 1, 0 : cols - 1]
-    a, m = 2 * cr * width + 2 * cc, (2 * cr + 1) * width + 2 * cc + 1  # corner (r, c), centre
-    b, d = a + 2, a + 2 * width
-    e = d + 2
-    # the cell's sides in one turn: (from, midpoint, to, split)
-    sides = (
-        (a, a + 1, b, split_across[:-1]),
-        (b, m + 1, e, split_down[:, 1:]),
-        (e, d + 1, d, split_across[1:]),
-        (d, m - 1, a, split_down[:, :-1]),
-    )
-    fan = np.zeros(stepped.shape, bool)
-    for *_, split in sides:
-        fan |= split
+
+    def corners(cells: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Fine-grid indices of flat ``cells``' corners (r, c), (r, c+1), (r+1, c),
+        (r+1, c+1) and centre."""
+        cr, cc = np.divmod(cells, cols - 1)
+        a = 2 * cr * width + 2 * cc
+        return a, a + 2, a + 2 * width, a + 2 * width + 2, a + width + 1
+
+    fan = split_across[:-1] | split_across[1:] | split_down[:, :-1] | split_down[:, 1:]
     fan &= np.isfinite(fine[1::2, 1::2])  # a cell with a hole does not fan
-    plain = np.concatenate([np.stack([a, d, b], -1)[~fan], np.stack([b, d, e], -1)[~fan]])
-    tris = [plain]
-    for s0, mid, s1, split in sides:
-        tris += [
-            np.stack([m, mid, s0], -1)[fan & split],
-            np.stack([m, s1, mid], -1)[fan & split],
-            np.stack([m, s1, s0], -1)[fan & ~split],
-            np.stack([s0, s1, mid], -1)[~fan & split],  # a hole's cell closes its side
-        ]
+    tris = []
+    for fanned in (True, False):
+        cells = np.flatnonzero(fan == fanned)
+        a, b, d, e, m = corners(cells)
+        # the cell's sides in one turn: (from, midpoint, to, split)
+        sides = (
+            (a, a + 1, b, split_across[:-1].ravel()[cells]),
+            (b, m + 1, e, split_down[:, 1:].ravel()[cells]),
+            (e, d + 1, d, split_across[1:].ravel()[cells]),
+            (d, m - 1, a, split_down[:, :-1].ravel()[cells]),
+        )
+        if not fanned:
+            tris += [np.stack([a, d, b], -1), np.stack([b, d, e], -1)]
+        for s0, mid, s1, split in sides:
+            if fanned:
+                tris += [
+                    np.stack([m, mid, s0], -1)[split],
+                    np.stack([m, s1, mid], -1)[split],
+                    np.stack([m, s1, s0], -1)[~split],
+                ]
+            else:  # only a cell with a hole has split sides here: it closes them
+                tris.append(np.stack([s0, s1, mid], -1)[split])
     tris = np.concatenate(tris)
     tris = tris[np.isfinite(fine.ravel()[tris]).all(axis=1)]
     if len(tris) == 0:
