@@ -266,7 +266,7 @@ def _about(scene: SceneData) -> list[tuple[str, str]]:
          f"{DEMO_SPACING:g} m on the Moon"),
         ("views", ", ".join(f"{name} ({v['emission_deg']:g} degrees, GSD {v['gsd_m']:.0f} m)"
                              for name, v in views.items())),
-        ("visibility", "epsilon = max(4 posts, GSD in posts), the default"),
+        ("visibility", "epsilon = max(3 posts, GSD in posts) on the occluder surface, the default"),
         ("fit start", f"truth smoothed over 2 posts, +{START_OFFSET:g} m, +{START_NOISE:g} m "
          "RMS of smooth random error (seed 1)"),
         ("fit", f"hwin {FIT.hwin}, sigma {FIT.window_sigma:g} posts, {FIT.levels} pyramid "
