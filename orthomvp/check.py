@@ -30,13 +30,12 @@ from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import sample_image
 from orthomvp.raster import atomic_path
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import number, of_type
-from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility
+from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility, occluder_caster
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
 """Epsilons checked by default, DEM posts."""
@@ -119,8 +118,8 @@ def check_views(
     rows, cols) or (rows, cols), cameras with or without image size) on ``terrain`` for every
     epsilon of ``eps_values`` (DEM posts, > 0), with an odd ``window`` (3..51 posts); see the
     module docstring. ``names`` label the views (default 1, 2, ...); ``caster`` reuses a ray
-    caster on this terrain's mesh. GeometryError when no two views overlap (share at least a
-    window of posts inside both images and facing both)."""
+    caster on this terrain's occluder surface. GeometryError when no two views overlap (share
+    at least a window of posts inside both images and facing both)."""
     of_type(terrain, Terrain, "terrain")
     if not isinstance(views, (list, tuple)) or len(views) < 2:
         raise InputError("the check needs a list of at least two (image, camera) views")
@@ -141,7 +140,7 @@ def check_views(
         * (VISIBILITY_BYTES_PER_POST + CHECK_BYTES_PER_POST + VIEW_BYTES_PER_POST * len(views)),
         "use a smaller or coarser DEM",
     )
-    caster = caster or RayCaster(terrain_mesh(terrain))
+    caster = caster or occluder_caster(terrain)
     miss, naive, base = [], [], []
     for k, (image, camera) in enumerate(views):
         image = as_image(image, f"view {names[k]}")

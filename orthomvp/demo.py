@@ -29,7 +29,6 @@ from orthomvp.present.figures import height_error_maps, ortho_comparison, scene_
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
 from orthomvp.present.webpage import write_index
 from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
-from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import (
     SceneData,
     away_from_boundaries,
@@ -38,6 +37,7 @@ from orthomvp.synthetic import (
     make_scene,
 )
 from orthomvp.synthetic.scoring import HIDDEN
+from orthomvp.visibility import occluder_caster
 
 DEMO_SIZE = 120
 DEMO_SPACING = 50.0
@@ -80,7 +80,7 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
 def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
     """Visibility, orthophotos and the mosaic of the oblique and nadir views, scored."""
     terrain = scene.terrain
-    caster = RayCaster(terrain_mesh(terrain))
+    caster = occluder_caster(terrain)
     oblique, nadir = scene.views["oblique"], scene.views["nadir"]
     aware = orthorectify(terrain, oblique.image, oblique.camera, caster=caster)
     naive = orthorectify(terrain, oblique.image, oblique.camera, occlusion=False, caster=caster)
@@ -266,7 +266,7 @@ def _about(scene: SceneData) -> list[tuple[str, str]]:
          f"{DEMO_SPACING:g} m on the Moon"),
         ("views", ", ".join(f"{name} ({v['emission_deg']:g} degrees, GSD {v['gsd_m']:.0f} m)"
                              for name, v in views.items())),
-        ("visibility", "epsilon = max(4 posts, GSD in posts), the default"),
+        ("visibility", "epsilon = max(3 posts, GSD in posts) on the occluder surface, the default"),
         ("fit start", f"truth smoothed over 2 posts, +{START_OFFSET:g} m, +{START_NOISE:g} m "
          "RMS of smooth random error (seed 1)"),
         ("fit", f"hwin {FIT.hwin}, sigma {FIT.window_sigma:g} posts, {FIT.levels} pyramid "

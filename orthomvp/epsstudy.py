@@ -18,12 +18,10 @@ import numpy as np
 
 from orthomvp.codes import classify
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
 from orthomvp.raster import write_set
-from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
 from orthomvp.validate import number
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -70,7 +68,7 @@ def eps_study(
         terrain = scene.terrain
         if sigma > 0:
             terrain = terrain.with_values(terrain.values + rng.normal(0, sigma, terrain.shape))
-        caster = RayCaster(terrain_mesh(terrain))
+        caster = occluder_caster(terrain)
         for name, view in scene.views.items():
             vis = compute_visibility(terrain, view.camera, caster=caster)
             keep = away_from_boundaries(view.truth)

@@ -112,11 +112,119 @@ def terrain_mesh(
         used = np.flatnonzero(in_use)
         faces = (np.cumsum(in_use, dtype=np.int32) - 1)[tris]
         local = pts[used] - origin
-    # Wind faces so that the normals point up. All faces share one winding (the grid is regular);
-    # decide it by an area-weighted vote of faces spread over the grid, since a single face can
-    # be degenerate (posts at a pole coincide) and then tells nothing.
+    return TerrainMesh(local, _wound_up(t, local, faces, origin), origin, used, t.shape)
+
+
+def _wound_up(t: Terrain, local: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """``faces`` wound so that their normals point up."""
+    # All faces share one winding (the grid is regular); decide it by an area-weighted vote of
+    # faces spread over the grid, since a single face can be degenerate (posts at a pole
+    # coincide) and then tells nothing.
     v = local[faces[:: max(1, len(faces) // 1000)]]
     n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
     if np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0:
-        faces = np.ascontiguousarray(faces[:, ::-1])  # Embree shares contiguous faces
-    return TerrainMesh(local, faces, origin, used, t.shape)
+        faces = faces[:, ::-1]
+    return np.ascontiguousarray(faces, dtype=np.int32)  # what Embree shares
+
+
+STEP_SLOPE = 3.0
+"""Rise over run between two neighbouring posts (71.6 degrees) above which the occluder
+surface takes the step between them as a wall halfway between them (:func:`occluder_mesh`)."""
+
+
+def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> TerrainMesh:
+    """The surface that visibility casts on: the DEM mesh, with every step between two
+    neighbouring posts steeper than :data:`STEP_SLOPE` made a wall halfway between them.
+
+    The point halfway along a step takes the higher post's height, and the centre of a cell with
+    a step on any edge the highest of its four posts; such a cell is a fan of eight triangles
+    about its centre, so the step stands at full height from the line halfway between the posts,
+    where a wall between posts stands (the DEM posts as cells, pixel-is-area), instead of a
+    slope spread over the whole cell that lets the wall's shadow fall short. Posts keep their
+    own heights. Cells without a step keep the plain mesh's two triangles
+    (:func:`terrain_mesh`); a neighbour of a stepped cell fans about its diagonal's midpoint
+    through the midpoint of the edge they share (at the mean of its posts where the edge is no
+    step), which leaves its surface that of the plain mesh and the mesh without cracks; a cell
+    with a hole keeps its plain triangles and closes such an edge with the triangle from its
+    posts to the midpoint. A DEM without a step gets :func:`terrain_mesh`'s mesh. Heights are
+    DEM heights or means of two: never above the DEM's highest post. Each edge's slope uses only
+    its two posts, so the surface over a window of the DEM is that of the whole DEM (tiling
+    gives the same result). With steps, ``vertex_post`` indexes the refined grid of (2 rows - 1,
+    2 cols - 1) points (posts, edge midpoints, cell centres). Why: see
+    :func:`orthomvp.visibility.default_eps`."""
+    of_type(terrain, Terrain, "terrain")
+    v = terrain.values
+    rows, cols = v.shape
+    p = terrain.world_points()
+
+    def halfway(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> tuple:
+        """Heights halfway between posts a and b, and whether the edge is a step."""
+        rise = np.abs(a - b)
+        span = np.linalg.norm(pa - pb, axis=-1)
+        with np.errstate(invalid="ignore"):
+            step = rise > STEP_SLOPE * np.sqrt(np.maximum(span * span - rise * rise, 0.0))
+        return np.where(step, np.maximum(a, b), (a + b) / 2), step
+
+    fine = np.empty((2 * rows - 1, 2 * cols - 1))
+    fine[::2, ::2] = v
+    fine[1::2, ::2], down = halfway(v[:-1], v[1:], p[:-1], p[1:])  # (rows - 1, cols)
+    fine[::2, 1::2], across = halfway(v[:, :-1], v[:, 1:], p[:, :-1], p[:, 1:])  # (rows, cols - 1)
+    stepped = down[:, :-1] | down[:, 1:] | across[:-1] | across[1:]  # per cell
+    top = np.maximum(np.maximum(v[:-1, :-1], v[:-1, 1:]), np.maximum(v[1:, :-1], v[1:, 1:]))
+    fine[1::2, 1::2] = np.where(stepped, top, (v[:-1, 1:] + v[1:, :-1]) / 2)
+    if not stepped.any():
+        return terrain_mesh(terrain, origin=origin)
+    # an edge is split at its midpoint when a cell on either side has a step
+    split_down = np.zeros(down.shape, bool)
+    split_down[:, :-1] |= stepped
+    split_down[:, 1:] |= stepped
+    split_across = np.zeros(across.shape, bool)
+    split_across[:-1] |= stepped
+    split_across[1:] |= stepped
+    width = 2 * cols - 1
+
+    def corners(cells: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Fine-grid indices of flat ``cells``' corners (r, c), (r, c+1), (r+1, c),
+        (r+1, c+1) and centre."""
+        cr, cc = np.divmod(cells, cols - 1)
+        a = 2 * cr * width + 2 * cc
+        return a, a + 2, a + 2 * width, a + 2 * width + 2, a + width + 1
+
+    fan = split_across[:-1] | split_across[1:] | split_down[:, :-1] | split_down[:, 1:]
+    fan &= np.isfinite(fine[1::2, 1::2])  # a cell with a hole does not fan
+    tris = []
+    for fanned in (True, False):
+        cells = np.flatnonzero(fan == fanned)
+        a, b, d, e, m = corners(cells)
+        # the cell's sides in one turn: (from, midpoint, to, split)
+        sides = (
+            (a, a + 1, b, split_across[:-1].ravel()[cells]),
+            (b, m + 1, e, split_down[:, 1:].ravel()[cells]),
+            (e, d + 1, d, split_across[1:].ravel()[cells]),
+            (d, m - 1, a, split_down[:, :-1].ravel()[cells]),
+        )
+        if not fanned:
+            tris += [np.stack([a, d, b], -1), np.stack([b, d, e], -1)]
+        for s0, mid, s1, split in sides:
+            if fanned:
+                tris += [
+                    np.stack([m, mid, s0], -1)[split],
+                    np.stack([m, s1, mid], -1)[split],
+                    np.stack([m, s1, s0], -1)[~split],
+                ]
+            else:  # only a cell with a hole has split sides here: it closes them
+                tris.append(np.stack([s0, s1, mid], -1)[split])
+    tris = np.concatenate(tris)
+    tris = tris[np.isfinite(fine.ravel()[tris]).all(axis=1)]
+    if len(tris) == 0:
+        raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
+    used, faces = np.unique(tris, return_inverse=True)
+    faces = faces.reshape(tris.shape)
+    fr, fc = np.divmod(used, width)
+    pts = terrain.to_world(fc / 2.0, fr / 2.0, fine.ravel()[used])
+    if origin is None:  # the meshed point nearest the grid centre
+        k = np.argmin((fr - (rows - 1)) ** 2 + (fc - (cols - 1)) ** 2)
+        origin = pts[k]
+    origin = np.asarray(origin, dtype=np.float64)
+    local = pts - origin
+    return TerrainMesh(local, _wound_up(terrain, local, faces, origin), origin, used, fine.shape)

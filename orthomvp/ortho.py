@@ -25,7 +25,6 @@ from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import terrain_mesh
 from orthomvp.mosaic import (
     Correction,
     MosaicOptions,
@@ -39,7 +38,12 @@ from orthomvp.mosaic import (
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
-from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, Visibility, compute_visibility
+from orthomvp.visibility import (
+    VISIBILITY_BYTES_PER_POST,
+    Visibility,
+    compute_visibility,
+    occluder_caster,
+)
 
 BYTES_PER_BAND_POST = 12
 """Memory of an orthophoto per band and post beyond its visibility: the float32 result and the
@@ -185,8 +189,8 @@ def mosaic(
     mosaic does. The balance's statistics come from the whole grid (the engine's from a
     decimated one), and the blend width is clamped to the widest overlap (BlendWarning).
     All images must have the same number of bands. ``eps`` and ``interp`` as in
-    :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's mesh (one is
-    built otherwise)."""
+    :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's occluder surface
+    (one is built otherwise)."""
     interp = Interp(interp)
     of_type(terrain, Terrain, "terrain")
     options = options or MosaicOptions()
@@ -202,7 +206,7 @@ def mosaic(
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
     n, nb = len(views), bands.pop()
     check_orthophoto_memory(terrain.shape, nb * n, "use a coarser grid (Terrain.regrid)")
-    caster = caster or RayCaster(terrain_mesh(terrain))
+    caster = caster or occluder_caster(terrain)
     shape = (n, *terrain.shape)
     values = np.full((n, nb, *terrain.shape), np.nan, np.float32)
     codes = np.zeros(shape, np.uint8)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from orthomvp.codes import Code
-from orthomvp.mesh import terrain_mesh
+from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.truth import visibility_truth
@@ -35,7 +35,7 @@ def test_carried_codes_equal_casting_every_post_with_fewer_rays(scene, factor: i
     dem, camera = scene.terrain, scene.cameras["oblique"]
     grid = dem.regrid((abs(dem.transform.a) / factor, abs(dem.transform.e) / factor))
     scale = float(np.mean(grid.post_spacing()) / np.mean(dem.post_spacing()))
-    caster = CountingCaster(terrain_mesh(dem))
+    caster = CountingCaster(occluder_mesh(dem))
     every = compute_visibility(grid, camera, caster=caster, post_scale=scale)
     rays_every, caster.rays = caster.rays, 0
     carried = compute_visibility(grid, camera, caster=caster, post_scale=scale, dem=dem)

@@ -75,7 +75,7 @@ def test_mosaic_fills_hidden_posts(scene) -> None:
 
 
 def test_eps_rule_and_study(crater_dir) -> None:
-    np.testing.assert_array_equal(default_eps(np.array([0.5, 4.0, 7.5])), [4.0, 4.0, 7.5])
+    np.testing.assert_array_equal(default_eps(np.array([0.5, 4.0, 7.5])), [3.0, 4.0, 7.5])
     rows = eps_study(crater_dir, eps_values=(0.05, 4.0, 500.0))
     oblique = {r["eps"]: r for r in rows if r["view"] == "oblique"}
     assert oblique["default"]["f1_visible"] >= 0.99

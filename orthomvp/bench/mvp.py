@@ -15,11 +15,9 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.bench.timing import best_time
 from orthomvp.codes import Code
-from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.fit import TILE, FitOptions, fit_dem
-from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import make_scene
-from orthomvp.visibility import compute_visibility
+from orthomvp.visibility import compute_visibility, occluder_caster
 
 CHANNELS = 3
 """Samples per position in the baseline: the fitter's images are stacks of value and c, r
@@ -85,7 +83,7 @@ def bench_mvp(size: int = 96) -> dict:
     initial = scene.terrain.with_values(gaussian_filter(truth, 3) + 15.0)
     cameras = list(scene.cameras.values())
     images = [scene.render(camera) for camera in cameras]
-    caster = RayCaster(terrain_mesh(initial))
+    caster = occluder_caster(initial)
     visible = np.stack(
         [compute_visibility(initial, c, caster=caster).codes == Code.VISIBLE for c in cameras]
     )

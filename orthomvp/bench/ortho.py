@@ -9,9 +9,8 @@ import numpy as np
 
 from orthomvp.bench.timing import best_time
 from orthomvp.bench.workload import bench_camera, bench_terrain, check_ortho_memory
-from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import orthorectify
-from orthomvp.raycast import RayCaster
+from orthomvp.visibility import occluder_caster
 
 
 def bench_ortho(size: int = 2000) -> dict:
@@ -21,7 +20,7 @@ def bench_ortho(size: int = 2000) -> dict:
     check_ortho_memory(size)
     terrain = bench_terrain(size)
     t0 = time.perf_counter()
-    caster = RayCaster(terrain_mesh(terrain))
+    caster = occluder_caster(terrain)
     build = time.perf_counter() - t0
     cam = bench_camera(terrain)
     rng = np.random.default_rng(0)

@@ -22,11 +22,10 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.camera import load_view
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
 from orthomvp.ortho import orthorectify
 from orthomvp.raster import open_raster, read_image, write_geotiff
-from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, horizontal_crs
+from orthomvp.visibility import occluder_caster
 from orthomvp.world import detect_world
 
 PEER_IMAGE = "3324c_2015_1004_05_0182_RGB"
@@ -161,7 +160,7 @@ def run_orthomvp(
     terrain = Terrain.read(case.dem)
     terrain = replace(terrain, world=detect_world(terrain, camera.center[None]))
     times.append(time.perf_counter())
-    caster = RayCaster(terrain_mesh(terrain))
+    caster = occluder_caster(terrain)
     times.append(time.perf_counter())
     grid = terrain.regrid((res, res), bounds)
     times.append(time.perf_counter())

@@ -236,7 +236,7 @@ eps_option = click.option(
     "--eps",
     type=POSITIVE,
     metavar="POSTS",
-    show_default="max(4, image ground sample distance in posts); see the README",
+    show_default="max(3, image ground sample distance in posts); see the README",
     help="visibility tolerance in DEM posts",
 )
 interp_option = click.option(

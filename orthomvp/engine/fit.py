@@ -37,11 +37,9 @@ from orthomvp.engine.run import (
 from orthomvp.engine.tile import GC_POSTS, _has_cell, _release, _timed
 from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp import fit_dem
 from orthomvp.mvp.views import ViewWindow, covers, exact_masks, union, window_for
-from orthomvp.raycast import RayCaster
-from orthomvp.visibility import compute_visibility
+from orthomvp.visibility import compute_visibility, occluder_caster
 
 
 # ------------------------------------------------------------------------------ per tile
@@ -124,7 +122,7 @@ def _run_fit_tile(plan: FitPlan, index: int, threads: int, progress: bool) -> Fi
     terrain = plan.dem.window_terrain(ext, values[_sub(ext, job.dem)])
     inner, fit = _sub(job.window, ext), _sub(job.fit, ext)
     with _timed(seconds, "mesh"):
-        caster = RayCaster(terrain_mesh(window), threads=threads)
+        caster = occluder_caster(window, threads=threads)
     visible = np.zeros((len(job.views), *terrain.shape), bool)
     for i, k in enumerate(job.views):
         with _timed(seconds, "visibility"):

@@ -39,10 +39,11 @@ SAMPLE_BUDGET_PIXELS = 1 << 24
 # Bytes of memory per post, from the peak resident set size of runs of the scale benchmark's
 # scene (orthomvp.engine.scale, 2048 x 2048 posts, tiles of 128 to 1024 posts, one thread),
 # rounded up: the DEM window meshed for Embree (world points, triangles, the trimesh, the
-# caster's float32 copies and BVH: about 290 measured), the window's values, and the posts of
+# caster's float32 copies and BVH: about 290 measured; the occluder surface of a city whose
+# walls step a third of the cells 1.6 times that), the window's values, and the posts of
 # a tile (with one around) through visibility and sampling (float64 geometry in
 # compute_visibility's sub-tiles, codes, uv, emission: about 150 measured for one view).
-MESH_BYTES = 300
+MESH_BYTES = 480
 WINDOW_BYTES = 16
 TILE_BYTES = 100
 VIEW_BYTES = 50

@@ -21,12 +21,11 @@ from orthomvp.codes import Code
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
-from orthomvp.mesh import terrain_mesh
 from orthomvp.mosaic import compose, nadir_angle
 from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 GC_POSTS = 1 << 15
 """DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
@@ -204,7 +203,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     caster = None
     if plan.occlusion:
         with _timed(seconds, "mesh"):
-            caster = RayCaster(terrain_mesh(window), threads=threads)
+            caster = occluder_caster(window, threads=threads)
     result.valid = int(np.isfinite(grid.values[inner]).sum())
     best = np.full(grid.values[inner].shape, np.inf)
     for k in job.views:
@@ -273,7 +272,7 @@ def _mosaic_tile(
     caster = None
     if plan.occlusion:
         with _timed(seconds, "mesh"):
-            caster = RayCaster(terrain_mesh(window), threads=threads)
+            caster = occluder_caster(window, threads=threads)
     result.valid = int(np.isfinite(grid.values[inner][core]).sum())
     values = np.full((n, plan.bands, *shape), np.nan, np.float32)
     codes = np.zeros((n, *shape), np.uint8)

@@ -10,14 +10,12 @@ import numpy as np
 from orthomvp.camera import PinholeCamera, as_image, check_image, require_pinhole
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import PostLines, post_lines
 from orthomvp.mvp.views import ViewWindow
-from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, grid_normals
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 MIN_LEVEL_SIZE = 16  # pixels: no pyramid level whose smallest image is narrower
 
@@ -129,7 +127,7 @@ class FitProblem:
         if visible is None and windows is not None:
             raise InputError("a fit on windows of the images needs the visibility masks")
         if visible is None:
-            caster = RayCaster(terrain_mesh(terrain))
+            caster = occluder_caster(terrain)
             visibility = [compute_visibility(terrain, cam, eps=eps, caster=caster) for cam in cams]
             visible = np.stack([v.codes == Code.VISIBLE for v in visibility])
         visible = np.asarray(visible, bool)
