@@ -13,8 +13,9 @@ Its reprojection error, the largest distance between the matrix's and the camera
 over the denser :data:`CHECK_LATTICE` of the same box, must stay within :data:`ERROR_BOUND`
 pixels, else the view does not take part at that post (its matrix is NaN, as for a patch off
 the image); :func:`local_projections` reports the errors. A smaller ``hwin`` shrinks the box:
-the error of a pushbroom grows about as the square of the box's size. Coarser pyramid levels use the same
-matrix over their larger patches, where it is not bounded: they only bring the planes near.
+the error of a pushbroom grows about as the square of the box's size. Coarser pyramid levels
+use the same matrix over their larger patches, where it is not bounded: they only bring the
+planes near.
 Lattice points the camera does not image (NaN) are left out.
 """
 
@@ -53,7 +54,7 @@ def fit_projections(xyz: np.ndarray, uv: np.ndarray) -> np.ndarray:
     A = np.zeros((B, 2 * N, 12))
     A[:, 0::2, 0:4], A[:, 0::2, 8:12] = X, -u[..., None] * X
     A[:, 1::2, 4:8], A[:, 1::2, 8:12] = X, -v[..., None] * X
-    Pn = np.linalg.svd(A)[2][:, -1].reshape(B, 3, 4)
+    Pn = np.linalg.svd(A, full_matrices=False)[2][:, -1].reshape(B, 3, 4)
     Tx = np.tile(np.eye(4), (B, 1, 1))
     Tx[:, :3, :3] *= sx[:, None, None]
     Tx[:, :3, 3] = -sx[:, None] * mx

@@ -51,8 +51,8 @@ class PlaneModel:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     def _outer(self, level: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left factor T F (K or B, K, 3, 4) (level-0 pixels to level pixels) and right factor Z (B,3,3)
-        (patch offsets in steps to grid pixels)."""
+        """Left factor T F ((B,) K, 3, 4) (level-0 pixels to level pixels) and right factor Z
+        (B, 3, 3) (patch offsets in steps to grid pixels)."""
         s = 2.0**level
         T = np.diag([1 / s, 1 / s, 1.0])
         Z = np.zeros((len(self.lines.c), 3, 3))
