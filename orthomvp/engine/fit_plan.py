@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.camera import Camera, NullDistortion, PinholeCamera, require_pinhole
+from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.halo import footprint, image_box, perimeter, tile_halo
@@ -191,15 +191,19 @@ def _grow(window: WindowT | None, n: int, shape: tuple[int, int]) -> WindowT | N
     return max(r0 - n, 0), min(r1 + n, rows), max(c0 - n, 0), min(c1 + n, cols)
 
 
-def _undistorted(camera: PinholeCamera) -> PinholeCamera:
-    return replace(camera, distortion=NullDistortion())
+def _undistorted(camera: Camera) -> Camera:
+    """A pinhole without its lens distortion (the fit samples such images); other cameras as
+    they are."""
+    if isinstance(camera, PinholeCamera):
+        return replace(camera, distortion=NullDistortion())
+    return camera
 
 
 def patch_box(
-    dem: DemSource, window: WindowT, camera: PinholeCamera, reach: int, slack: float
+    dem: DemSource, window: WindowT, camera: Camera, reach: int, slack: float
 ) -> tuple[float, float, float, float]:
-    """Where the patches of the posts of ``window`` may fall in the image without lens
-    distortion: the bounding box (c0, c1, r0, r1) of the projections of the window grown by
+    """Where the patches of the posts of ``window`` may fall in the image (a pinhole's without
+    lens distortion): the bounding box (c0, c1, r0, r1) of the projections of the window grown by
     ``reach`` posts (not clipped to the DEM), at the DEM's lowest value minus ``slack`` and
     its highest plus ``slack`` (metres); the whole plane when some point lies behind the
     camera."""
@@ -295,8 +299,6 @@ def plan_fit(
             "each with its camera"
         )
     sources = tuple(image_source(image, camera) for image, camera in views)
-    for view in sources:
-        require_pinhole(view.camera, str(view.path), "the MVP fit (plane homographies)")
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source)
     levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory
 from orthomvp.mvp.deconvolve import deconvolve
@@ -234,7 +234,7 @@ def _fit_batch(
 def fit_dem(
     terrain: Terrain,
     images: list[np.ndarray],
-    cameras: list[PinholeCamera],
+    cameras: list[Camera],
     options: FitOptions | None = None,
     visible: np.ndarray | None = None,
     eps: float | None = None,
@@ -278,6 +278,7 @@ def fit_dem(
         images,
         cameras,
         levels=opts.levels,
+        hwin=opts.hwin,
         eps=eps,
         visible=visible,
         min_views=2,

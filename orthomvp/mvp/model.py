@@ -20,7 +20,9 @@ from orthomvp.mvp.plane import PostLines, plane_map, tangent_basis
 class PlaneModel:
     """The homographies of a batch of posts and their parameter derivatives: height lines,
     starting normals ``n0`` (B, 3) with tangents ``t1``, ``t2`` (from ``n0`` unless given),
-    projection matrices ``F`` (K, 3, 4) and the post spacing in metres."""
+    projection matrices ``F`` (K, 3, 4), or per post (B, K, 3, 4) (local approximations of
+    cameras that are not pinholes, :mod:`orthomvp.mvp.local`), and the post spacing in
+    metres."""
 
     lines: PostLines
     n0: np.ndarray
@@ -38,7 +40,7 @@ class PlaneModel:
         return PlaneModel(
             self.lines.take(index),
             self.n0[index],
-            self.F,
+            self.F if self.F.ndim == 3 else self.F[index],
             self.spacing,
             self.t1[index],
             self.t2[index],
@@ -49,8 +51,8 @@ class PlaneModel:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
     def _outer(self, level: int) -> tuple[np.ndarray, np.ndarray]:
-        """Left factor T F (K, 3, 4) (level-0 pixels to level pixels) and right factor Z (B,3,3)
-        (patch offsets in steps to grid pixels)."""
+        """Left factor T F ((B,) K, 3, 4) (level-0 pixels to level pixels) and right factor Z
+        (B, 3, 3) (patch offsets in steps to grid pixels)."""
         s = 2.0**level
         T = np.diag([1 / s, 1 / s, 1.0])
         Z = np.zeros((len(self.lines.c), 3, 3))
@@ -65,7 +67,8 @@ class PlaneModel:
         TF, Z = self._outer(level)
         n = self.n0 + theta[:, 1:2] * self.t1 + theta[:, 2:3] * self.t2
         G = plane_map(self.lines, theta[:, 0], n) @ Z
-        H = np.einsum("kij,bjl->bkil", TF, G)
+        per_post = TF.ndim == 4
+        H = np.einsum("bkij,bjl->bkil" if per_post else "kij,bjl->bkil", TF, G)
         if not derivatives:
             return H, None
         dG = (
@@ -80,7 +83,7 @@ class PlaneModel:
             )
             @ Z[:, None]
         )
-        dH = np.einsum("kij,bpjl->bkpil", TF, dG)
+        dH = np.einsum("bkij,bpjl->bkpil" if per_post else "kij,bpjl->bkpil", TF, dG)
         return H, dH
 
     def inside(

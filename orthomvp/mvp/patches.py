@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera, PinholeCamera
 from orthomvp.errors import InputError
 from orthomvp.mvp.views import ViewWindow, level_size, undistorted_image
 from orthomvp.mvp.window import Window
@@ -55,8 +55,9 @@ class ViewStack:
 
     ``levels[L][k]``: view k at pyramid level L (image reduced 2**L times by ``cv2.pyrDown``) as
     a (rows, cols, 3) float32 array of value and its c and r gradients per pixel. ``F`` (K, 3, 4)
-    projection matrices (eq. 9) of the undistorted level-0 images; level L pixel = level-0 pixel
-    / 2**L. ``sizes[L][k]`` = (cols, rows). ``flat[L]`` (K,): the patch standard deviation
+    projection matrices (eq. 9) of the undistorted level-0 images (NaN for cameras that are not
+    pinholes: :mod:`orthomvp.mvp.local` approximates them per post); level L pixel = level-0
+    pixel / 2**L. ``sizes[L][k]`` = (cols, rows). ``flat[L]`` (K,): the patch standard deviation
     below which a view's patch is taken as flat (MIN_STD times the image's own), computed once.
     The fill value of nodata pixels and the standard deviations are taken in float64, so that
     windows of the image (which sum them in other orders) agree to float32 rounding.
@@ -155,7 +156,7 @@ class ViewStack:
     def build(
         cls,
         images: list[np.ndarray],
-        cameras: list[PinholeCamera],
+        cameras: list[Camera],
         n_levels: int,
         windows: list[ViewWindow] | None = None,
     ) -> ViewStack:
@@ -178,8 +179,11 @@ class ViewStack:
             fill = np.float32(mean)
             img = np.where(finite, img, fill)
             origin = (0, 0) if view is None else view.origin
-            img, camera = undistorted_image(img, camera, origin)
-            Fs.append(camera.F)
+            if isinstance(camera, PinholeCamera):
+                img, camera = undistorted_image(img, camera, origin)
+                Fs.append(camera.F)
+            else:
+                Fs.append(np.full((3, 4), np.nan))
             for level in range(n_levels):
                 if level:
                     img = cv2.pyrDown(img)

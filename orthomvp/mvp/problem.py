@@ -7,9 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, as_image, check_image, require_pinhole
+from orthomvp.camera import Camera, PinholeCamera, as_image, check_image
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
+from orthomvp.mvp.local import local_projections
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import PostLines, post_lines
@@ -33,10 +34,10 @@ def levels_for(smallest: int, wanted: int) -> int:
 
 def first_bands(
     images: list[np.ndarray],
-    cameras: list[PinholeCamera],
+    cameras: list[Camera],
     names: list[str],
     windows: list[ViewWindow] | None = None,
-) -> tuple[list[np.ndarray], list[PinholeCamera]]:
+) -> tuple[list[np.ndarray], list[Camera]]:
     """Band 1 of each image ((bands, rows, cols) or (rows, cols), see
     :func:`orthomvp.camera.as_image`) as float32, and each camera checked against its image and
     given its size; ``names`` label errors. With ``windows`` the images are those windows of
@@ -44,7 +45,6 @@ def first_bands(
     bands, cams = [], []
     for k, (image, camera, name) in enumerate(zip(images, cameras, names, strict=True)):
         img = as_image(image, name)
-        require_pinhole(camera, name, "the MVP fit (plane homographies)")
         if windows is None:
             cams.append(check_image(img, camera, name))
         else:
@@ -68,7 +68,9 @@ class FitProblem:
     posts each view may see (visibility code 1 unless given); ``visibility``: each view's full
     visibility test (None when ``visible`` was given); ``normals`` (rows, cols, 3): the DEM's
     unit surface normals; ``usable`` (rows, cols): posts with a value and a normal;
-    ``spacing``: the mean post spacing in metres.
+    ``spacing``: the mean post spacing in metres; ``cameras`` (K) the views' cameras and
+    ``hwin`` the window's half-size in posts, over whose patches cameras that are not pinholes
+    are approximated by projection matrices (:mod:`orthomvp.mvp.local`).
     """
 
     terrain: Terrain
@@ -81,15 +83,18 @@ class FitProblem:
     spacing: float
     origin: tuple[int, int] = (0, 0)
     geometry: Terrain | None = None
+    cameras: list[Camera] | None = None
+    hwin: int = 10
 
     @classmethod
     def build(
         cls,
         terrain: Terrain,
         images: list[np.ndarray],
-        cameras: list[PinholeCamera],
+        cameras: list[Camera],
         *,
         levels: int,
+        hwin: int = 10,
         eps: float | None = None,
         visible: np.ndarray | None = None,
         names: list[str] | None = None,
@@ -104,7 +109,7 @@ class FitProblem:
         (fewer when the images are small, see :func:`pyramid_levels`). ``visible`` (K, rows,
         cols) bool overrides the visibility test (:func:`orthomvp.visibility.compute_visibility`
         with ``eps`` in DEM posts, on this DEM's mesh); ``names`` label the views (default
-        "image 1", ...).
+        "image 1", ...); ``hwin``: the window's half-size in posts (see :mod:`orthomvp.mvp.local`).
 
         A window of a larger DEM and images: ``windows`` (one per view) say where the images
         lie in the cameras' images (:mod:`orthomvp.mvp.views`; the visibility test needs the
@@ -147,8 +152,9 @@ class FitProblem:
         if spacing is None:
             spacing = float(np.mean(terrain.post_spacing()))
         return cls(
-            terrain, names, stack, visible, visibility, normals, usable, spacing, origin, geometry
-        )
+            terrain, names, stack, visible, visibility, normals, usable, spacing, origin, geometry,
+            cams, hwin,
+        )  # fmt: skip
 
     @property
     def levels(self) -> int:
@@ -174,5 +180,22 @@ class FitProblem:
         t2: np.ndarray | None = None,
     ) -> PlaneModel:
         """The plane model of posts with height ``lines``, starting normals ``n0`` (B, 3) and
-        tilt directions ``t1``, ``t2`` (B, 3) (from ``n0`` unless given), seen by these views."""
-        return PlaneModel(lines, n0, self.stack.F, self.spacing, t1, t2)
+        tilt directions ``t1``, ``t2`` (B, 3) (from ``n0`` unless given), seen by these views:
+        pinholes through their own matrices, other cameras through matrices fitted around each
+        post at its DEM value (:func:`~orthomvp.mvp.local.local_projections`)."""
+        F = self.stack.F
+        local = [
+            k for k, cam in enumerate(self.cameras or []) if not isinstance(cam, PinholeCamera)
+        ]
+        if local:
+            c0, r0 = self.origin
+            rows, cols = self.terrain.shape
+            ci = np.clip(np.rint(lines.c).astype(int) - c0, 0, cols - 1)
+            ri = np.clip(np.rint(lines.r).astype(int) - r0, 0, rows - 1)
+            F = np.repeat(F[None], len(lines.c), axis=0)
+            for k in local:
+                F[:, k], _ = local_projections(
+                    self.cameras[k], self.geometry or self.terrain, lines.c, lines.r,
+                    self.terrain.values[ri, ci], hwin=self.hwin, spacing=self.spacing,
+                )  # fmt: skip
+        return PlaneModel(lines, n0, F, self.spacing, t1, t2)

@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import minimum_filter
 
-from orthomvp.camera import NullDistortion, PinholeCamera
+from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.errors import InputError
 
 LANES = 32
@@ -99,6 +99,12 @@ class ViewWindow:
     def whole(self) -> bool:
         """Whether the window is the whole image."""
         return self.window == (0, self.size[1], 0, self.size[0])
+
+
+def has_lens(camera: Camera) -> bool:
+    """Whether ``camera`` is a pinhole with lens distortion (whose images the fit resamples
+    without it); other cameras' images are taken as they are."""
+    return isinstance(camera, PinholeCamera) and not isinstance(camera.distortion, NullDistortion)
 
 
 def source_map(camera: PinholeCamera, window: WindowT) -> np.ndarray:
@@ -192,13 +198,13 @@ def _tap_mask(src: np.ndarray, window: WindowT, size: tuple[int, int]) -> np.nda
 
 
 def value_masks(
-    view: ViewWindow, camera: PinholeCamera, levels: int, src: np.ndarray | None = None
+    view: ViewWindow, camera: Camera, levels: int, src: np.ndarray | None = None
 ) -> list[np.ndarray]:
     """Per pyramid level, the window's pixels whose values are the whole image's (module
     docstring; :data:`EDGE` not applied); ``src``: the window's :func:`source_map`, when
     already known."""
     edges = _edges(view.window, view.size)
-    if isinstance(camera.distortion, NullDistortion) or view.whole:
+    if not has_lens(camera) or view.whole:
         value = np.ones(view.shape, bool)
     else:
         if src is None:
@@ -211,7 +217,7 @@ def value_masks(
     return out
 
 
-def exact_masks(view: ViewWindow, camera: PinholeCamera, levels: int) -> list[np.ndarray]:
+def exact_masks(view: ViewWindow, camera: Camera, levels: int) -> list[np.ndarray]:
     """Per pyramid level, the window's pixels (of that level) around which a bilinear sample
     of value and gradients is the whole image's: its four pixels must be True here."""
     edges = _edges(view.window, view.size)
@@ -242,7 +248,7 @@ def covers(
     return bool(mask[ra - orow : rb - orow + 1, ca - oc : cb - oc + 1].all())
 
 
-def window_for(box: Box, camera: PinholeCamera, size: tuple[int, int], levels: int) -> WindowT:
+def window_for(box: Box, camera: Camera, size: tuple[int, int], levels: int) -> WindowT:
     """The aligned window of the image (``size`` (width, height)) whose pyramid is exact for
     bilinear samples at level-0 positions (of the image without lens distortion) in ``box``,
     at every one of ``levels`` levels: the box grown by :data:`MARGIN` pixels of the coarsest
@@ -255,7 +261,7 @@ def window_for(box: Box, camera: PinholeCamera, size: tuple[int, int], levels: i
     u1, v1 = min(u1 + grow, width - 1 + grow), min(v1 + grow, height - 1 + grow)
     if not (u0 <= u1 and v0 <= v1):
         u0, u1, v0, v1 = 0.0, 0.0, 0.0, 0.0
-    if not isinstance(camera.distortion, NullDistortion):
+    if has_lens(camera):
         cs, rs = np.linspace(u0, u1, 65), np.linspace(v0, v1, 65)
         border = np.concatenate(
             [
@@ -288,7 +294,7 @@ def union(a: WindowT, b: WindowT) -> WindowT:
 
 def view_statistics(
     read: Callable[[WindowT], np.ndarray],
-    camera: PinholeCamera,
+    camera: Camera,
     size: tuple[int, int],
     levels: int,
     block: int = 2048,
@@ -323,9 +329,9 @@ def view_statistics(
             img = read(win)
             img = np.where(np.isfinite(img), img, np.float32(fill))
             src = None
-            if not isinstance(camera.distortion, NullDistortion):
+            if has_lens(camera):
                 src = source_map(camera, win)
-            img, _ = undistorted_image(img, camera, view.origin, src)
+                img, _ = undistorted_image(img, camera, view.origin, src)
             masks = value_masks(view, camera, levels, src)
             edges = _edges(win, size)
             for level in range(levels):
