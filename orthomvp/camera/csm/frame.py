@@ -5,7 +5,6 @@ position and pointing, usgscsm's focal plane and lens distortion (conventions in
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -42,13 +41,6 @@ class CsmFrameCamera(CsmImage):
         """Camera-to-body rotation (3, 3)."""
         return xyzw_matrix(self.quaternion)
 
-    @cached_property
-    def look_sign(self) -> int:
-        """+1 if usgscsm's locus direction points into the scene, -1 if away (see
-        :mod:`orthomvp.camera.csm.geometry`)."""
-        origin, direction = self.csm_locus(np.array(self.lines / 2.0), np.array(self.samples / 2.0))
-        return self._look_sign(origin, direction)
-
     def csm_locus(self, line: np.ndarray, sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor position and unit look directions (..., 3) of CSM (line, sample)."""
         line, sample = np.broadcast_arrays(
@@ -57,16 +49,6 @@ class CsmFrameCamera(CsmImage):
         look = self.focal_plane.camera_look(line, sample)
         direction = look @ self.rotation.T
         return np.broadcast_to(self.position, direction.shape).copy(), direction
-
-    def csm_image_to_ground(
-        self, line: np.ndarray, sample: np.ndarray, height: np.ndarray | float = 0.0
-    ) -> np.ndarray:
-        """Ground points (..., 3) of CSM (line, sample) on the ellipsoid inflated by ``height``
-        metres; NaN where the ray misses it."""
-        origin, direction = self.csm_locus(line, sample)
-        return self.ellipsoid.intersect(
-            origin, self.look_sign * direction, np.broadcast_to(height, origin.shape[:-1])
-        )
 
     def csm_ground_to_image(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSM (line, sample) and depth along the optical axis (metres) of ground points

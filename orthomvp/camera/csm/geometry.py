@@ -254,9 +254,42 @@ class CsmImage:
             object.__setattr__(self, "width", int(self.samples))
             object.__setattr__(self, "height", int(self.lines))
 
-    def _look_sign(self, origin: np.ndarray, direction: np.ndarray) -> int:
-        """+1 if ``direction`` from ``origin`` (3,) heads towards the body centre, else -1."""
+    @cached_property
+    def look_sign(self) -> int:
+        """+1 if usgscsm's locus direction at the image centre points into the scene (towards
+        the body centre), -1 if away (see the module docstring)."""
+        origin, direction = self.csm_locus(np.array(self.lines / 2.0), np.array(self.samples / 2.0))
         return 1 if float(np.dot(direction, -origin)) >= 0 else -1
+
+    def csm_locus(self, line: np.ndarray, sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor positions and unit look directions (..., 3) of CSM (line, sample): each
+        model's own."""
+        raise NotImplementedError
+
+    def csm_image_to_ground(
+        self, line: np.ndarray, sample: np.ndarray, height: np.ndarray | float = 0.0
+    ) -> np.ndarray:
+        """Ground points (..., 3), metres, of CSM (line, sample) on the ellipsoid inflated by
+        ``height`` metres (usgscsm ``imageToGround``); NaN where the ray misses it."""
+        origin, direction = self.csm_locus(line, sample)
+        return self.ellipsoid.intersect(
+            origin, self.look_sign * direction, np.broadcast_to(height, origin.shape[:-1])
+        )
+
+    def _in_chunks(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(line, sample, depth) of ground points (..., 3) by the model's
+        ``_ground_to_image_block`` on chunks of :data:`CHUNK` points."""
+        xyz = as_points(xyz, "ground to image", 3)
+        flat = xyz.reshape(-1, 3)
+        out = np.empty((len(flat), 3))
+        for start in range(0, len(flat), CHUNK):
+            out[start : start + CHUNK] = self._ground_to_image_block(flat[start : start + CHUNK])
+        out = out.reshape(xyz.shape[:-1] + (3,))
+        return out[..., 0], out[..., 1], out[..., 2]
+
+    def _ground_to_image_block(self, xyz: np.ndarray) -> np.ndarray:
+        """(line, sample, depth) (n, 3) of ground points (n, 3): each scanning model's own."""
+        raise NotImplementedError
 
     def _to_uv(self, line: np.ndarray, sample: np.ndarray) -> np.ndarray:
         return csm_to_uv(line, sample) - np.array([self.col0, self.row0], dtype=np.float64)

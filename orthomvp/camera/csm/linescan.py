@@ -116,13 +116,6 @@ class LineScanCamera(CsmImage):
     def _valid_line(self, line: np.ndarray) -> np.ndarray:
         return (line >= -EDGE) & (line <= self.lines + EDGE)
 
-    @cached_property
-    def look_sign(self) -> int:
-        """+1 if usgscsm's locus direction points into the scene, -1 if away (see
-        :mod:`orthomvp.camera.csm.geometry`)."""
-        origin, direction = self.csm_locus(np.array(self.lines / 2.0), np.array(self.samples / 2.0))
-        return self._look_sign(origin, direction)
-
     def csm_locus(self, line: np.ndarray, sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor positions and unit look directions (..., 3) of CSM (line, sample) (usgscsm
         ``imageToRemoteImagingLocus``); NaN where the line is outside the image."""
@@ -138,16 +131,6 @@ class LineScanCamera(CsmImage):
         bad = ~self._valid_line(flat)
         origin[bad], direction[bad] = np.nan, np.nan
         return origin.reshape(line.shape + (3,)), direction.reshape(line.shape + (3,))
-
-    def csm_image_to_ground(
-        self, line: np.ndarray, sample: np.ndarray, height: np.ndarray | float = 0.0
-    ) -> np.ndarray:
-        """Ground points (..., 3), metres, of CSM (line, sample) on the ellipsoid inflated by
-        ``height`` metres (usgscsm ``imageToGround``); NaN where the ray misses it."""
-        origin, direction = self.csm_locus(line, sample)
-        return self.ellipsoid.intersect(
-            origin, self.look_sign * direction, np.broadcast_to(height, origin.shape[:-1])
-        )
 
     def _line_error(
         self, line: np.ndarray, xyz: np.ndarray, *, table: bool = False
@@ -287,13 +270,7 @@ class LineScanCamera(CsmImage):
         """CSM (line, sample) and camera-frame depth (metres) of ground points (..., 3)
         (usgscsm ``groundToImage``: secant iteration on the line); NaN where the point is
         not imaged (line outside the image, behind the sensor, no convergence)."""
-        xyz = as_points(xyz, "ground to image", 3)
-        flat = xyz.reshape(-1, 3)
-        out = np.empty((len(flat), 3))
-        for start in range(0, len(flat), CHUNK):
-            out[start : start + CHUNK] = self._ground_to_image_block(flat[start : start + CHUNK])
-        out = out.reshape(xyz.shape[:-1] + (3,))
-        return out[..., 0], out[..., 1], out[..., 2]
+        return self._in_chunks(xyz)
 
     def _ground_to_image_block(self, xyz: np.ndarray) -> np.ndarray:
         """The secant iteration on the table; unless :attr:`_use_table`, then Newton steps

@@ -15,7 +15,6 @@ from functools import cached_property
 import numpy as np
 
 from orthomvp.camera.csm.geometry import (
-    CHUNK,
     EDGE,
     CsmImage,
     Ellipsoid,
@@ -121,16 +120,6 @@ class PushFrameCamera(CsmImage):
         origin[bad], direction[bad] = np.nan, np.nan
         return origin.reshape(line.shape + (3,)), direction.reshape(line.shape + (3,))
 
-    def csm_image_to_ground(
-        self, line: np.ndarray, sample: np.ndarray, height: np.ndarray | float = 0.0
-    ) -> np.ndarray:
-        """Ground points (..., 3) of CSM (line, sample) on the ellipsoid inflated by ``height``
-        metres; NaN where the ray misses it."""
-        origin, direction = self.csm_locus(line, sample)
-        return self.ellipsoid.intersect(
-            origin, self.look_sign * direction, np.broadcast_to(height, origin.shape[:-1])
-        )
-
     def _view(self, framelet: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, ...]:
         """Distorted focal-plane x, y and depth of ``xyz`` (M, 3) seen from framelets (M,)."""
         t = self._framelet_time(framelet)
@@ -155,13 +144,7 @@ class PushFrameCamera(CsmImage):
     def csm_ground_to_image(self, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """CSM (line, sample) and camera-frame depth (metres) of ground points (..., 3); NaN
         where not imaged (line outside the image, behind the sensor)."""
-        xyz = as_points(xyz, "ground to image", 3)
-        flat = xyz.reshape(-1, 3)
-        out = np.empty((len(flat), 3))
-        for start in range(0, len(flat), CHUNK):
-            out[start : start + CHUNK] = self._ground_to_image_block(flat[start : start + CHUNK])
-        out = out.reshape(xyz.shape[:-1] + (3,))
-        return out[..., 0], out[..., 1], out[..., 2]
+        return self._in_chunks(xyz)
 
     def _ground_to_image_block(self, xyz: np.ndarray) -> np.ndarray:
         n = self.reduced_lines // self.summed_height
