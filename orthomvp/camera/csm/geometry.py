@@ -259,6 +259,11 @@ class CsmImage:
         """+1 if usgscsm's locus direction at the image centre points into the scene (towards
         the body centre), -1 if away (see the module docstring)."""
         origin, direction = self.csm_locus(np.array(self.lines / 2.0), np.array(self.samples / 2.0))
+        return self._look_sign(origin, direction)
+
+    @staticmethod
+    def _look_sign(origin: np.ndarray, direction: np.ndarray) -> int:
+        """+1 if ``direction`` from ``origin`` (3,) heads towards the body centre, else -1."""
         return 1 if float(np.dot(direction, -origin)) >= 0 else -1
 
     def csm_locus(self, line: np.ndarray, sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
