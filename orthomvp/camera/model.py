@@ -75,6 +75,23 @@ def _points(value: object, what: str, n: int) -> np.ndarray:
         ) from None
 
 
+def image_size(name: str, value: object) -> int | None:
+    """An image ``width`` or ``height`` (``name``): a positive integer, or None; FieldError
+    otherwise."""
+    if value is not None and (
+        isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0
+    ):
+        raise FieldError(name, f"{name} must be a positive integer or None, got {value!r}")
+    return None if value is None else int(value)
+
+
+def check_crop(c0: object, r0: object, width: object, height: object) -> None:
+    """InputError unless a crop window's first pixel (``c0``, ``r0``) and size are integers."""
+    for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+
+
 def _default_axis(index: int) -> Callable[[], np.ndarray]:
     """A factory of the unit vector along axis ``index`` (VW's default u, v, w)."""
     return lambda: np.eye(3)[index]
@@ -183,12 +200,7 @@ class PinholeCamera:
         if not isinstance(self.distortion, Distortion):
             raise FieldError("distortion", f"not a lens distortion model: {self.distortion!r}")
         for name in ("width", "height"):
-            value = getattr(self, name)
-            if value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0
-            ):
-                raise FieldError(name, f"{name} must be a positive integer or None, got {value!r}")
-            object.__setattr__(self, name, None if value is None else int(value))
+            object.__setattr__(self, name, image_size(name, getattr(self, name)))
 
     @property
     def _frame(self) -> np.ndarray:
@@ -244,9 +256,7 @@ class PinholeCamera:
         point), so ``crop.project(x)`` is ``project(x) - (c0, r0)`` and ``crop.ray(uv)`` is
         ``ray(uv + (c0, r0))``, to rounding. The offset may be negative or reach beyond the
         image (a window partly off the image)."""
-        for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+        check_crop(c0, r0, width, height)
         return replace(
             self,
             cu=self.cu - int(c0) * self.pitch,

@@ -34,7 +34,7 @@ import numpy as np
 from pyproj import CRS, Transformer
 from pyproj.exceptions import CRSError
 
-from orthomvp.camera.model import FieldError, _points
+from orthomvp.camera.model import FieldError, _points, check_crop, image_size
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
 
@@ -347,12 +347,7 @@ class RpcCamera:
         if not isinstance(self.rpc, Rpc):
             raise FieldError("rpc", f"rpc must be an Rpc, got {type(self.rpc).__name__}")
         for name in ("width", "height"):
-            value = getattr(self, name)
-            if value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0
-            ):
-                raise FieldError(name, f"{name} must be a positive integer or None, got {value!r}")
-            object.__setattr__(self, name, None if value is None else int(value))
+            object.__setattr__(self, name, image_size(name, getattr(self, name)))
         try:
             crs = CRS.from_user_input(self.crs)
         except CRSError as exc:
@@ -406,9 +401,7 @@ class RpcCamera:
         """The camera of the ``width`` x ``height`` pixel window whose first pixel is pixel
         (``c0``, ``r0``) here: the RPC's sample and line offsets move by the offset, so
         ``crop.project(x)`` is ``project(x) - (c0, r0)``."""
-        for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+        check_crop(c0, r0, width, height)
         rpc = replace(
             self.rpc, samp_off=self.rpc.samp_off - int(c0), line_off=self.rpc.line_off - int(r0)
         )

@@ -25,6 +25,7 @@ import numpy as np
 
 from orthomvp.camera.csm.distortion import CsmDistortion
 from orthomvp.camera.csm.ephemeris import lagrange_polynomials, polynomial_values, xyzw_matrix
+from orthomvp.camera.model import check_crop
 from orthomvp.errors import InputError
 
 EDGE = 1e-6
@@ -330,9 +331,7 @@ class CsmImage:
     def crop(self, c0: int, r0: int, width: int, height: int) -> CsmImage:
         """The camera of the ``width`` x ``height`` window whose first pixel is (``c0``,
         ``r0``) here: ``crop.project(x)`` is ``project(x) - (c0, r0)``."""
-        for name, value in (("c0", c0), ("r0", r0), ("width", width), ("height", height)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer):
-                raise InputError(f"crop {name} must be an integer number of pixels, got {value!r}")
+        check_crop(c0, r0, width, height)
         return self._window(
             col0=self.col0 + int(c0),
             row0=self.row0 + int(r0),
