@@ -17,6 +17,15 @@ it within ``blend // 2`` posts (a box), among views that see the post, so a stra
 becomes a linear ramp ``blend`` posts wide (``blend`` = 0: hard seams). A view never
 contributes where it does not see the post.
 
+Trust. Before all that, each post keeps only the views it trusts most among those that see it
+(:func:`trusted`): a view is doubtful at a post whose first hit landed in the last
+:data:`DOUBT` posts of its epsilon (on sharp surface models those are as often hidden or facing
+away as visible). Among the others a post takes the views farthest from their own occlusion
+boundary: those whose eight neighbours of the post are all visible, else those whose four
+nearest are, else the rest (pixels at a boundary straddle a wall or roof edge, and the
+visibility rule's remaining misses all lie there). Never a doubtful view: a post only doubtful
+views see stays empty (or is filled by the hole policy).
+
 Holes (posts no view sees) follow :data:`FILLS`; filled posts are flagged (:class:`Flag`).
 """
 
@@ -58,6 +67,14 @@ DISAGREE = 4.0
 at 1): an eighth apart costs as much as the whole priority range."""
 
 ORDER_STEP = 8
+
+DOUBT = 0.5
+"""A view's first hit farther than epsilon minus this many posts from the post makes it
+doubtful there (:func:`trusted`)."""
+
+TRUST_RADIUS = 1
+"""A view is at its occlusion boundary where a post within this box radius is not visible in
+it (:func:`trusted`)."""
 """Cost between consecutive views under priority "order" (more than all other costs)."""
 
 
@@ -106,9 +123,11 @@ class MosaicOptions:
 
     @property
     def margin(self) -> int:
-        """Posts around a post that its result depends on: the label's cost average and its
-        costs' neighbourhoods (2 :data:`SEAM_RADIUS`) plus the blend box (``blend // 2``)."""
-        return (2 * SEAM_RADIUS if self.seamlines else 0) + self.blend // 2
+        """Posts around a post that its result depends on: the trust test
+        (:data:`TRUST_RADIUS`), the label's cost average and its costs' neighbourhoods
+        (2 :data:`SEAM_RADIUS`) and the blend box (``blend // 2``)."""
+        seams = 2 * SEAM_RADIUS if self.seamlines else 0
+        return TRUST_RADIUS + seams + self.blend // 2
 
 
 @dataclass(frozen=True)
@@ -183,6 +202,26 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return np.nan_to_num(np.minimum(DISAGREE * rel, 1.0).mean(axis=1), nan=1.0)
 
 
+def doubtful(miss: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """Where a view's first hit (``miss``, posts; inf where the ray found nothing) lies within
+    its epsilon ``eps`` but farther than ``eps`` - :data:`DOUBT` from the post."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(miss) & (miss > eps - DOUBT)
+
+
+def trusted(visible: np.ndarray, doubt: np.ndarray | None = None) -> np.ndarray:
+    """The views (views, rows, cols) a post may take among those ``visible``: never one in
+    ``doubt``; the views with all posts within :data:`TRUST_RADIUS` visible (off the grid
+    counts as visible) where the post has one, else those with its four nearest neighbours
+    visible, else the others."""
+    sure = visible if doubt is None else visible & ~doubt
+    hidden = ~visible
+    pad = np.pad(hidden, [(0, 0), (1, 1), (1, 1)])
+    cross = pad[:, :-2, 1:-1] | pad[:, 2:, 1:-1] | pad[:, 1:-1, :-2] | pad[:, 1:-1, 2:]
+    tier = np.where(sure, 1 + ~cross + (box_sum(hidden, TRUST_RADIUS) == 0), 0)
+    return sure & (tier == tier.max(axis=0))
+
+
 def labels(
     cost: np.ndarray, visible: np.ndarray, values: np.ndarray, seamlines: bool
 ) -> np.ndarray:
@@ -221,15 +260,17 @@ def compose(
     nadir: np.ndarray,
     options: MosaicOptions,
     correction: Correction | None = None,
+    doubt: np.ndarray | None = None,
 ) -> Composite:
     """Compose a mosaic window from per-view ``values`` (views, bands, rows, cols) float32
     (each view's naive samples, NaN outside its image), visibility ``codes`` (views, rows,
     cols), and the views' ``emission`` and ``nadir`` angles (degrees) and ``gsd`` (metres) at
-    each post, following ``options``, after ``correction``."""
+    each post, following ``options``, after ``correction``; ``doubt`` (views, rows, cols)
+    marks the visible posts a view is doubtful at (:func:`doubtful`; None: none)."""
     if correction is not None:
         values = correction.apply(values)
     finite = np.isfinite(values).all(axis=1)
-    visible = (codes == Code.VISIBLE) & finite
+    visible = trusted((codes == Code.VISIBLE) & finite, doubt)
     cost = priority_cost(options.priority, emission, gsd, nadir, visible)
     label = labels(cost, visible, values, options.seamlines)
     n, bands, rows, cols = values.shape

@@ -30,6 +30,7 @@ from orthomvp.mosaic import (
     MosaicOptions,
     clamp_blend,
     compose,
+    doubtful,
     nadir_angle,
     overlap_width,
     pair_stats,
@@ -211,6 +212,7 @@ def mosaic(
     values = np.full((n, nb, *terrain.shape), np.nan, np.float32)
     codes = np.zeros(shape, np.uint8)
     emission, gsd, nadir = np.full(shape, np.inf), np.full(shape, np.inf), np.full(shape, np.inf)
+    doubt = np.zeros(shape, bool)
     visibilities = []
     whole = (slice(None), slice(None))
     for k, (image, camera) in enumerate(views):
@@ -218,6 +220,7 @@ def mosaic(
         vis = compute_visibility(terrain, camera, eps=eps, caster=caster, progress=progress)
         visibilities.append(vis)
         codes[k], emission[k], gsd[k] = vis.codes, vis.emission, vis.gsd
+        doubt[k] = doubtful(vis.miss, vis.eps)
         need = vis.codes == Code.VISIBLE
         if options.fill == "any-view":
             need |= vis.codes == Code.FACING_AWAY
@@ -233,7 +236,7 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    comp = compose(values, codes, emission, gsd, nadir, options, correction)
+    comp = compose(values, codes, emission, gsd, nadir, options, correction, doubt)
     return Mosaic(
         comp.data,
         comp.source.astype(np.uint8 if n < 255 else np.uint16),

@@ -104,7 +104,8 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     posts filled per frame; 42,029..43,636 visible, 0..18 occluded, 0..32 facing away (gentle
     terrain seen near nadir); the 6 overlapping pairs agree with r = 0.79..0.97 in
     band 1 (mean 0.89; 0.64..0.96 in band 3, 0.74..0.96 grey; 4,917..17,409 common posts);
-    the mosaic takes 28,647..30,531 posts from each frame."""
+    the mosaic takes 28,647..30,531 posts from each frame, and all visible posts but 2 that
+    only doubtful views see."""
     d = shared("ngi-aerial")
     dem, exterior = d / "dem.tif", d / "orthority-format" / "ngi_xyz_opk.csv"
     orthos, codes = [], []
@@ -133,7 +134,10 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     counts = np.bincount(src.ravel(), minlength=5)
     assert (counts[1:] > 25_000).all()
     union = np.any([np.isfinite(o).all(axis=0) for o in orthos], axis=0)
-    np.testing.assert_array_equal(src > 0, union)
+    assert not (src > 0)[~union].any()
+    # posts that only views doubtful there see (first hit in the last half post of epsilon)
+    # stay empty: 2, both next to the few occluded posts
+    assert (union & (src == 0)).sum() <= 2
     for k, data in enumerate(orthos, start=1):
         np.testing.assert_array_equal(mosaic[:, src == k], data[:, src == k])
 

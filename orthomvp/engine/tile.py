@@ -21,7 +21,7 @@ from orthomvp.codes import Code
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
-from orthomvp.mosaic import compose, nadir_angle
+from orthomvp.mosaic import compose, doubtful, nadir_angle
 from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
@@ -278,6 +278,7 @@ def _mosaic_tile(
     codes = np.zeros((n, *shape), np.uint8)
     emission, gsd = np.full((n, *shape), np.inf), np.full((n, *shape), np.inf)
     nadir = np.full((n, *shape), np.inf)
+    doubt = np.zeros((n, *shape), bool)
     fill = plan.mosaic.fill
     for k in job.views:
         with _timed(seconds, "visibility"):
@@ -293,6 +294,7 @@ def _mosaic_tile(
         if result.codes is not None:
             result.codes[k] = tile_codes
         codes[k], emission[k], gsd[k] = code, vis.emission[inner], vis.gsd[inner]
+        doubt[k] = doubtful(vis.miss[inner], vis.eps[inner])
         if plan.mosaic.priority == "nadir" or fill == "naive":
             nadir[k] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
@@ -309,7 +311,7 @@ def _mosaic_tile(
     if result.data is None and result.source is None:
         return result
     with _timed(seconds, "compose"):
-        comp = compose(values, codes, emission, gsd, nadir, plan.mosaic, plan.correction)
+        comp = compose(values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt)
     if result.data is not None:
         result.data = comp.data[:, core[0], core[1]]
     if result.source is not None:
