@@ -154,12 +154,43 @@ def test_engine_plans_and_runs_generic_cameras(
     assert unseen, "some tiles lie beyond the strip"
 
 
-def test_what_needs_a_frame_camera_says_so(crater_dir: Path, oblique: tuple) -> None:
-    """Snapshot frusta need pinholes: one clear error. The MVP fit takes any camera."""
+def test_snapshots_draw_any_camera_and_look_through_frame_cameras_only(
+    oblique: tuple, tmp_path: Path
+) -> None:
+    """A camera without one centre is drawn from its own rays: the glyph's corners lie on its
+    corner rays and the snapshot shows it (its pixels differ from the bare DEM's); the
+    from-camera view needs one centre: one clear error."""
+    from orthomvp.codes import View
     from orthomvp.errors import InputError
-    from orthomvp.present.snapshot import snapshot
+    from orthomvp.present.snapshot import SnapshotOptions, snapshot
+    from orthomvp.present.viewpoint import camera_glyph
 
     terrain, _, camera = oblique
     generic = Generic(camera)
-    with pytest.raises(InputError, match="camera 0: drawing cameras in snapshots needs frame"):
-        snapshot(terrain, cameras=[generic])
+    rect = (-0.5, -0.5, camera.width - 0.5, camera.height - 0.5)
+    origin = np.zeros(3)
+    far = 1e9  # a radius that keeps the glyph at the camera, unwidened
+    glyph = camera_glyph(generic, rect, origin, camera.center + 1.0, far)
+    apex = glyph.points[0]
+    np.testing.assert_allclose(apex, camera.center, atol=1e-6)
+    centre_uv = np.array([(camera.width - 1) / 2, (camera.height - 1) / 2])
+    axis = camera.ray(centre_uv)[1]
+    np.testing.assert_allclose(np.cross(glyph.points[5] - apex, axis), 0, atol=1e-6)
+    for k, (u, v) in enumerate([(0, 0), (camera.width - 1, 0)], start=1):
+        _, d = camera.ray(np.array([u, v], float))
+        along = glyph.points[k] - apex
+        # widened about the axis: the corner's offset from the axis keeps the ray's direction
+        t_glyph = along / (along @ axis) - axis
+        t_ray = d / (d @ axis) - axis
+        np.testing.assert_allclose(np.cross(t_glyph, t_ray), 0, atol=1e-9)
+        assert t_glyph @ t_ray > 0
+    opts = SnapshotOptions(size=(320, 240), rays=20)
+    bare = snapshot(terrain, options=opts)
+    drawn = snapshot(terrain, cameras=[generic], options=opts)
+    try:
+        assert (bare.image != drawn.image).any(axis=-1).mean() > 0.01
+    finally:
+        bare.close()
+        drawn.close()
+    with pytest.raises(InputError, match="camera 0: the from-camera view .one centre. needs"):
+        snapshot(terrain, cameras=[generic], options=SnapshotOptions(view=View.FROM_CAMERA))

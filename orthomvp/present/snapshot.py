@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera, require_pinhole
+from orthomvp.camera import Camera, require_pinhole
 from orthomvp.codes import CODE_RGB, Code, View
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh, terrain_mesh
@@ -169,7 +169,7 @@ def snapshot(
     visibility: np.ndarray | None = None,
     heights: np.ndarray | None = None,
     truth: np.ndarray | None = None,
-    cameras: Sequence[PinholeCamera] = (),
+    cameras: Sequence[Camera] = (),
     options: SnapshotOptions | None = None,
 ) -> Snapshot:
     """Render the DEM ``terrain`` offscreen, coloured by at most one raster on its grid.
@@ -197,14 +197,15 @@ def snapshot(
     opts = options or SnapshotOptions()
     colouring = _colouring(terrain.shape, ortho, visibility, heights, truth)
     cameras = list(cameras)
-    for k, camera in enumerate(cameras):
-        require_pinhole(camera, f"camera {k}", "drawing cameras in snapshots")
     if opts.view == View.FROM_CAMERA and not 0 <= opts.view_camera < len(cameras):
         n = len(cameras)
         raise InputError(
             f"the from-camera view needs camera {opts.view_camera} (0-based) but {n} "
             f"camera{'s were' if n != 1 else ' was'} given"
         )
+    if opts.view == View.FROM_CAMERA:
+        k = opts.view_camera
+        require_pinhole(cameras[k], f"camera {k}", "the from-camera view (one centre)")
 
     tmesh = terrain_mesh(terrain)
     shown = tmesh
@@ -288,7 +289,7 @@ def content_box(
 
 
 def _default_size(
-    opts: SnapshotOptions, cameras: list[PinholeCamera], rects: list[Rect]
+    opts: SnapshotOptions, cameras: list[Camera], rects: list[Rect]
 ) -> tuple[int, int]:
     """(width, height) in pixels without ``opts.size``: DEFAULT_SIZE, or for the from-camera
     view the camera's aspect with 1024 pixels on the long side."""
@@ -424,7 +425,7 @@ def _add_camera(plotter: pv.Plotter, glyph: Glyph, colour: str, label: str) -> N
 
 def _add_rays(
     plotter: pv.Plotter,
-    camera: PinholeCamera,
+    camera: Camera,
     rect: Rect,
     n: int,
     tmesh: TerrainMesh,
@@ -452,10 +453,10 @@ def _add_rays(
         + b[:, :1] * v[tri[:, 1]]
         + b[:, 1:] * v[tri[:, 2]]
     )
-    start = camera.center - tmesh.origin
+    starts = origins[hits.mask] - tmesh.origin  # one centre, or each ray's own origin
     m = len(ends)
-    points = np.vstack([start, ends])
-    lines = np.column_stack([np.full(m, 2), np.zeros(m, int), np.arange(1, m + 1)]).ravel()
+    points = np.vstack([starts, ends])
+    lines = np.column_stack([np.full(m, 2), np.arange(m), np.arange(m, 2 * m)]).ravel()
     plotter.add_mesh(
         pv.PolyData(points, lines=lines), color=colour, line_width=1, opacity=0.8, lighting=False
     )

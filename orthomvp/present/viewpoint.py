@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from orthomvp.camera import PinholeCamera
+from orthomvp.camera import Camera, PinholeCamera
 from orthomvp.codes import View
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh
@@ -42,7 +42,7 @@ def grid_frame(terrain: Terrain, origin: np.ndarray) -> tuple[np.ndarray, np.nda
     return up, north / np.linalg.norm(north)
 
 
-def image_rect(camera: PinholeCamera, tmesh: TerrainMesh, name: str = "the camera") -> Rect:
+def image_rect(camera: Camera, tmesh: TerrainMesh, name: str = "the camera") -> Rect:
     """The image's outer pixel edges, or, without an image size, the pixel rectangle that holds
     the projection of ``tmesh``; InputError naming ``name`` and the cause when the camera
     does not see the DEM at all."""
@@ -83,7 +83,7 @@ class Glyph:
 
 
 def camera_glyph(
-    camera: PinholeCamera,
+    camera: Camera,
     rect: Rect,
     origin: np.ndarray,
     centre: np.ndarray,
@@ -94,6 +94,8 @@ def camera_glyph(
     the centre; image rectangle ``GLYPH_SIZE`` radii deep, widened to at least ``GLYPH_OPENING``
     (a tangent) a side. ``origin`` is the local frame's origin (world); ``centre`` and
     ``radius`` describe the DEM's bounding sphere in the local frame."""
+    if not isinstance(camera, PinholeCamera):
+        return _ray_glyph(camera, rect, origin, centre, radius)
     c = camera.center - origin
     offset = c - centre
     dist = float(np.linalg.norm(offset))
@@ -111,6 +113,33 @@ def camera_glyph(
     depth = GLYPH_SIZE * radius
     corners = apex + depth * (tu[:, None] * a[0] + tv[:, None] * a[1] + a[2])
     return Glyph(np.vstack([apex, corners, apex + 1.6 * depth * a[2]]), c)
+
+
+def _ray_glyph(
+    camera: Camera, rect: Rect, origin: np.ndarray, centre: np.ndarray, radius: float
+) -> Glyph:
+    """The glyph of a camera without one centre (a line scanner, RPC) from its own rays: apex
+    at the mean ray origin of the image's corners and centre (moved in as for a far frame
+    camera), corners along the corner rays, axis along the centre's ray, widened to at least
+    ``GLYPH_OPENING``; the drawing of :func:`camera_glyph` stands for the whole sensor path."""
+    u0, v0, u1, v1 = rect
+    uv = np.array([[u0, v0], [u1, v0], [u1, v1], [u0, v1], [(u0 + u1) / 2, (v0 + v1) / 2]])
+    uv = np.clip(uv, [u0 + 0.5, v0 + 0.5], [u1 - 0.5, v1 - 0.5])  # outer pixel centres
+    starts, dirs = camera.ray(uv)
+    if not np.isfinite(dirs).all():
+        raise InputError("a camera without rays at its image corners cannot be drawn")
+    c = starts.mean(axis=0) - origin
+    offset = c - centre
+    dist = float(np.linalg.norm(offset))
+    apex = (
+        c if dist <= GLYPH_DISTANCE * radius else centre + offset * (GLYPH_DISTANCE * radius / dist)
+    )
+    axis = dirs[4] / np.linalg.norm(dirs[4])
+    tangent = dirs[:4] / (dirs[:4] @ axis)[:, None] - axis  # offsets at unit depth
+    scale = max(1.0, GLYPH_OPENING / float(np.abs(tangent).max()))
+    depth = GLYPH_SIZE * radius
+    corners = apex + depth * (axis + scale * tangent)
+    return Glyph(np.vstack([apex, corners, apex + 1.6 * depth * axis]), c)
 
 
 def default_azimuth(
