@@ -78,8 +78,19 @@ def grid_triangles(valid: np.ndarray) -> np.ndarray:
     tris = tris.reshape(2 * cells, 3)
     if valid.all():
         return tris
-    v = valid.ravel()
-    return tris[v[tris[:, 0]] & v[tris[:, 1]] & v[tris[:, 2]]]
+    first, second = cell_triangles(valid)
+    return tris[np.concatenate([first.ravel(), second.ravel()])]
+
+
+def cell_triangles(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which cells (rows - 1, cols - 1) of a grid with ``valid`` posts have their first
+    triangle ((c, r), (c, r+1), (c+1, r)) and their second ((c+1, r), (c, r+1), (c+1, r+1)):
+    those whose three posts are all valid (:func:`grid_triangles` lists the first triangles of
+    all cells, then the second ones)."""
+    return (
+        valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:],
+        valid[:-1, 1:] & valid[1:, :-1] & valid[1:, 1:],
+    )
 
 
 def terrain_mesh(
@@ -117,14 +128,19 @@ def terrain_mesh(
 
 def _wound_up(t: Terrain, local: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """``faces`` wound so that their normals point up."""
-    # All faces share one winding (the grid is regular); decide it by an area-weighted vote of
-    # faces spread over the grid, since a single face can be degenerate (posts at a pole
-    # coincide) and then tells nothing.
-    v = local[faces[:: max(1, len(faces) // 1000)]]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    if np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0:
+    if points_down(t, local, faces, origin):
         faces = faces[:, ::-1]
     return np.ascontiguousarray(faces, dtype=np.int32)  # what Embree shares
+
+
+def points_down(t: Terrain, local: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> bool:
+    """Whether the normals of ``faces`` (indices into ``local`` vertices, world metres minus
+    ``origin``) point down on ``t``'s body or map. All faces of a grid share one winding;
+    decided by an area-weighted vote of up to about 1000 faces spread over them, since a
+    single face can be degenerate (posts at a pole coincide) and then tells nothing."""
+    v = local[faces[:: max(1, len(faces) // 1000)]]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    return bool(np.einsum("ij,ij->", n, t.up_vectors(v.mean(axis=1) + origin)) < 0)
 
 
 STEP_SLOPE = 3.0

@@ -26,11 +26,12 @@ from rasterio.windows import Window
 
 from orthomvp.engine.grid import DemSource
 from orthomvp.errors import InputError
+from orthomvp.mesh import cell_triangles, grid_triangles, points_down
 from orthomvp.present.colours import (
     CODE_RGB,
-    NAN_RGB,
     error_colour_limit,
     error_colours,
+    image_colours,
     visibility_codes,
 )
 from orthomvp.raster import atomic_path, open_raster
@@ -47,9 +48,8 @@ Colours = Callable[[int, int, np.ndarray], np.ndarray]
 
 def _use(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Posts of ``valid`` (rows, cols) that belong to a triangle of these rows, and the cells'
-    first and second triangles that exist (see :func:`orthomvp.mesh.grid_triangles`)."""
-    t1 = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:]
-    t2 = valid[:-1, 1:] & valid[1:, :-1] & valid[1:, 1:]
+    first and second triangles that exist (see :func:`orthomvp.mesh.cell_triangles`)."""
+    t1, t2 = cell_triangles(valid)
     use = np.zeros_like(valid)
     use[:-1, :-1] |= t1
     use[1:, :-1] |= t1 | t2
@@ -74,48 +74,66 @@ def _used_rows(dem: DemSource, r0: int, r1: int) -> tuple[np.ndarray, np.ndarray
 
 
 def _origin(dem: DemSource) -> np.ndarray:
-    """The world position of the valid post nearest the grid centre (as terrain_mesh picks)."""
+    """The world position of the valid post nearest the grid centre (as terrain_mesh picks):
+    from windows about the centre, growing while they hold at most :data:`BLOCK_POSTS` posts,
+    else from one pass over the blocks of rows."""
     rows, cols = dem.shape
     cr, cc = (rows - 1) / 2, (cols - 1) / 2
     k = 8
-    while True:
-        r0, r1 = max(int(cr) - k, 0), min(int(cr) + k + 2, rows)
-        c0, c1 = max(int(cc) - k, 0), min(int(cc) + k + 2, cols)
-        values = dem.read((r0, r1, c0, c1))
-        r, c = np.nonzero(np.isfinite(values))
-        whole = (r0, c0, r1, c1) == (0, 0, rows, cols)
-        if len(r):
-            d2 = (r + r0 - cr) ** 2 + (c + c0 - cc) ** 2
-            j = int(np.argmin(d2))
-            if whole or np.sqrt(d2[j]) <= k:
-                return dem.geometry().to_world(
-                    np.float64(c[j] + c0), np.float64(r[j] + r0), values[r[j], c[j]]
-                )
-        if whole:
-            raise InputError(f"{dem.path}: no grid cell has four valid posts; nothing to mesh")
+    while (2 * k + 2) ** 2 <= BLOCK_POSTS:
+        window = (
+            max(int(cr) - k, 0),
+            min(int(cr) + k + 2, rows),
+            max(int(cc) - k, 0),
+            min(int(cc) + k + 2, cols),
+        )
+        found = _nearest(dem, window, cr, cc)
+        if found is not None and (found[0] <= k or window == (0, rows, 0, cols)):
+            return found[1]
         k *= 2
+    best = None
+    for r0, r1 in _blocks(rows, cols):
+        found = _nearest(dem, (r0, r1, 0, cols), cr, cc)
+        if found is not None and (best is None or found[0] < best[0]):
+            best = found  # ties: the first in row order, as terrain_mesh's argmin
+    if best is None:
+        raise InputError(f"{dem.path}: no grid cell has four valid posts; nothing to mesh")
+    return best[1]
+
+
+def _nearest(
+    dem: DemSource, window: tuple[int, int, int, int], cr: float, cc: float
+) -> tuple[float, np.ndarray] | None:
+    """The distance in posts from (``cc``, ``cr``) to the nearest valid post of ``window`` (the
+    first in row order among equals) and its world position; None without one."""
+    r0, _, c0, _ = window
+    values = dem.read(window)
+    r, c = np.nonzero(np.isfinite(values))
+    if not len(r):
+        return None
+    d2 = (r + r0 - cr) ** 2 + (c + c0 - cc) ** 2
+    j = int(np.argmin(d2))
+    point = dem.geometry().to_world(
+        np.float64(c[j] + c0), np.float64(r[j] + r0), values[r[j], c[j]]
+    )
+    return float(np.sqrt(d2[j])), point
 
 
 def _winding(dem: DemSource, origin: np.ndarray) -> bool:
-    """Whether the triangles must be flipped so that their normals point up, by an area-weighted
-    vote of the first triangles of a block of cells at the grid centre."""
+    """Whether the triangles must be flipped so that their normals point up
+    (:func:`orthomvp.mesh.points_down`), voted on a block of 64 rows at the grid centre, or on
+    the first block of rows with a triangle where the centre has none."""
     rows, cols = dem.shape
-    r0 = max(rows // 2 - 32, 0)
-    r1 = min(r0 + 64, rows)
-    values = dem.read((r0, r1, 0, cols))
-    _, t1, _ = _use(np.isfinite(values))
-    r, c = np.nonzero(t1)
-    if not len(r):
-        r, c = np.nonzero(_use(np.isfinite(dem.read((0, rows, 0, cols))))[1])
-        r0, values = 0, dem.read((0, rows, 0, cols))
-        if not len(r):
-            raise InputError(f"{dem.path}: no grid cell has four valid posts; nothing to mesh")
+    mid = max(rows // 2 - 32, 0)
     geo = dem.geometry()
-    corners = [(r, c), (r + 1, c), (r, c + 1)]
-    p = [geo.to_world(cc + 0.0, rr + r0 + 0.0, values[rr, cc]) - origin for rr, cc in corners]
-    n = np.cross(p[1] - p[0], p[2] - p[0])
-    up = geo.up_vectors((p[0] + p[1] + p[2]) / 3 + origin)
-    return bool(np.einsum("ij,ij->", n, up) < 0)
+    for r0, r1 in [(mid, min(mid + 64, rows)), *_blocks(rows, cols)]:
+        values = dem.read((r0, min(r1 + 1, rows), 0, cols))
+        tris = grid_triangles(np.isfinite(values))
+        if len(tris):
+            r, c = np.mgrid[r0 : r0 + len(values), 0:cols].astype(np.float64)
+            local = geo.to_world(c, r, values).reshape(-1, 3) - origin
+            return points_down(geo, local, tris, origin)
+    raise InputError(f"{dem.path}: no grid cell has four valid posts; nothing to mesh")
 
 
 def image_stretch(path: Path, shape: tuple[int, int]) -> Colours:
@@ -132,18 +150,14 @@ def image_stretch(path: Path, shape: tuple[int, int]) -> Colours:
     filled = np.isfinite(sample).all(axis=1)
     if not filled.any():
         raise InputError("the texture raster holds no valid values")
-    lo, hi = np.percentile(sample[filled], [1, 99])
+    stretch = tuple(np.percentile(sample[filled], [1, 99]))
 
     def colours(r0: int, r1: int, used: np.ndarray) -> np.ndarray:
         with open_raster(path) as src:
             data = src.read(bands, window=Window(0, r0, shape[1], r1 - r0), masked=True)
-        values = np.ma.filled(data.astype(np.float32), np.nan).astype(np.float64)
-        rgb = np.moveaxis(values, 0, -1)[used]
-        filled = np.isfinite(rgb).all(axis=1)
-        scaled = np.clip((rgb - lo) / max(hi - lo, 1e-12), 0, 1) * 255
-        out = np.full((len(rgb), 4), 255, np.uint8)
-        out[:, :3] = np.broadcast_to(np.where(filled[:, None], scaled, 0), (len(rgb), 3))
-        out[~filled, :3] = NAN_RGB
+        values = np.ma.filled(data.astype(np.float32), np.nan)
+        out = np.full((int(used.sum()), 4), 255, np.uint8)
+        out[:, :3] = image_colours(values, "texture raster", stretch=stretch)[used.ravel()]
         return out
 
     return colours

@@ -30,7 +30,7 @@ from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain, grid_normals
+from orthomvp.terrain import Terrain, grid_normals, perimeter
 from orthomvp.validate import number, of_type
 from orthomvp.world import check_cameras_above
 
@@ -304,7 +304,7 @@ class _DemCodes:
         """Classify the DEM posts under ``grid``, with two posts around them: the posts next
         to a grid post then have the central-difference normals of the whole DEM, so their
         codes do not depend on the window (or on how a larger grid was tiled)."""
-        c, r = _perimeter(grid.shape)
+        c, r = perimeter((0, grid.shape[0], 0, grid.shape[1]))
         dc, dr = _dem_pixels(grid, dem, c, r, grid.values[r.astype(int), c.astype(int)])
         rows, cols = dem.shape
         r0 = int(np.clip(np.floor(np.nanmin(dr, initial=np.inf)) - 2, 0, rows))
@@ -338,15 +338,6 @@ class _DemCodes:
         )
         out[ok] = np.where(agree, corners[0], 0)
         return out
-
-
-def _perimeter(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions (c, r) of the posts on the border of a grid of ``shape``."""
-    rows, cols = shape
-    cc, rr = np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64)
-    c = np.concatenate([cc, cc, np.zeros(rows), np.full(rows, cols - 1.0)])
-    r = np.concatenate([np.zeros(cols), np.full(cols, rows - 1.0), rr, rr])
-    return c, r
 
 
 def _dem_pixels(

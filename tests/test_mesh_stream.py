@@ -79,3 +79,22 @@ def test_the_mesh_command_streams_plys(crater_dir: Path, tmp_path: Path, monkeyp
     assert result.exit_code == 0, result.output
     assert "4,096 vertices, 7,938 triangles" in result.output
     assert out.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
+
+
+def test_origin_past_a_hole_at_the_centre(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A hole at the grid centre wider than the windows searched about it: the origin (and so
+    the local vertices) comes from the pass over blocks of rows, still the in-memory one."""
+    monkeypatch.setattr(mesh_stream, "BLOCK_POSTS", 64 * 7)  # windows up to 18 x 18 posts
+    dem = _holey(crater_dir, tmp_path)
+    with rasterio.open(dem, "r+") as dst:
+        values = dst.read(1)
+        values[18:46, 18:46] = np.nan
+        dst.write(values, 1)
+    source = scan_dem(dem)
+    _, _, origin = mesh_stream.write_ply_stream(source, tmp_path / "a.ply", local=True)
+    tmesh = terrain_mesh(Terrain.read(dem))
+    export_mesh(tmesh, tmp_path / "b.ply", local=True)
+    np.testing.assert_array_equal(origin, tmesh.origin)
+    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()

@@ -41,7 +41,7 @@ import numpy as np
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
-from orthomvp.engine.halo import footprint, image_box, perimeter, tile_halo
+from orthomvp.engine.halo import footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
     BASE_BYTES,
@@ -59,6 +59,7 @@ from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
+from orthomvp.terrain import perimeter
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""

@@ -35,6 +35,7 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, WindowT
+from orthomvp.terrain import perimeter
 
 TRACK_SAMPLES = 9
 """Points per ground track (from the post to where its line of sight leaves O)."""
@@ -89,15 +90,6 @@ def exit_distance(dem: DemSource, p: np.ndarray, d: np.ndarray) -> np.ndarray:
         inside = dem.from_world(p + mid[:, None] * d)[2] <= dem.h_max
         lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
     return hi
-
-
-def perimeter(window: WindowT) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions ``(c, r)`` of every post on the border of a window."""
-    r0, r1, c0, c1 = window
-    cols, rows = np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64)
-    c = np.concatenate([cols, cols, np.full(len(rows), c0), np.full(len(rows), c1 - 1)])
-    r = np.concatenate([np.full(len(cols), r0), np.full(len(cols), r1 - 1), rows, rows])
-    return c, r
 
 
 def tile_halo(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera) -> Halo:

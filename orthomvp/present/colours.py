@@ -74,11 +74,14 @@ def visibility_codes(data: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return band.astype(np.uint8)
 
 
-def image_colours(bands: np.ndarray, name: str = "image") -> np.ndarray:
+def image_colours(
+    bands: np.ndarray, name: str = "image", *, stretch: tuple[float, float] | None = None
+) -> np.ndarray:
     """Per-post RGB (rows * cols, 3) uint8 of a band-first image (bands, rows, cols): grey from
     1 band, RGB from the first 3 of 3 or more. uint8 is taken as it is; other data is stretched
-    linearly from its 1st percentile (0) to its 99th (255), clipped, over the posts where every
-    used band is finite; the other posts are :data:`NAN_RGB`."""
+    linearly from ``stretch`` (low, high; default its 1st and 99th percentile over the posts
+    where every used band is finite) to 0 and 255, clipped; the other posts are
+    :data:`NAN_RGB`."""
     if len(bands) == 2:
         raise InputError(f"the {name} must have 1 band (grey) or 3 or more (RGB), not 2")
     rgb = np.moveaxis(bands[:3], 0, -1).reshape(-1, min(len(bands), 3))
@@ -86,9 +89,11 @@ def image_colours(bands: np.ndarray, name: str = "image") -> np.ndarray:
         return np.broadcast_to(rgb, (len(rgb), 3)).copy()
     rgb = rgb.astype(np.float64)
     filled = np.isfinite(rgb).all(axis=1)
-    if not filled.any():
-        raise InputError(f"the {name} holds no valid values")
-    lo, hi = np.percentile(rgb[filled], [1, 99])
+    if stretch is None:
+        if not filled.any():
+            raise InputError(f"the {name} holds no valid values")
+        stretch = np.percentile(rgb[filled], [1, 99])
+    lo, hi = stretch
     scaled = np.clip((rgb - lo) / max(hi - lo, 1e-12), 0, 1) * 255
     out = np.broadcast_to(np.where(filled[:, None], scaled, 0), (len(rgb), 3)).astype(np.uint8)
     out[~filled] = NAN_RGB
