@@ -22,6 +22,7 @@ import csv
 import io
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.ndimage import uniform_filter
@@ -31,11 +32,14 @@ from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.ortho import sample_image
-from orthomvp.raster import atomic_path
+from orthomvp.raster import write_set
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import number, of_type
 from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility, occluder_caster
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
 """Epsilons checked by default, DEM posts."""
@@ -221,18 +225,30 @@ def _rows(
     return out
 
 
-def write_csv(result: CheckResult, path: str | Path) -> None:
-    """Write the check's rows as CSV."""
+def save(result: CheckResult, table: str | Path, figure: str | Path) -> None:
+    """Write the check's rows as CSV (``table``) and its :func:`plot` (``figure``, PNG or
+    another format matplotlib writes, by the suffix), atomically as a set."""
+    import matplotlib.pyplot as plt
+
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
     writer.writeheader()
     for r in result.rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    with atomic_path(path) as tmp:
-        tmp.write_text(buf.getvalue())
+    fig = plot(result)
+    fmt = Path(figure).suffix.lstrip(".") or "png"
+    try:
+        write_set(
+            {
+                Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
+                Path(figure): lambda tmp: fig.savefig(tmp, dpi=90, format=fmt),
+            }
+        )
+    finally:
+        plt.close(fig)
 
 
-def plot(result: CheckResult, path: str | Path) -> None:
+def plot(result: CheckResult) -> Figure:
     """Median NCC against the miss-distance bin, one panel per epsilon, pooled over the
     pairs: posts visible in both views and posts called occluded (naive value)."""
     import matplotlib
@@ -269,6 +285,4 @@ def plot(result: CheckResult, path: str | Path) -> None:
         ax.set_ylim(-1, 1)
     axes[0][0].set_ylabel("median local NCC")
     axes[0][0].legend(fontsize=8)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format=Path(path).suffix.lstrip(".") or "png")
-    plt.close(fig)
+    return fig

@@ -495,11 +495,13 @@ def test_the_second_of_two_outputs_failing_keeps_neither(
          ["-q", "fit", dem, *views(scene), "-o", first, "--uncertainty", sec]),
         (__import__("matplotlib.figure").figure.Figure, "savefig", savefig,
          ["eps-study", crater_dir, "-o", out / "second", "--eps", "1"]),
+        (__import__("matplotlib.figure").figure.Figure, "savefig", savefig,
+         ["-q", "check", dem, *views(scene), "-o", out / "second", "--eps", "4"]),
     ]  # fmt: skip
     for owner, name, fake, args in cases:
         with monkeypatch.context() as patch:
             patch.setattr(owner, name, fake)
-            path = out / "second.png" if "eps-study" in args else sec
+            path = out / "second.png" if {"eps-study", "check"} & set(args) else sec
             one_line(run(*args), capfd, f"cannot write {path}: input/output error")
         assert list(out.iterdir()) == [], args
     # mesh: the OBJ and its .mtl are written, its texture image fails

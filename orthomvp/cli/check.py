@@ -88,8 +88,7 @@ def check(
             f"eps {e:g}: median NCC {_text(vis)} at posts visible in both, {_text(occ)} at "
             "posts called occluded (naive value)"
         )
-    lib.write_csv(result, csv)
-    lib.plot(result, png)
+    lib.save(result, csv, png)
     print(f"wrote {csv} and {png}")
 
 
