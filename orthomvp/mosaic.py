@@ -425,3 +425,35 @@ def clamp_blend(blend: int, widest: float) -> int:
         )
         return clamped
     return blend
+
+
+def seam_visibility(data: np.ndarray, source: np.ndarray) -> float:
+    """How visible a mosaic's seams are: the median absolute difference (mean over bands)
+    between 4-neighbour posts labelled with different views, over the same median between
+    neighbours labelled with one view; 1 means seams cannot be told from texture. ``data``
+    (bands, rows, cols) with NaN where empty, ``source`` (rows, cols) the 1-based view (0:
+    none), as :class:`~orthomvp.ortho.Mosaic` and the source raster's band 1 give them. NaN
+    when there is no seam or no pair within one view."""
+    data = np.asarray(data, dtype=np.float64)
+    source = np.asarray(source)
+    if data.ndim != 3 or source.shape != data.shape[1:]:
+        raise InputError(
+            f"seam visibility needs data (bands, rows, cols) and source (rows, cols) of the same "
+            f"grid, got {data.shape} and {source.shape}"
+        )
+    ok = np.isfinite(data).all(axis=0) & (source > 0)
+    across, within = [], []
+    for a, b in (
+        ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+        ((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+    ):
+        pair = ok[a] & ok[b]
+        diff = np.abs(data[(slice(None), *a)] - data[(slice(None), *b)]).mean(axis=0)
+        seam = source[a] != source[b]
+        across.append(diff[pair & seam])
+        within.append(diff[pair & ~seam])
+    across, within = np.concatenate(across), np.concatenate(within)
+    if not len(across) or not len(within):
+        return float("nan")
+    inside = float(np.median(within))
+    return float(np.median(across)) / inside if inside > 0 else float("inf")

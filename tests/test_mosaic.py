@@ -14,6 +14,7 @@ from orthomvp.camera import load_view
 from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_ortho, run_plan
+from orthomvp.errors import InputError
 from orthomvp.mosaic import (
     BALANCES,
     FILLS,
@@ -22,6 +23,7 @@ from orthomvp.mosaic import (
     MosaicOptions,
     box_sum,
     pair_stats,
+    seam_visibility,
     solve_balance,
 )
 from orthomvp.ortho import mosaic, orthorectify
@@ -92,20 +94,6 @@ def test_tiled_equals_untiled(crater_dir: Path, views: list, tmp_path: Path, opt
         np.testing.assert_allclose(whole["ortho"], memory.data, rtol=1e-6, equal_nan=True)
 
 
-def seam_steps(data: np.ndarray, source: np.ndarray) -> tuple[float, float]:
-    """Median absolute difference of neighbouring posts across a change of source view, and
-    between neighbours of the same view."""
-    across, within = [], []
-    for a, b, sa, sb in (
-        (data[:, 1:], data[:, :-1], source[:, 1:], source[:, :-1]),
-        (data[1:], data[:-1], source[1:], source[:-1]),
-    ):
-        ok = (sa > 0) & (sb > 0) & np.isfinite(a) & np.isfinite(b)
-        across.append(np.abs(a - b)[ok & (sa != sb)])
-        within.append(np.abs(a - b)[ok & (sa == sb)])
-    return float(np.median(np.concatenate(across))), float(np.median(np.concatenate(within)))
-
-
 def test_blending_removes_the_seam_step(crater_dir: Path, gained: Path, tmp_path: Path) -> None:
     """Two views 30% apart in gain: a hard seam shows the step, a 16-post feather does not."""
     views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
@@ -113,12 +101,31 @@ def test_blending_removes_the_seam_step(crater_dir: Path, gained: Path, tmp_path
     dem = crater_dir / "dem.tif"
     hard = engine_mosaic(dem, views, tmp_path, "hard", tile=32, blend=0)
     soft = engine_mosaic(dem, views, tmp_path, "soft", tile=32, blend=16)
-    step_hard, within_hard = seam_steps(hard["ortho"][0], hard["source"][0])
-    step_soft, within_soft = seam_steps(soft["ortho"][0], soft["source"][0])
-    figures = (step_hard, within_hard, step_soft, within_soft)
-    assert step_hard > 2 * within_hard and step_soft < 1.2 * within_soft, figures
+    hard_seams = seam_visibility(hard["ortho"][:1], hard["source"][0])
+    soft_seams = seam_visibility(soft["ortho"][:1], soft["source"][0])
+    assert hard_seams > 2 and soft_seams < 1.2, (hard_seams, soft_seams)
     # the same labels, only the values near seams change
     np.testing.assert_array_equal(hard["source"][0], soft["source"][0])
+
+
+def test_seam_visibility_of_a_known_step() -> None:
+    """Unit-normal texture: neighbours within one view differ by |N(0, 2)|, median
+    sqrt(2) 0.6745 = 0.954; across a seam whose right side is 10 higher, by about 10."""
+    rng = np.random.default_rng(1)
+    data = rng.standard_normal((1, 400, 400))
+    source = np.ones((400, 400), np.uint8)
+    source[:, 200:] = 2
+    assert seam_visibility(data, source) == pytest.approx(1.0, abs=0.08)  # 798 seam pairs
+    data[:, :, 200:] += 10.0
+    assert seam_visibility(data, source) == pytest.approx(10.0 / 0.9539, rel=0.03)
+    # two bands: the mean over bands; empty posts and posts of no view are left out
+    two = np.concatenate([data, data + 5.0])
+    two[:, :10] = np.nan
+    source[-10:] = 0
+    assert seam_visibility(two, source) == pytest.approx(10.0 / 0.9539, rel=0.03)
+    assert np.isnan(seam_visibility(data, np.ones((400, 400))))  # no seam
+    with pytest.raises(InputError, match="same grid"):
+        seam_visibility(data[0], source)
 
 
 def test_balance_recovers_a_known_gain_and_offset(
@@ -247,11 +254,12 @@ def test_cli_options_and_errors(crater_dir: Path, tmp_path: Path, capsys) -> Non
 
 
 CITY_FIGURES = [
-    # interp, options, least radiance correlation (achieved 0.99435, 0.99536, 0.99486, 0.99565)
-    ("bilinear", {}, 0.9943),
-    ("bilinear", {"seamlines": False, "blend": 0}, 0.9953),
-    ("cubic", {}, 0.9948),
-    ("cubic", {"seamlines": False, "blend": 0}, 0.9956),
+    # interp, options, least radiance correlation: the issue's goal, 0.995 (achieved on the
+    # 64-post city at its default GSD ratio 0.5: 0.99714, 0.99696, 0.99685, 0.99672)
+    ("bilinear", {}, 0.995),
+    ("bilinear", {"seamlines": False, "blend": 0}, 0.995),
+    ("cubic", {}, 0.995),
+    ("cubic", {"seamlines": False, "blend": 0}, 0.995),
 ]
 
 

@@ -52,7 +52,7 @@ SENSORS = ("frame", "linescan")
     "--gsd-ratio",
     type=Number(min=GSD_RATIO_RANGE[0], max=GSD_RATIO_RANGE[1]),
     metavar="RATIO",
-    default=0.8,
+    show_default="per kind: 0.8/0.8/0.8/0.5",
     help="image ground sample distance / DEM post spacing",
 )
 @click.option(
@@ -82,7 +82,7 @@ def synth(
     outdir: Path,
     size: int | None,
     spacing: float | None,
-    gsd_ratio: float,
+    gsd_ratio: float | None,
     seed: int,
     sensor: str,
     supersample: int,
@@ -98,7 +98,8 @@ def synth(
     from orthomvp.synthetic.scene import check_scene_memory
 
     check_outdir(outdir, "OUTDIR")
-    check_scene_memory(size or DEFAULTS[kind][0], gsd_ratio, "choose a smaller --size")
+    size = size or DEFAULTS[kind][0]
+    check_scene_memory(size, gsd_ratio or DEFAULTS[kind][2], "choose a smaller --size")
     scene = make_scene(
         kind, size=size, spacing=spacing, gsd_ratio=gsd_ratio, seed=seed, sensor=sensor
     )

@@ -14,8 +14,18 @@ from orthomvp.synthetic.surface import MOON_RADIUS, LocalField, local_frame
 from orthomvp.terrain import unit_vector
 
 KINDS = ("planar", "crater", "hills", "city")
-DEFAULTS = {"planar": (64, 40.0), "crater": (160, 40.0), "hills": (128, 30.0), "city": (160, 0.5)}
-"""Default (size in posts, post spacing in metres) of each kind."""
+DEFAULTS = {
+    "planar": (64, 40.0, 0.8),
+    "crater": (160, 40.0, 0.8),
+    "hills": (128, 30.0, 0.8),
+    "city": (160, 0.5, 0.5),
+}
+"""Default (size in posts, post spacing in metres, image GSD / post spacing) of each kind.
+The city's images are twice as fine as its surface model: a surface model matched from aerial
+images has at most one independent height per two pixels or so, and true orthophotos are made
+from such pairs (at 0.8, the images' 0.4 m pixels straddle each wall edge next to the 0.5 m
+posts, and no choice of view brings the mosaic's correlation with the true radiance above
+0.994 bilinear; see the README's city figures)."""
 
 
 def relief(

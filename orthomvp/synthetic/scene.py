@@ -127,7 +127,7 @@ def make_scene(
     kind: str,
     size: int | None = None,
     spacing: float | None = None,
-    gsd_ratio: float = 0.8,
+    gsd_ratio: float | None = None,
     seed: int = 0,
     lonlat_deg: tuple[float, float] = (3.6, 26.1),
     *,
@@ -136,7 +136,7 @@ def make_scene(
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings. The same arguments give the same scene. ``sensor``: ``frame`` (the kind's
+    spacings (default per kind). The same arguments give the same scene. ``sensor``: ``frame`` (the kind's
     pinhole views) or ``linescan`` (the line scanners of
     :data:`orthomvp.synthetic.linescan.VIEWS`; lunar kinds only). ``city`` is a
     :class:`~orthomvp.synthetic.city.CityScene` in its own projected CRS (``lonlat_deg`` does
@@ -149,7 +149,7 @@ def make_scene(
         raise InputError(f"unknown scene kind {kind!r}; choose one of {', '.join(KINDS)}")
     if sensor not in SENSORS:
         raise InputError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
-    d_size, d_spacing = DEFAULTS[kind]
+    d_size, d_spacing, d_ratio = DEFAULTS[kind]
     size = d_size if size is None else number(size, "scene size (posts)", minimum=8, integer=True)
     lo, hi = SPACING_RANGE
     spacing = (
@@ -158,7 +158,9 @@ def make_scene(
         else number(spacing, "post spacing (metres)", minimum=lo, maximum=hi)
     )
     lo, hi = GSD_RATIO_RANGE
-    gsd_ratio = number(gsd_ratio, "GSD ratio", minimum=lo, maximum=hi)
+    gsd_ratio = (
+        d_ratio if gsd_ratio is None else number(gsd_ratio, "GSD ratio", minimum=lo, maximum=hi)
+    )
     seed = number(seed, "seed", minimum=0, integer=True)
     check_scene_memory(size, gsd_ratio)
     if kind == "city":
