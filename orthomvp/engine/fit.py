@@ -18,6 +18,7 @@ import rasterio
 from rasterio.enums import Resampling
 
 from orthomvp.codes import Code
+from orthomvp.engine import heap
 from orthomvp.engine.fit_plan import (
     RETRIES,
     FitJob,
@@ -30,11 +31,12 @@ from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
     check_memory,
     check_views,
+    default_inflight,
     executor,
     results,
     workers_of,
 )
-from orthomvp.engine.tile import GC_POSTS, _has_cell, _release, _timed
+from orthomvp.engine.tile import GC_POSTS, _has_cell, _timed
 from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import fit_dem
@@ -91,13 +93,15 @@ def empty_tile(plan: FitPlan, job: FitJob) -> FitTile:
 
 def run_fit_tile(plan: FitPlan, index: int, threads: int = 1, progress: bool = False) -> FitTile:
     """Fit tile ``index`` of ``plan`` with ``threads`` threads (``progress``: the fitter's
-    own bar over its batches). Frees its memory as :func:`~orthomvp.engine.tile.run_tile`."""
+    own bar over its batches). Settles the heap and frees its memory as
+    :func:`~orthomvp.engine.tile.run_tile` does."""
+    heap.settle()
     try:
         return _run_fit_tile(plan, index, threads, progress)
     finally:
         if plan.tiles[index].dem_posts >= GC_POSTS:
             gc.collect()
-            _release()
+            heap.release()
 
 
 def _sub(window: WindowT, within: WindowT) -> tuple[slice, slice]:
@@ -337,14 +341,13 @@ def run_fit(
 ) -> FitReport:
     """Fit every tile of ``plan`` and write ``outputs`` (all of them, or none).
 
-    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker
-    processes, or on the Dask ``client``, at most ``inflight`` (default twice the workers)
-    at a time; with fewer tiles than threads each tile fits with several threads (and, alone,
-    shows the fitter's own progress). Raises InputError before any work when the expected
-    peak memory exceeds what is available, GeometryError (writing nothing) when no post is
-    visible in 2 or more images or an image sees only posts facing away, WorkerError
-    (writing nothing) when a worker dies.
-    """
+    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes,
+    or on the Dask ``client``, at most ``inflight`` (default
+    :func:`~orthomvp.engine.run.default_inflight`) at a time; with fewer tiles than threads each
+    tile fits with several threads (and, alone, shows the fitter's own progress). Raises
+    InputError before any work when the expected peak memory exceeds what is available,
+    GeometryError (writing nothing) when no post is visible in 2 or more images or an image sees
+    only posts facing away, WorkerError (writing nothing) when a worker dies."""
     workers = workers_of(threads, processes, client)
     if inflight is not None and inflight < 1:
         raise InputError(f"inflight must be at least 1, got {inflight}")
@@ -377,7 +380,9 @@ def run_fit(
                     writer.write(empty_tile(plan, job))
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(submit, wait, jobs, args, inflight or 2 * workers):
+            for result in results(
+                submit, wait, jobs, args, inflight or default_inflight(workers, client)
+            ):
                 t0 = time.perf_counter()
                 writer.write(result)
                 report.phases["write"] = report.phases.get("write", 0.0) + (

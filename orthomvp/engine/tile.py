@@ -8,7 +8,6 @@ normals are the same central differences as on the whole grid; the border is cut
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import time
 from collections.abc import Iterator
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from orthomvp.codes import Code
+from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
@@ -156,32 +156,16 @@ def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) ->
     :data:`GC_POSTS` posts, and freed memory goes back to the system: the mesh library's
     objects hold reference cycles, and without it the meshes of many tiles pile up before
     Python collects them. (A full collection takes milliseconds to tens of milliseconds;
-    smaller tiles leave their few megabytes to Python's own schedule.)"""
+    smaller tiles leave their few megabytes to Python's own schedule.) The process's heap is
+    settled first (:func:`orthomvp.engine.heap.settle`), so that threads, processes and Dask
+    workers run a tile at the same speed."""
+    heap.settle()
     try:
         return _run_tile(plan, index, kinds, threads)
     finally:
         if plan.tiles[index].dem_posts >= GC_POSTS:
             gc.collect()
-            _release()
-
-
-def _release() -> None:
-    """Hand freed memory back to the system (glibc's malloc_trim; nothing elsewhere). Without
-    it, the heap keeps the high-water mark of every thread's arena, and tiles that free and
-    reallocate the same large arrays let the resident set creep up over a long run."""
-    if _LIBC is not None:
-        _LIBC.malloc_trim(0)
-
-
-def _libc() -> ctypes.CDLL | None:
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        return libc if hasattr(libc, "malloc_trim") else None
-    except OSError:
-        return None
-
-
-_LIBC = _libc()
+            heap.release()
 
 
 def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> TileResult:

@@ -136,8 +136,8 @@ def make_scene(
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
     ``lonlat_deg`` (degrees), and cameras whose ground sample distance is ``gsd_ratio`` post
-    spacings (default per kind). The same arguments give the same scene. ``sensor``: ``frame`` (the kind's
-    pinhole views) or ``linescan`` (the line scanners of
+    spacings (default per kind). The same arguments give the same scene. ``sensor``:
+    ``frame`` (the kind's pinhole views) or ``linescan`` (the line scanners of
     :data:`orthomvp.synthetic.linescan.VIEWS`; lunar kinds only). ``city`` is a
     :class:`~orthomvp.synthetic.city.CityScene` in its own projected CRS (``lonlat_deg`` does
     not apply).
