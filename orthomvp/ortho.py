@@ -38,7 +38,7 @@ from orthomvp.mosaic import (
 )
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.validate import of_type
+from orthomvp.validate import finite_rows, of_type
 from orthomvp.visibility import (
     VISIBILITY_BYTES_PER_POST,
     Visibility,
@@ -120,7 +120,7 @@ def sample_image(
             borderValue=np.nan,
         )
         out[b] = s.reshape(-1)[:n]
-    out[:, ~np.isfinite(flat).all(axis=1)] = np.nan
+    out[:, ~finite_rows(flat)] = np.nan
     return out.reshape((image.shape[0], *shape))
 
 
@@ -169,7 +169,7 @@ def orthorectify(
         dem=dem,
     )
     data = sample_image(image, vis.uv, interp)
-    keep = vis.codes == Code.VISIBLE if occlusion else np.isfinite(vis.uv).all(axis=-1)
+    keep = vis.codes == Code.VISIBLE if occlusion else finite_rows(vis.uv)
     data[:, ~keep] = np.nan
     return Ortho(data, terrain.transform, terrain.crs, vis)
 
@@ -227,7 +227,7 @@ def mosaic(
         elif options.fill == "naive":
             need |= vis.codes != Code.NODATA
         if options.priority == "nadir" or options.fill == "naive":
-            inside = np.isfinite(vis.uv).all(axis=-1)
+            inside = finite_rows(vis.uv)
             nadir[k] = np.where(inside, nadir_angle(terrain, whole, camera, vis.uv), np.inf)
         values[k][:, need] = sample_image(image, vis.uv[need], interp)
     correction = None

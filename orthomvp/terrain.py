@@ -439,6 +439,29 @@ class Terrain:
         )
         return np.where(inside, out, np.nan)
 
+    def interpolate_grid(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """:meth:`interpolate` at every pair of the fractional column positions ``c`` (n,)
+        and row positions ``r`` (m,): (m, n), the same values bit for bit, with the cell
+        search done once per column and once per row (a grid axis-aligned with this one)."""
+        rows, cols = self.shape
+        c = np.asarray(c, dtype=np.float64)
+        r = np.asarray(r, dtype=np.float64)
+        c_in = (c >= 0) & (c <= cols - 1)
+        r_in = (r >= 0) & (r <= rows - 1)
+        c0 = np.clip(np.floor(np.where(c_in, c, 0)), 0, cols - 2).astype(np.int64)
+        r0 = np.clip(np.floor(np.where(r_in, r, 0)), 0, rows - 2).astype(np.int64)
+        fx, fy = (c - c0)[None, :], (r - r0)[:, None]
+        flat = self.values.ravel()
+        at = r0[:, None] * cols + c0[None, :]
+        a, b = flat[at], flat[at + 1]
+        d, e = flat[at + cols], flat[at + cols + 1]
+        out = np.where(
+            fx + fy <= 1,
+            a + fx * (b - a) + fy * (d - a),
+            e + (1 - fx) * (d - e) + (1 - fy) * (b - e),
+        )
+        return np.where(r_in[:, None] & c_in[None, :], out, np.nan)
+
     def output_grid(
         self, res: tuple[float, float] | None = None, bounds: tuple[float, ...] | None = None
     ) -> tuple[Affine, tuple[int, int]]:
@@ -488,8 +511,12 @@ class Terrain:
             "choose a coarser resolution or smaller bounds",
         )
         new = replace(self, values=np.zeros((n_r, n_c)), transform=grid)
-        c, r = self.crs_to_pixel(*new.pixel_to_crs(*new.grid()))
-        values = self.interpolate(c, r)
+        if self.S[0, 1] == 0 and self.S[1, 0] == 0:  # north up: columns and rows map apart
+            c, _ = self.crs_to_pixel(*new.pixel_to_crs(np.arange(n_c, dtype=np.float64), 0.0))
+            _, r = self.crs_to_pixel(*new.pixel_to_crs(0.0, np.arange(n_r, dtype=np.float64)))
+            values = self.interpolate_grid(c, r)
+        else:
+            values = self.interpolate(*self.crs_to_pixel(*new.pixel_to_crs(*new.grid())))
         if not np.isfinite(values).any():
             raise InputError("the requested grid does not overlap the DEM")
         return replace(new, values=values)

@@ -31,7 +31,7 @@ from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, grid_normals, perimeter
-from orthomvp.validate import number, of_type
+from orthomvp.validate import finite_rows, number, of_type
 from orthomvp.world import check_cameras_above
 
 TILE = 512
@@ -218,7 +218,7 @@ def compute_visibility(
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
         p, n = _tile_normals(terrain, rs, cs)
-        ok = np.isfinite(p).all(axis=-1) & np.isfinite(n).all(axis=-1)
+        ok = finite_rows(p) & finite_rows(n)
         t_uv, depth = camera.project(p)
         inside = ok & (depth > 0) & camera.in_image(t_uv)
         if fixed_origin is not None:  # the same for every pixel (frame cameras)

@@ -158,6 +158,26 @@ def test_interpolate_and_regrid() -> None:
         t.regrid(bounds=(50.0, 10.0, 51.0, 11.0))
 
 
+def test_interpolate_grid_is_interpolate_bit_for_bit() -> None:
+    """On every pair of column and row positions (inside, on the last post, beyond the grid,
+    next to a hole), as :meth:`interpolate` on the full meshgrid; and regridding, which now
+    uses it, equals interpolating at every new post's own position."""
+    t = geographic(10.0, 0.5, np.degrees(50.0 / 1737400.0), 40)
+    rng = np.random.default_rng(4)
+    values = rng.normal(0, 100, t.shape)
+    values[7, 11] = np.nan
+    dem = t.with_values(values)
+    cc = np.concatenate([rng.uniform(-1, 40, 57), [0.0, 39.0, 10.5, 11.0, -1e-9]])
+    rr = np.concatenate([rng.uniform(-1, 40, 43), [0.0, 39.0, 6.5, 7.0]])
+    got = dem.interpolate_grid(cc, rr)
+    want = dem.interpolate(*np.meshgrid(cc, rr))
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got).any() and np.isfinite(got).any()
+    fine = dem.regrid(res=(abs(t.transform.a) / 3, abs(t.transform.e) / 3))
+    at = dem.interpolate(*dem.crs_to_pixel(*fine.pixel_to_crs(*fine.grid())))
+    np.testing.assert_array_equal(fine.values, at)
+
+
 def test_geotiff_round_trip_with_nodata(tmp_path) -> None:
     t = geographic(10, 20, 0.01, 16)
     values = t.values.copy()

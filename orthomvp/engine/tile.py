@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
+from affine import Affine
 
 from orthomvp.codes import Code
 from orthomvp.engine import heap
@@ -25,6 +26,7 @@ from orthomvp.mosaic import compose, doubtful, nadir_angle
 from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
+from orthomvp.validate import column_range, finite_rows
 from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 GC_POSTS = 1 << 15
@@ -110,6 +112,11 @@ def _grid_tile(
     w0, _, w2, _ = job.dem
     if plan.grid.on_dem:
         values = window.values[ext[0] - w0 : ext[1] - w0, ext[2] - w2 : ext[3] - w2]
+    elif plan.grid.crs == plan.dem.crs and _north_up(plan.dem.transform):
+        to_dem = grid_to_dem(plan.grid, plan.dem)  # columns and rows map apart
+        dc, _ = to_dem(np.arange(ext[2], ext[3], dtype=np.float64), 0.0)
+        _, dr = to_dem(0.0, np.arange(ext[0], ext[1], dtype=np.float64))
+        values = window.interpolate_grid(dc - w2, dr - w0)
     else:
         r, c = np.mgrid[ext[0] : ext[1], ext[2] : ext[3]].astype(np.float64)
         dc, dr = grid_to_dem(plan.grid, plan.dem)(c, r)
@@ -118,11 +125,17 @@ def _grid_tile(
     return (grid.with_values(values) if np.isfinite(values).any() else None), inner
 
 
+def _north_up(transform: Affine) -> bool:
+    """Whether a grid's columns run east and its rows south, with no rotation or shear."""
+    return transform.b == 0 and transform.d == 0
+
+
 def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The image pixels around positions ``uv`` (n, 2) and the positions relative to them,
     shifted in float32 as :func:`~orthomvp.ortho.sample_image` uses them (exact, so every
     window samples exactly as the whole image would)."""
-    lo, hi = np.floor(uv.min(axis=0)).astype(int), np.floor(uv.max(axis=0)).astype(int)
+    low, high = column_range(uv)
+    lo, hi = np.floor(low).astype(int), np.floor(high).astype(int)
     c0, r0 = max(lo[0] - IMAGE_MARGIN, 0), max(lo[1] - IMAGE_MARGIN, 0)
     c1 = min(max(hi[0] + IMAGE_MARGIN + 2, c0 + 1), view.width)
     r1 = min(max(hi[1] + IMAGE_MARGIN + 2, r0 + 1), view.height)
@@ -134,7 +147,8 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
     """Values (bands, n) float32 of the image at positions ``uv`` (n, 2), reading only the
     window they fall in; in pieces (split along the longer side) while a window would exceed
     :data:`~orthomvp.engine.plan.SAMPLE_BUDGET_PIXELS`."""
-    span = np.floor(uv.max(axis=0)) - np.floor(uv.min(axis=0)) + 2 * IMAGE_MARGIN + 2
+    low, high = column_range(uv)
+    span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
     if len(uv) > 1 and span[0] * span[1] > SAMPLE_BUDGET_PIXELS:
         order = np.argsort(uv[:, int(np.argmax(span))], kind="stable")
         half = len(uv) // 2
@@ -200,7 +214,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
         result.counts[k] = np.bincount(codes.ravel(), minlength=len(Code)).tolist()
         if result.codes is not None:
             result.codes[k] = codes
-        keep = codes == Code.VISIBLE if plan.occlusion else np.isfinite(uv).all(axis=-1)
+        keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
         keep &= emission < best
         if (result.data is not None or result.source is not None) and keep.any():
             with _timed(seconds, "sample"):
@@ -268,7 +282,7 @@ def _mosaic_tile(
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads)
         code, uv = vis.codes[inner], vis.uv[inner]
-        inside = np.isfinite(uv).all(axis=-1)
+        inside = finite_rows(uv)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
         tile_codes = code[core]
