@@ -40,12 +40,13 @@ DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
 """Epsilons checked by default, DEM posts."""
 
 # Bytes of memory per post of a tile grown by the NCC margin, beyond those of an orthophoto
-# tile (plan.py), from the peak resident set size of single tiles of the crater scene (4
-# views, tiles of 32 to 256 posts), rounded up: per view the codes, miss distances and naive
-# values kept across the epsilons and their codes and orthophoto per epsilon; the NCC maps
-# of one pair with their box sums.
-CHECK_VIEW_BYTES = 40
-NCC_BYTES = 300
+# tile (plan.py), rounded up from the peak resident set size of runs of the scale scene
+# (orthomvp.engine.scale, 2048 x 2048 posts, tiles of 1024, one thread): 70 B per post more
+# than the orthophoto of the same tiles with 2 views, and 21 B per post for each further view.
+# Per view: the codes, miss distances and naive values kept across the epsilons, and each
+# epsilon's codes and orthophoto; the NCC maps of one pair with their box sums.
+CHECK_VIEW_BYTES = 25
+NCC_BYTES = 120
 
 
 @dataclass(frozen=True)
