@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,14 +14,16 @@ from affine import Affine
 
 import orthomvp.engine.grid as engine_grid
 import orthomvp.engine.run as engine_run
-from orthomvp.camera import load_view, write_tsai
+from orthomvp.camera import load_view, sensor_positions, write_tsai
 from orthomvp.check import CheckResult, check_views, local_ncc
-from orthomvp.engine import CheckPlan, plan_check, run_check
+from orthomvp.engine import CheckPlan, dask_client, plan_check, run_check
 from orthomvp.engine.ncc import MEDIAN_BOUND, MISS_BINS, NccTally
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import load_scene
 from orthomvp.terrain import Terrain
+from orthomvp.world import detect_world
+from tests.conftest import shared
 from tests.test_cli import assert_one_line_error, run
 
 NAMES = ("ne", "se", "sw", "nw")
@@ -192,6 +195,15 @@ def test_tiled_check_equals_in_memory_and_itself(
     assert not same_rows(run_check(plan, threads=2, progress=False), got)
 
 
+def test_check_on_dask_equals_threads(crater_dir: Path) -> None:
+    pytest.importorskip("distributed")
+    views = [(crater_dir / f"{n}.tif", crater_dir / f"{n}.tsai") for n in CRATER]
+    plan = plan_check(crater_dir / "dem.tif", views, tile=16, progress=False)
+    threaded = run_check(plan, threads=2, progress=False)
+    with dask_client(workers=2) as client:
+        assert same_rows(run_check(plan, client=client, progress=False), threaded)
+
+
 def test_tiles_only_one_view_sees_are_not_read(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -273,3 +285,19 @@ def test_check_engine_bad_input(crater_dir: Path, tmp_path: Path) -> None:
     assert_one_line_error(run("check", "-o", out), "or --odm DIR")
     assert_one_line_error(run("check", str(dem), "-o", out), "or --odm DIR")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.realdata
+def test_ngi_aerial_tiled_check_equals_in_memory() -> None:
+    """Four aerial frames (map frame) in tiles of 128 posts: the in-memory check's counts,
+    means and medians (within the bound); visible posts correlate (median 0.90)."""
+    d = shared("ngi-aerial")
+    names = [str(p) for p in sorted(d.glob("*_RGB.tif"))]
+    views = [(name, name.removesuffix(".tif") + ".converted.tsai") for name in names]
+    got = run_check(plan_check(d / "dem.tif", views, names=names, tile=128, progress=False))
+    loaded = [load_view(*v) for v in views]
+    terrain = Terrain.read(d / "dem.tif")
+    centres = np.concatenate([sensor_positions(camera) for _, camera in loaded])
+    terrain = replace(terrain, world=detect_world(terrain, centres))
+    compare(got, check_views(terrain, loaded, names=names))
+    assert len(got.pairs) == 6 and got.pooled(4.0, "visible")["ncc_median"] > 0.85
