@@ -25,7 +25,6 @@ from orthomvp.engine.tile import (
     _grid_tile,
     _has_cell,
     _release,
-    _timed,
     _visibility,
     sample_view,
 )
@@ -78,14 +77,13 @@ class CheckTile:
     """A checked tile: per view the posts of the tile ``inside`` the image and those ``seen``
     (visible or occluded); ``overlap`` per pair (a, b), a < b, the tile's posts that both
     see and both image with a value; ``tallies`` the NCC at the tile's posts per
-    :data:`Key`; ``seconds`` per phase (read, mesh, visibility, sample, ncc)."""
+    :data:`Key`."""
 
     index: int
     inside: list[int]
     seen: list[int]
     overlap: dict[tuple[int, int], int] = field(default_factory=dict)
     tallies: dict[Key, NccTally] = field(default_factory=dict)
-    seconds: dict[str, float] = field(default_factory=dict)
 
 
 def run_check_tile(plan: CheckPlan, index: int, threads: int = 1) -> CheckTile:
@@ -105,9 +103,7 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
     result = CheckTile(index, [0] * n, [0] * n)
     if not job.views:
         return result
-    seconds = result.seconds
-    with _timed(seconds, "read"):
-        values = base.dem.read(job.dem)
+    values = base.dem.read(job.dem)
     if not _has_cell(np.isfinite(values)):
         return result
     window = base.dem.window_terrain(job.dem, values)
@@ -117,18 +113,15 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
         return result
     r0, r1, c0, c1 = job.window
     core = (slice(r0 - ext[0], r1 - ext[0]), slice(c0 - ext[2], c1 - ext[2]))
-    with _timed(seconds, "mesh"):
-        caster = occluder_caster(window, threads=threads)
+    caster = occluder_caster(window, threads=threads)
     codes, miss, naive = {}, {}, {}
     for k in job.views:
-        with _timed(seconds, "visibility"):
-            vis = _visibility(base, grid, k, caster, window, threads)
+        vis = _visibility(base, grid, k, caster, window, threads)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = np.isfinite(uv).all(axis=-1)
         value = np.full(code.shape, np.nan, np.float32)
         if inside.any():
-            with _timed(seconds, "sample"):
-                value[inside] = np.mean(sample_view(plan.views[k], uv[inside], "bilinear"), axis=0)
+            value[inside] = np.mean(sample_view(plan.views[k], uv[inside], "bilinear"), axis=0)
         result.inside[k] = int((code[core] != Code.NODATA).sum())
         result.seen[k] = int(np.isin(code[core], (Code.VISIBLE, Code.OCCLUDED)).sum())
         m = vis.miss[inner]
@@ -139,9 +132,8 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
         for k in job.views
     }
     result.overlap = {(a, b): int((usable[a] & usable[b])[core].sum()) for a, b in pairs}
-    with _timed(seconds, "ncc"):
-        for e, eps in enumerate(plan.eps_values):
-            _tally_eps(plan, result.tallies, e, eps, pairs, codes, miss, naive, core)
+    for e, eps in enumerate(plan.eps_values):
+        _tally_eps(plan, result.tallies, e, eps, pairs, codes, miss, naive, core)
     return result
 
 
