@@ -14,37 +14,51 @@ Where the flags are right, ``visible`` correlates highly (the same ground seen t
 miss distance says that epsilon lets partial ghosts through. Windows count only posts where both
 orthophotos have values, and need at least half the window; multi-band images are averaged
 over their bands. Rows with view ``all`` pool every pair.
+
+Two ways to run it: :func:`check_views` on a DEM and images in memory (small data; exact
+medians), and :func:`orthomvp.engine.plan_check` / :func:`orthomvp.engine.run_check` from files,
+tile by tile in bounded memory through the engine (what ``orthomvp check`` runs): the same
+counts and means, medians from a histogram within
+:data:`orthomvp.engine.ncc.MEDIAN_BOUND` (0.00025). :func:`save` writes either result.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.ndimage import uniform_filter
 
 from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, classify
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.engine.check import CheckResult, no_overlap
+from orthomvp.engine.check_plan import DEFAULT_EPS, check_options
+from orthomvp.engine.ncc import MISS_BINS, local_ncc
+from orthomvp.errors import GeometryError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.ortho import sample_image
 from orthomvp.raster import write_set
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.validate import number, of_type
+from orthomvp.validate import of_type
 from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility, occluder_caster
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
-"""Epsilons checked by default, DEM posts."""
-MISS_BINS = (0.0, 0.25, 1.0, 2.0, 4.0, 8.0, 16.0, np.inf)
-"""Edges of the miss-distance bins, DEM posts (each bin includes its lower edge)."""
+__all__ = [
+    "CSV_FIELDS",
+    "DEFAULT_EPS",
+    "MISS_BINS",
+    "CheckResult",
+    "check_views",
+    "local_ncc",
+    "plot",
+    "save",
+]
+
 CHECK_BYTES_PER_POST = 200
 """Memory per post beyond the visibility: NCC maps and their box sums, bytes."""
 VIEW_BYTES_PER_POST = 16
@@ -61,51 +75,6 @@ CSV_FIELDS = (
     "ncc_mean",
     "ncc_median",
 )
-
-
-@dataclass
-class CheckResult:
-    """The check: ``rows`` (dicts with :data:`CSV_FIELDS`), the 1-based ``pairs`` of views
-    that overlap and those (``apart``) that do not, and the view ``names``."""
-
-    rows: list[dict]
-    pairs: list[tuple[int, int]]
-    apart: list[tuple[int, int]] = field(default_factory=list)
-    names: list[str] = field(default_factory=list)
-
-    def pooled(self, eps: float, cls: str) -> dict:
-        """The pooled row over all pairs and miss distances for ``eps`` and class ``cls``."""
-        return next(
-            r
-            for r in self.rows
-            if r["view"] == "all"
-            and r["eps"] == eps
-            and r["class"] == cls
-            and r["miss_from"] == 0
-            and r["miss_to"] == np.inf
-        )
-
-
-def local_ncc(a: np.ndarray, b: np.ndarray, window: int) -> np.ndarray:
-    """NCC (rows, cols) of ``a`` and ``b`` (rows, cols; NaN = no value) in a ``window`` x
-    ``window`` box around each post, over the posts where both have values; NaN where fewer
-    than half the box has both, or where either is flat."""
-    ok = np.isfinite(a) & np.isfinite(b)
-    w = ok.astype(np.float64)
-    a0, b0 = np.where(ok, a, 0.0).astype(np.float64), np.where(ok, b, 0.0).astype(np.float64)
-
-    def box(x: np.ndarray) -> np.ndarray:
-        return uniform_filter(x, window, mode="constant")
-
-    n = box(w)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ma, mb = box(a0) / n, box(b0) / n
-        va = box(a0 * a0) / n - ma * ma
-        vb = box(b0 * b0) / n - mb * mb
-        cov = box(a0 * b0) / n - ma * mb
-        ncc = cov / np.sqrt(va * vb)
-    good = (n >= 0.5 - 1e-9) & (va > 1e-10) & (vb > 1e-10)
-    return np.where(good, np.clip(ncc, -1, 1), np.nan)
 
 
 def check_views(
@@ -125,17 +94,9 @@ def check_views(
     caster on this terrain's occluder surface. GeometryError when no two views overlap (share
     at least a window of posts inside both images and facing both)."""
     of_type(terrain, Terrain, "terrain")
-    if not isinstance(views, (list, tuple)) or len(views) < 2:
-        raise InputError("the check needs a list of at least two (image, camera) views")
-    eps_values = tuple(
-        number(e, "an epsilon (DEM posts)", minimum=0, min_open=True) for e in eps_values
-    )
-    if not eps_values:
-        raise InputError("the check needs at least one epsilon")
-    window = number(window, "window (posts)", minimum=3, maximum=51, integer=True)
-    if window % 2 == 0:
-        raise InputError(f"window (posts) must be odd, got {window}")
-    names = [str(k) for k in range(1, len(views) + 1)] if names is None else list(names)
+    count = len(views) if isinstance(views, (list, tuple)) else 0
+    eps_values, window, labels = check_options(count, eps_values, window, names)
+    names = list(labels)
     rows, cols = terrain.shape
     posts = float(rows) * cols
     check_memory(
@@ -162,10 +123,7 @@ def check_views(
             both = int((seen[a] & seen[b] & np.isfinite(naive[a]) & np.isfinite(naive[b])).sum())
             (pairs if both >= window * window else apart).append((a, b))
     if not pairs:
-        raise GeometryError(
-            f"no two of the {len(views)} views overlap: no pair sees a {window} x {window} "
-            "window of the same posts"
-        )
+        raise GeometryError(no_overlap(len(views), window))
     out: list[dict] = []
     for eps in eps_values:
         codes = []

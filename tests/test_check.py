@@ -1,21 +1,34 @@
 """The truth-free check: its NCC, its separation of visible from occluded posts on the city,
-views that do not overlap, and its command line."""
+views that do not overlap, the tiled check against the in-memory one, and its command line."""
 
 from __future__ import annotations
 
+import functools
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from affine import Affine
 
-from orthomvp.camera import load_view, write_tsai
-from orthomvp.check import check_views, local_ncc
+import orthomvp.engine.grid as engine_grid
+import orthomvp.engine.run as engine_run
+from orthomvp.camera import load_view, sensor_positions, write_tsai
+from orthomvp.check import CheckResult, check_views, local_ncc
+from orthomvp.engine import CheckPlan, dask_client, plan_check, run_check
+from orthomvp.engine.ncc import MEDIAN_BOUND, MISS_BINS, NccTally
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import load_scene
+from orthomvp.terrain import Terrain
+from orthomvp.world import detect_world
+from tests.conftest import shared
 from tests.test_cli import assert_one_line_error, run
 
 NAMES = ("ne", "se", "sw", "nw")
+CRATER = ("oblique", "nadir", "fore", "aft")
+LABELS = ("eps", "view", "other", "class", "miss_from", "miss_to")
 
 
 def test_local_ncc_is_the_correlation_of_each_window() -> None:
@@ -80,7 +93,9 @@ def test_check_command(city_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "chk"
     proc = run("-q", "check", str(city_dir / "dem.tif"), *files, "-o", str(out), "--eps", "2", "4")
     assert proc.returncode == 0, proc.stderr
-    assert "eps 2: median NCC 0.9" in proc.stdout and "eps 4: median NCC 0.9" in proc.stdout
+    assert proc.stderr == ""  # -q: no plan, no progress
+    medians = re.findall(r"eps (\d): median NCC (\d\.\d+) \(", proc.stdout)
+    assert [e for e, _ in medians] == ["2", "4"] and all(float(m) > 0.9 for _, m in medians)
     lines = (tmp_path / "chk.csv").read_text().splitlines()
     assert lines[0] == "eps,view,other,class,miss_from,miss_to,posts,scored,ncc_mean,ncc_median"
     assert len(lines) == 1 + 2 * 12 * 2 * 8 + 2 * 2 * 8  # eps x ordered pairs x classes x bins
@@ -108,3 +123,181 @@ def test_check_command_bad_input(city_dir: Path, tmp_path: Path) -> None:
     halves = [str(tmp_path / f) for f in ("l.tif", "l.tsai", "r.tif", "r.tsai")]
     assert_one_line_error(run("check", dem, *halves, "-o", str(out)), "no two of the 2 views")
     assert not list(tmp_path.glob("chk*"))
+
+
+def compare(got: CheckResult, expected: CheckResult) -> None:
+    """The tiled check against the in-memory one: the same rows, posts and scored posts,
+    means to rounding, medians within the histogram's bound."""
+    assert (got.pairs, got.apart, got.names) == (expected.pairs, expected.apart, expected.names)
+    assert len(got.rows) == len(expected.rows)
+    for g, e in zip(got.rows, expected.rows, strict=True):
+        assert [g[k] for k in LABELS] == [e[k] for k in LABELS]
+        assert (g["posts"], g["scored"]) == (e["posts"], e["scored"]), (g, e)
+        if e["scored"]:
+            assert g["ncc_mean"] == pytest.approx(e["ncc_mean"], rel=1e-9, abs=1e-12)
+            assert abs(g["ncc_median"] - e["ncc_median"]) <= MEDIAN_BOUND + 1e-12, (g, e)
+        else:
+            assert np.isnan(g["ncc_mean"]) and np.isnan(g["ncc_median"])
+
+
+def same_rows(a: CheckResult, b: CheckResult) -> bool:
+    """Whether two checks have the same rows, value for value."""
+    return [str(r) for r in a.rows] == [str(r) for r in b.rows]
+
+
+def test_tallies_merge_exactly_and_bound_the_median() -> None:
+    rng = np.random.default_rng(3)
+    n = 5000
+    miss = rng.exponential(3.0, n)
+    miss[:40] = np.array(MISS_BINS[:-1]).repeat(40 // 7 + 1)[:40]  # on the bin edges
+    ncc = np.clip(rng.normal(0.6, 0.3, n), -1, 1)
+    ncc[rng.random(n) < 0.1] = np.nan
+    ncc[40:45], ncc[45:48] = 1.0, -1.0
+    whole = NccTally.of(miss, ncc)
+    cuts = np.sort(rng.choice(n, 20, replace=False))
+    parts = [
+        NccTally.of(m, v) for m, v in zip(np.split(miss, cuts), np.split(ncc, cuts), strict=True)
+    ]
+    merged = functools.reduce(NccTally.merge, reversed(parts), NccTally.empty())
+    bins = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True))
+    for k in [None, *range(len(bins))]:
+        np.testing.assert_equal(merged.summary(k), whole.summary(k))  # split or not, the same
+        lo, hi = (0.0, np.inf) if k is None else bins[k]
+        sel = (miss >= lo) & (miss < hi)
+        values = ncc[sel][np.isfinite(ncc[sel])]
+        posts, scored, mean, median = whole.summary(k)
+        assert (posts, scored) == (sel.sum(), values.size) and scored > 0
+        assert mean == pytest.approx(values.mean(), rel=1e-12)
+        assert abs(median - np.median(values)) <= MEDIAN_BOUND + 1e-12
+    assert np.isnan(NccTally.empty().summary()[2:]).all()
+
+
+def test_tiled_check_equals_in_memory_and_itself(
+    crater_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dem = crater_dir / "dem.tif"
+    views = [(crater_dir / f"{n}.tif", crater_dir / f"{n}.tsai") for n in CRATER]
+    terrain = Terrain.read(dem)
+    expected = check_views(terrain, [load_view(*v) for v in views], names=list(CRATER))
+    assert expected.pooled(1.0, "occluded")["scored"] > 100  # occlusion to check
+    plan = plan_check(dem, views, names=CRATER, tile=12, progress=False)
+    # small tiles: occluders lie beyond them, and NCC boxes reach 3 posts past their edges
+    assert plan.margin == 3 and max(plan.base.reach) > 12 and len(plan.tiles) == 36
+    assert any(job.dem_posts > (12 + 2 * 3 + 2) ** 2 for job in plan.tiles)
+    got = run_check(plan, threads=2, progress=False)
+    compare(got, expected)
+    # another tiling, and worker processes: the same rows, value for value
+    other = plan_check(dem, views, names=CRATER, tile=20, progress=False)
+    assert same_rows(run_check(other, threads=1, progress=False), got)
+    assert same_rows(run_check(plan, processes=2, progress=False), got)
+    # without the margin the tiles' NCC boxes are cut at their edges: the test sees it
+    monkeypatch.setattr(CheckPlan, "margin", property(lambda self: 0))
+    assert not same_rows(run_check(plan, threads=2, progress=False), got)
+
+
+def test_check_on_dask_equals_threads(crater_dir: Path) -> None:
+    pytest.importorskip("distributed")
+    views = [(crater_dir / f"{n}.tif", crater_dir / f"{n}.tsai") for n in CRATER]
+    plan = plan_check(crater_dir / "dem.tif", views, tile=16, progress=False)
+    threaded = run_check(plan, threads=2, progress=False)
+    with dask_client(workers=2) as client:
+        assert same_rows(run_check(plan, client=client, progress=False), threaded)
+
+
+def test_tiles_only_one_view_sees_are_not_read(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A view that covers part of the DEM: tiles where it cannot pair with another view are
+    not read at all, and the result is the in-memory one."""
+    image, camera = load_view(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")
+    part = image[:, :50, :45]
+    write_geotiff(tmp_path / "part.tif", part, Affine.identity(), None)
+    camera = camera.with_image_size(None, None)
+    oblique = (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
+    reads = []
+    original = engine_grid.DemSource.read
+    monkeypatch.setattr(
+        engine_grid.DemSource, "read", lambda self, w: reads.append(w) or original(self, w)
+    )
+    views = [oblique, (tmp_path / "part.tif", camera)]
+    plan = plan_check(crater_dir / "dem.tif", views, tile=16, progress=False)
+    reads.clear()
+    got = run_check(plan, threads=1, progress=False)
+    paired = [job for job in plan.tiles if job.views]
+    assert len(reads) == len(paired) < len(plan.tiles)
+    terrain = Terrain.read(crater_dir / "dem.tif")
+    compare(got, check_views(terrain, [load_view(*oblique), (part, camera)]))
+
+
+def test_check_feedback_and_memory_preflight(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture
+) -> None:
+    dem = crater_dir / "dem.tif"
+    views = [(crater_dir / f"{n}.tif", crater_dir / f"{n}.tsai") for n in CRATER[:2]]
+    monkeypatch.setattr("orthomvp.engine.progress.LOG_AFTER", 0.0)  # log even short phases
+    plan = plan_check(dem, views, tile=16, progress=True)
+    err = capfd.readouterr().err
+    assert "reading the DEM's heights" in err and "planning tiles: 16/16" in err
+    run_check(plan, threads=1, progress=True)
+    err = capfd.readouterr().err
+    assert "orthomvp: plan: check 64 x 64 posts" in err and "7 x 7 NCC windows" in err
+    assert "GiB" in err and "orthomvp: checking tiles: 16/16 tiles (100%)" in err
+    run_check(plan, threads=1, progress=False)
+    assert capfd.readouterr().err == ""
+    # a peak that does not fit: refused before any work, in one line, with nothing written
+    one = plan.peak_memory(1)
+    assert plan.peak_memory(2) > one > 300 << 20  # grows with the tiles at a time
+    monkeypatch.setattr(engine_run, "available_memory", lambda: 100 << 20)
+    with pytest.raises(InputError, match="use smaller tiles or fewer threads/processes"):
+        run_check(plan, threads=1, progress=False)
+    files = [str(p) for v in views for p in v]
+    out = tmp_path / "chk"
+    proc = run("-q", "check", str(dem), *files, "-o", str(out), "--tile", "16")
+    assert_one_line_error(proc, "GiB of memory", "use smaller tiles")
+    assert not list(tmp_path.iterdir())
+
+
+def test_check_engine_bad_input(crater_dir: Path, tmp_path: Path) -> None:
+    dem = crater_dir / "dem.tif"
+    views = [(crater_dir / f"{n}.tif", crater_dir / f"{n}.tsai") for n in CRATER[:2]]
+    for kw, match in (
+        ({"tile": 1}, "tile must be"),
+        ({"window": 4}, "odd"),
+        ({"eps_values": ()}, "at least one epsilon"),
+        ({"eps_values": (-1.0,)}, "epsilon"),
+        ({"names": ["a"]}, "1 names for 2 views"),
+        ({"world": "moon"}, "world frame"),
+    ):
+        with pytest.raises(InputError, match=match):
+            plan_check(dem, views, progress=False, **kw)
+    with pytest.raises(InputError, match="at least two"):
+        plan_check(dem, views[:1], progress=False)
+    files = [str(p) for v in views for p in v]
+    out = str(tmp_path / "chk")
+    for args, words in (
+        (["--tile", "1"], ("--tile",)),
+        (["--threads", "1", "--processes", "1"], ("exclude each other",)),
+        (["--format", "cog"], ("No such option",)),  # a table and a plot: no raster options
+        (["--res", "1", "1"], ("No such option",)),  # on the DEM's grid
+        (["--dem-crs", "nonsense"], ("nonsense",)),
+    ):
+        assert_one_line_error(run("check", str(dem), *files, "-o", out, *args), *words)
+    assert_one_line_error(run("check", "-o", out), "or --odm DIR")
+    assert_one_line_error(run("check", str(dem), "-o", out), "or --odm DIR")
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.realdata
+def test_ngi_aerial_tiled_check_equals_in_memory() -> None:
+    """Four aerial frames (map frame) in tiles of 128 posts: the in-memory check's counts,
+    means and medians (within the bound); visible posts correlate (median 0.90)."""
+    d = shared("ngi-aerial")
+    names = [str(p) for p in sorted(d.glob("*_RGB.tif"))]
+    views = [(name, name.removesuffix(".tif") + ".converted.tsai") for name in names]
+    got = run_check(plan_check(d / "dem.tif", views, names=names, tile=128, progress=False))
+    loaded = [load_view(*v) for v in views]
+    terrain = Terrain.read(d / "dem.tif")
+    centres = np.concatenate([sensor_positions(camera) for _, camera in loaded])
+    terrain = replace(terrain, world=detect_world(terrain, centres))
+    compare(got, check_views(terrain, loaded, names=names))
+    assert len(got.pairs) == 6 and got.pooled(4.0, "visible")["ncc_median"] > 0.85

@@ -189,6 +189,7 @@ def test_exit_status_of_each_kind_of_failure(
     dem, (image, camera, *_) = scene / "dem.tif", views(scene)
     out = tmp_path / "v.tif"
     args = ["visibility", dem, image, camera, "-o", out]
+    check = ["check", dem, *views(scene), "-o", tmp_path / "chk"]
     before = state(tmp_path)
     assert_refused(run("visibility", dem, image, "-o", out), 2, "Missing argument")  # usage
     assert_refused(run(*args[:-2], "--eps=-1", "-o", out), 2, "--eps")
@@ -216,6 +217,7 @@ def test_exit_status_of_each_kind_of_failure(
     ):
         monkeypatch.setattr(orthomvp.engine.tile, "compute_visibility", fail(kind))
         assert_refused(run(*args), status, *words)
+        assert_refused(run(*check), status, *words)
     assert state(tmp_path) == before
     # the SIGTERM handler is the previous one again after main returns
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL

@@ -1,9 +1,10 @@
-"""OpenSfM's reconstruction.json, ODM's shots.geojson and cameras.json, and ``mosaic --odm``.
+"""OpenSfM's reconstruction.json, ODM's shots.geojson and cameras.json, ``mosaic --odm`` and
+``check --odm``.
 
 Expected pixels come from OpenSfM's documented model computed by hand here (normalised image
 coordinates in units of max(width, height), the Brown and fisheye formulas), from Orthority's
 own OpenSfM reader and cameras (when it is installed), from OpenCV's Rodrigues, and, for the
-ODM dataset, from the same mosaic with the cameras given directly in our JSON.
+ODM dataset, from the same mosaic (and check) with the cameras given directly.
 """
 
 from __future__ import annotations
@@ -471,3 +472,61 @@ def test_mosaic_odm_bad_datasets(
     assert_one_line_error(run("mosaic", dsm, "--odm", str(root), "-o", str(out)), "give no DEM")
     assert_one_line_error(run("mosaic", "-o", str(out)), "or --odm DIR")
     assert not out.exists()
+
+
+def test_check_odm_equals_the_views_given_directly(
+    odm_dir: tuple[Path, dict[str, PinholeCamera]], tmp_path: Path
+) -> None:
+    root, cameras = odm_dir
+    odm, direct = tmp_path / "odm", tmp_path / "direct"
+    proc = run("-q", "check", "--odm", str(root), "-o", str(odm), "--eps", "2", "4")
+    assert proc.returncode == 0, proc.stderr
+    assert "1 images in" in proc.stderr and "stray.tif" in proc.stderr  # not reconstructed
+    assert "eps 2: median NCC" in proc.stdout
+    pairs = []
+    for name in sorted(cameras):  # ODM's order: the images sorted by name
+        pairs += [str(root / "images" / f"{name}.tif"), str(root / RECONSTRUCTION)]
+    dsm = str(root / "odm_dem" / "dsm.tif")
+    proc = run("-q", "check", dsm, *pairs, "-o", str(direct), "--eps", "2", "4")
+    assert proc.returncode == 0, proc.stderr
+    table = (odm.with_suffix(".csv")).read_text()
+    assert table == direct.with_suffix(".csv").read_text()
+    visible = [line for line in table.splitlines() if line.startswith("2,all,all,visible,0,inf")]
+    assert len(visible) == 1 and int(visible[0].split(",")[7]) > 200  # posts scored
+
+
+def test_check_odm_bad_datasets(
+    odm_dir: tuple[Path, dict[str, PinholeCamera]], tmp_path: Path
+) -> None:
+    root, _ = odm_dir
+    out = tmp_path / "out"
+    out.mkdir()
+    chk = str(out / "chk")
+    empty = tmp_path / "empty"
+    (empty / "images").mkdir(parents=True)
+    write(empty / RECONSTRUCTION, to_opensfm({}))
+    proc = run("check", "--odm", str(empty), "-o", chk)
+    assert_one_line_error(proc, str(empty), "no DEM", "odm_dem/dsm.tif", "--dsm")
+    blind = tmp_path / "blind"  # a DEM, no cameras
+    (blind / "odm_dem").mkdir(parents=True)
+    dsm = root / "odm_dem" / "dsm.tif"
+    (blind / "odm_dem" / "dsm.tif").write_bytes(dsm.read_bytes())
+    proc = run("check", "--odm", str(blind), "-o", chk)
+    assert_one_line_error(proc, str(blind), "no cameras", RECONSTRUCTION)
+    lost = tmp_path / "lost"  # a DEM without a CRS
+    (lost / "odm_dem").mkdir(parents=True)
+    with rasterio.open(dsm) as src:
+        profile, values = src.profile, src.read()
+    profile.pop("crs")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(lost / "odm_dem" / "dsm.tif", "w", **profile) as dst:
+            dst.write(values)
+    write(lost / RECONSTRUCTION, [])
+    proc = run("check", "--odm", str(lost), "-o", chk)
+    assert_one_line_error(proc, "dsm.tif", "the DEM has no CRS", "--dem-crs")
+    proc = run("check", "--odm", str(tmp_path / "nowhere"), "-o", chk)
+    assert_one_line_error(proc, "nowhere", "needs an ODM dataset directory")
+    assert_one_line_error(run("check", str(dsm), "--odm", str(root), "-o", chk), "give no DEM")
+    assert_one_line_error(run("check", "-o", chk), "or --odm DIR")
+    assert not list(out.iterdir())

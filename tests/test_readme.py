@@ -36,6 +36,9 @@ def test_readme_engine_example(tmp_path: Path) -> None:
     threaded, dask = read_image(tmp_path / "ortho.tif"), read_image(tmp_path / "ortho-dask.tif")
     np.testing.assert_array_equal(threaded, dask)
     assert read_image(tmp_path / "vis.tif").shape == (1, 48, 48)
+    check = namespace["check"]
+    assert check.pairs == [(1, 2)] and check.pooled(4, "visible")["scored"] > 500
+    assert (tmp_path / "check.csv").is_file() and (tmp_path / "check.png").is_file()
 
 
 def test_readme_python_example(tmp_path: Path) -> None:

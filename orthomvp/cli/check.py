@@ -1,23 +1,30 @@
-"""``orthomvp check``: a truth-free check of the visibility flags by cross-view correlation."""
+"""``orthomvp check``: a truth-free check of the visibility flags by cross-view correlation,
+tile by tile through the streaming engine (:func:`orthomvp.engine.plan_check`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from orthomvp.cli.command import Command, Variadic
+from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as_lines
+from orthomvp.cli.odm import command_views, odm_option
 from orthomvp.cli.options import (
     PATH,
     POSITIVE,
     DemInput,
     Output,
     check_outputs,
-    dem_argument,
     dem_options,
+    optional_dem_argument,
     pairs_argument,
     quiet,
 )
+
+if TYPE_CHECKING:
+    from orthomvp.camera import Camera
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
 """the epsilons of :data:`orthomvp.check.DEFAULT_EPS` (not imported: --help stays fast)"""
@@ -27,8 +34,9 @@ DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
     cls=Command,
     short_help="truth-free check of the visibility flags: cross-view NCC by miss distance",
 )
-@dem_argument
-@pairs_argument(minimum=2)
+@optional_dem_argument
+@pairs_argument(minimum=2, optional=True)
+@odm_option
 @click.option(
     "-o",
     "--output",
@@ -52,34 +60,50 @@ DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
     metavar="POSTS",
     help="side of the NCC window, DEM posts (odd)",
 )
+@engine_options(dtype=False, grid=False, rasters=False)
 @dem_options
 def check(
     dem: DemInput,
-    pairs: list[tuple[Path, Path]],
+    pairs: list[tuple[Path, Path | Camera]],
+    odm: Path | None,
     output: Path,
     eps: tuple[float, ...],
     window: int,
+    engine: EngineInput,
 ) -> None:
     """For every pair of overlapping views, the local NCC between their orthophotos at posts
     visible in both, and at posts one view calls occluded (its naive value against the other
     view), binned by the first-hit miss distance, per epsilon: CSV and a plot. High NCC at
     visible posts at every miss distance and low NCC at occluded posts say that the flags and
-    epsilon fit the data; no ground truth is needed."""
+    epsilon fit the data; no ground truth is needed. Runs tile by tile on the DEM's grid in
+    bounded memory; medians come from a histogram, within 0.00025 of the exact ones. --odm DIR
+    takes the DEM, images and cameras of an OpenDroneMap dataset (the cameras in the DEM's
+    CRS)."""
     from orthomvp import check as lib
-    from orthomvp.camera import load_view
-    from orthomvp.cli.ortho import view_inputs
+    from orthomvp.engine import plan_check, run_check
 
     if window % 2 == 0:
         raise click.UsageError(f"--window must be odd, got {window}", click.get_current_context())
     csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
     outputs = [Output("-o", csv, (".csv",), "CSV"), Output("-o", png, (".png",), "a PNG")]
-    check_outputs(outputs, view_inputs(dem, pairs))
-    views = [load_view(image, camera) for image, camera in pairs]
-    terrain = dem.read([camera for _, camera in views])
+    dem, pairs, inputs = command_views(dem, pairs, odm)
+    check_outputs(outputs, inputs)
     names = [str(image) for image, _ in pairs]
-    result = lib.check_views(
-        terrain, views, eps_values=eps, window=window, names=names, progress=not quiet()
-    )
+    with warnings_as_lines():
+        plan = plan_check(
+            dem.path,
+            pairs,
+            eps_values=eps,
+            window=window,
+            names=names,
+            tile=engine.tile,
+            dem_crs=dem.crs,
+            radius_values=dem.radius_values,
+            world=dem.world,
+            progress=not quiet(),
+        )
+        with engine.workers() as executor:
+            result = run_check(plan, progress=not quiet(), **executor)
     for a, b in result.apart:
         print(f"{names[a - 1]} and {names[b - 1]} do not overlap: that pair is not checked")
     for e in eps:

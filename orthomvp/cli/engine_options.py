@@ -1,6 +1,7 @@
 """The options of the commands that run through the streaming engine (``visibility``,
-``ortho``, ``mosaic``): the output grid, tiles, parallelism and output format; and the run
-itself, from a plan to the files, with the engine's warnings as one line each."""
+``ortho``, ``mosaic``, ``fit``, ``check``): the output grid, tiles, parallelism and output
+format; and the run itself, from a plan to the files, with the engine's warnings as one line
+each."""
 
 from __future__ import annotations
 
@@ -33,14 +34,14 @@ class EngineInput:
     """The engine options of one command: output grid (``res`` x, y and ``bounds`` left,
     bottom, right, top in the units of ``crs``, default the DEM's), ``tile`` size in posts,
     ``threads``/``processes``/``dask`` (at most one), output ``format``, ``compress`` and
-    ``dtype``."""
+    ``dtype`` (the defaults for a command that writes no raster)."""
 
     tile: int
     threads: int | None
     processes: int | None
     dask: str | None
-    format: str
-    compress: str
+    format: str = "cog"
+    compress: str = "zstd"
     dtype: str = "float32"
     res: tuple[float, float] | None = None
     bounds: tuple[float, float, float, float] | None = None
@@ -55,26 +56,25 @@ class EngineInput:
         from orthomvp.engine import run_plan
 
         runner = runner or run_plan
-        with self._client() as client:
-            if client is not None:
-                return runner(plan, outputs, client=client, progress=progress)
-            return runner(
-                plan, outputs, threads=self.threads, processes=self.processes, progress=progress
-            )
+        with self.workers() as executor:
+            return runner(plan, outputs, progress=progress, **executor)
 
     @contextlib.contextmanager
-    def _client(self) -> Iterator[Any]:
+    def workers(self) -> Iterator[dict[str, Any]]:
+        """The keyword arguments of a run on the executor these options ask for: ``client``
+        (a Dask client, connected or its local cluster running while inside), or ``threads``
+        and ``processes``."""
         if self.dask is None:
-            yield None
+            yield {"threads": self.threads, "processes": self.processes}
             return
         from orthomvp.engine import dask_client
 
         if self.dask.startswith("local:"):
             with dask_client(workers=int(self.dask.removeprefix("local:"))) as client:
-                yield client
+                yield {"client": client}
         else:
             with dask_client(address=self.dask) as client:
-                yield client
+                yield {"client": client}
 
 
 def _dask_address(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
@@ -94,11 +94,12 @@ def _dask_address(ctx: click.Context, param: click.Parameter, value: str | None)
     return value
 
 
-def engine_options(*, dtype: bool, grid: bool = True) -> Callable[[F], F]:
+def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> Callable[[F], F]:
     """The engine's options; the command receives them as one :class:`EngineInput` named
     ``engine``. ``dtype``: whether the command writes image values (``--dtype``); ``grid``:
-    whether it takes another output grid (``--res``, ``--bounds``, ``--crs``; the fit works on
-    the DEM's own grid)."""
+    whether it takes another output grid (``--res``, ``--bounds``, ``--crs``; the fit and the
+    check work on the DEM's own grid); ``rasters``: whether it writes rasters (``--format``,
+    ``--compress``; the check writes a table and a plot)."""
 
     def decorate(f: F) -> F:
         @functools.wraps(f)
@@ -117,8 +118,7 @@ def engine_options(*, dtype: bool, grid: bool = True) -> Callable[[F], F]:
             engine = EngineInput(
                 **{k: kwargs.pop(k) for k in ("res", "bounds", "crs") if grid},
                 **{k: kwargs.pop(k) for k in ("tile", "threads", "processes", "dask")},
-                format=kwargs.pop("format"),
-                compress=kwargs.pop("compress"),
+                **{k: kwargs.pop(k) for k in ("format", "compress") if rasters},
                 **({"dtype": kwargs.pop("dtype")} if dtype else {}),
             )
             return f(engine=engine, **kwargs)
@@ -176,6 +176,8 @@ def engine_options(*, dtype: bool, grid: bool = True) -> Callable[[F], F]:
                 help="tiles on a Dask cluster: a local one of N worker processes, or the "
                 "scheduler at an address (workers need orthomvp and the same file paths)",
             ),
+        ]
+        raster_options = [
             click.option(
                 "--format",
                 type=click.Choice(FORMATS),
@@ -190,6 +192,7 @@ def engine_options(*, dtype: bool, grid: bool = True) -> Callable[[F], F]:
                 "chosen for speed)",
             ),
         ]
+        options += raster_options if rasters else []
         if dtype:
             options.append(
                 click.option(

@@ -23,8 +23,8 @@ from orthomvp.cli.options import (
     overwrite_option,
     pairs_argument,
     quiet,
+    view_inputs,
 )
-from orthomvp.cli.ortho import view_inputs
 
 MAX_DECONVOLVE = 10
 """as :data:`orthomvp.mvp.fit.MAX_DECONVOLVE` (not imported: --help stays fast)"""

@@ -11,12 +11,13 @@ or the CRS of the ground control points); the images lie in ``images/`` and the 
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
 
+from orthomvp.cli.options import PATH, DemInput, usage_error, view_inputs
 from orthomvp.errors import InputError
 
 if TYPE_CHECKING:
@@ -29,6 +30,17 @@ RECONSTRUCTION = "opensfm/reconstruction.json"
 """Where ODM keeps the cameras."""
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
 """File name extensions (lower case) of the images read from ``images/``."""
+
+
+odm_option = click.option(
+    "--odm",
+    type=PATH,
+    metavar="DIR",
+    help="an OpenDroneMap dataset: its DEM (odm_dem/dsm.tif, else dtm.tif), images/ and "
+    "opensfm/reconstruction.json, instead of DEM IMAGE CAMERA ...",
+)
+"""``--odm DIR``, for a command with :data:`~orthomvp.cli.options.optional_dem_argument` and
+an optional :func:`~orthomvp.cli.options.pairs_argument` (see :func:`command_views`)."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +96,25 @@ def read_odm_dataset(directory: Path, *, dem_crs: str | None = None) -> OdmDatas
         shown = ", ".join(left[:3]) + (", ..." if len(left) > 3 else "")
         _warn(f"{len(left)} images in {folder} have no camera (not reconstructed): {shown}")
     return OdmDataset(dem, reconstruction, views)
+
+
+def command_views(
+    dem: DemInput, pairs: list[tuple[Path, Path]], odm: Path | None
+) -> tuple[DemInput, list[tuple[Path, Path | PinholeCamera]], list[tuple[str, Path]]]:
+    """The DEM, the (image, camera) views and the input files (labelled for
+    :func:`~orthomvp.cli.options.check_outputs`) of a command given DEM IMAGE CAMERA ... or
+    ``--odm DIR``: as given, or read from the ODM dataset (:func:`read_odm_dataset`). A usage
+    error for neither, or for a DEM with ``--odm``."""
+    if odm is None:
+        if dem.path is None or not pairs:
+            raise usage_error("needs DEM IMAGE CAMERA [IMAGE CAMERA ...], or --odm DIR")
+        return dem, list(pairs), view_inputs(dem, pairs)
+    if dem.path is not None:
+        raise usage_error("--odm DIR takes the DEM, images and cameras from DIR; give no DEM")
+    dataset = read_odm_dataset(odm, dem_crs=dem.crs)
+    inputs = [("DEM", dataset.dem), ("CAMERA", dataset.reconstruction)]
+    inputs += [(f"IMAGE {k}", image) for k, (image, _) in enumerate(dataset.views, start=1)]
+    return replace(dem, path=dataset.dem), list(dataset.views), inputs
 
 
 def _warn(message: str) -> None:

@@ -327,6 +327,16 @@ def check_outputs(
         check_directory(path, f"{path}: {out.option}")
 
 
+def view_inputs(dem: DemInput, pairs: Sequence[tuple[Path, Path]]) -> list[tuple[str, Path]]:
+    """The input files of a command reading ``dem`` and (image, camera) ``pairs``, labelled
+    for :func:`check_outputs`."""
+    inputs = [("DEM", dem.path)]
+    for k, (image, camera) in enumerate(pairs, start=1):
+        n = f" {k}" if len(pairs) > 1 else ""
+        inputs += [(f"IMAGE{n}", image), (f"CAMERA{n}", camera)]
+    return inputs
+
+
 def check_outdir(path: Path, option: str) -> None:
     """Refuse an output directory ``path`` that is an existing file or whose parent directory
     is missing or not writable (a usage error naming it)."""

@@ -6,7 +6,6 @@ the output grid in bounded memory, written as Cloud-Optimized or tiled GeoTIFF."
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,6 +13,7 @@ import click
 
 from orthomvp.cli.command import Command
 from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as_lines
+from orthomvp.cli.odm import command_views, odm_option
 from orthomvp.cli.options import (
     PATH,
     DemInput,
@@ -31,6 +31,7 @@ from orthomvp.cli.options import (
     pairs_argument,
     quiet,
     usage_error,
+    view_inputs,
 )
 from orthomvp.codes import Code, Interp
 
@@ -181,13 +182,7 @@ def ortho(
 )
 @optional_dem_argument
 @pairs_argument(optional=True)
-@click.option(
-    "--odm",
-    type=PATH,
-    metavar="DIR",
-    help="an OpenDroneMap dataset: its DEM (odm_dem/dsm.tif, else dtm.tif), images/ and "
-    "opensfm/reconstruction.json, instead of DEM IMAGE CAMERA ...",
-)
+@odm_option
 @output_option("MOSAIC.tif", "the mosaic (all bands; float32 with NaN = nodata by default)")
 @click.option(
     "--source",
@@ -286,19 +281,7 @@ def mosaic(
         Output("--source", source),
         Output("--visibility", visibility_out),
     ]
-    if odm is None:
-        if dem.path is None or not pairs:
-            raise usage_error("needs DEM IMAGE CAMERA [IMAGE CAMERA ...], or --odm DIR")
-        inputs = view_inputs(dem, pairs)
-    else:
-        if dem.path is not None:
-            raise usage_error("--odm DIR takes the DEM, images and cameras from DIR; give no DEM")
-        from orthomvp.cli.odm import read_odm_dataset
-
-        dataset = read_odm_dataset(odm, dem_crs=dem.crs)
-        dem, pairs = replace(dem, path=dataset.dem), list(dataset.views)
-        inputs = [("DEM", dataset.dem), ("CAMERA", dataset.reconstruction)]
-        inputs += [(f"IMAGE {k}", image) for k, (image, _) in enumerate(pairs, start=1)]
+    dem, pairs, inputs = command_views(dem, pairs, odm)
     check_outputs(outputs, inputs, overwrite)
     from orthomvp.errors import InputError
     from orthomvp.mosaic import MosaicOptions
@@ -324,16 +307,6 @@ def mosaic(
     )
     none = rows * cols - sum(report.taken)
     print(f"wrote {output}: {parts}; {none:,} posts from no image")
-
-
-def view_inputs(dem: DemInput, pairs: list[tuple[Path, Path]]) -> list[tuple[str, Path]]:
-    """The input files of a command reading ``dem`` and (image, camera) ``pairs``, labelled
-    for :func:`~orthomvp.cli.options.check_outputs`."""
-    inputs = [("DEM", dem.path)]
-    for k, (image, camera) in enumerate(pairs, start=1):
-        n = f" {k}" if len(pairs) > 1 else ""
-        inputs += [(f"IMAGE{n}", image), (f"CAMERA{n}", camera)]
-    return inputs
 
 
 def warn_partial(report: RunReport, view: int, what: str) -> None:

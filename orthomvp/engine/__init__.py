@@ -12,12 +12,20 @@ The MVP fit runs the same way (:mod:`orthomvp.engine.fit_plan`, :mod:`orthomvp.e
 
     plan = plan_fit("dem.tif", [("a.tif", "a.tsai"), ("b.tif", "b.tsai")], FitOptions())
     report = run_fit(plan, FitOutputs(heights="fitted.tif", uncertainty="sigma.tif"))
+
+And the truth-free check (:mod:`orthomvp.engine.check_plan`, :mod:`orthomvp.engine.check`):
+
+    result = run_check(plan_check("dem.tif", [("a.tif", "a.tsai"), ("b.tif", "b.tsai")]))
 """
 
 import importlib
 from typing import TYPE_CHECKING, Any
 
 _HOMES = {
+    "CheckResult": "check",
+    "run_check": "check",
+    "CheckPlan": "check_plan",
+    "plan_check": "check_plan",
     "FitOutputs": "fit",
     "FitReport": "fit",
     "run_fit": "fit",
@@ -37,6 +45,8 @@ _HOMES = {
 load the MVP fit (and scipy.ndimage with it)."""
 
 __all__ = [
+    "CheckPlan",
+    "CheckResult",
     "FitOutputs",
     "FitPlan",
     "FitReport",
@@ -47,13 +57,17 @@ __all__ = [
     "TileJob",
     "WorkerError",
     "dask_client",
+    "plan_check",
     "plan_fit",
     "plan_ortho",
+    "run_check",
     "run_fit",
     "run_plan",
 ]
 
 if TYPE_CHECKING:
+    from orthomvp.engine.check import CheckResult, run_check
+    from orthomvp.engine.check_plan import CheckPlan, plan_check
     from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
     from orthomvp.engine.fit_plan import FitPlan, plan_fit
     from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho

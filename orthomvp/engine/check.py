@@ -1,0 +1,287 @@
+"""The truth-free check (:mod:`orthomvp.check`) through the engine, run: each tile of a
+:class:`~orthomvp.engine.check_plan.CheckPlan` classifies its posts and ``window // 2`` around
+them for every view, samples the naive values, and tallies the NCC of every ordered pair of
+views at its own posts (:func:`run_check_tile`); :func:`run_check` merges the tallies, which
+are exact integers but for the histogram medians (:mod:`orthomvp.engine.ncc`), so the result
+does not depend on the tiles or on what ran them.
+"""
+
+from __future__ import annotations
+
+import gc
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from orthomvp.codes import Code, classify
+from orthomvp.engine.check_plan import CheckPlan
+from orthomvp.engine.ncc import MISS_BINS, NccTally, local_ncc
+from orthomvp.engine.plan import grow
+from orthomvp.engine.progress import Progress
+from orthomvp.engine.run import check_memory, check_views, executor, results, workers_of
+from orthomvp.engine.tile import (
+    GC_POSTS,
+    _grid_tile,
+    _has_cell,
+    _release,
+    _visibility,
+    sample_view,
+)
+from orthomvp.errors import GeometryError, InputError
+from orthomvp.visibility import occluder_caster
+
+CLASSES = ("visible", "occluded")
+"""The classes of posts scored, in the order of the rows: visible in both views; called
+occluded by the first view and visible in the other (the first view's naive value)."""
+
+Key = tuple[int, int, int, int]
+"""(epsilon index, view, other view, class index), views 0-based."""
+
+
+@dataclass
+class CheckResult:
+    """The check: ``rows`` (dicts with :data:`orthomvp.check.CSV_FIELDS`), the 1-based
+    ``pairs`` of views that overlap and those (``apart``) that do not, and the view
+    ``names``."""
+
+    rows: list[dict]
+    pairs: list[tuple[int, int]]
+    apart: list[tuple[int, int]] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+
+    def pooled(self, eps: float, cls: str) -> dict:
+        """The pooled row over all pairs and miss distances for ``eps`` and class ``cls``."""
+        return next(
+            r
+            for r in self.rows
+            if r["view"] == "all"
+            and r["eps"] == eps
+            and r["class"] == cls
+            and r["miss_from"] == 0
+            and r["miss_to"] == np.inf
+        )
+
+
+def no_overlap(views: int, window: int) -> str:
+    """The error when no pair of the ``views`` shares a ``window`` x ``window`` box of posts."""
+    return (
+        f"no two of the {views} views overlap: no pair sees a {window} x {window} window of "
+        "the same posts"
+    )
+
+
+# ------------------------------------------------------------------------------ per tile
+@dataclass
+class CheckTile:
+    """A checked tile: per view the posts of the tile ``inside`` the image and those ``seen``
+    (visible or occluded); ``overlap`` per pair (a, b), a < b, the tile's posts that both
+    see and both image with a value; ``tallies`` the NCC at the tile's posts per
+    :data:`Key`."""
+
+    index: int
+    inside: list[int]
+    seen: list[int]
+    overlap: dict[tuple[int, int], int] = field(default_factory=dict)
+    tallies: dict[Key, NccTally] = field(default_factory=dict)
+
+
+def run_check_tile(plan: CheckPlan, index: int, threads: int = 1) -> CheckTile:
+    """Check tile ``index`` of ``plan`` with ``threads`` threads for ray casting and
+    visibility. Frees its memory as :func:`~orthomvp.engine.tile.run_tile` does."""
+    try:
+        return _run_check_tile(plan, index, threads)
+    finally:
+        if plan.tiles[index].dem_posts >= GC_POSTS:
+            gc.collect()
+            _release()
+
+
+def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
+    base, job = plan.base, plan.tiles[index]
+    n = len(plan.views)
+    result = CheckTile(index, [0] * n, [0] * n)
+    if not job.views:
+        return result
+    values = base.dem.read(job.dem)
+    if not _has_cell(np.isfinite(values)):
+        return result
+    window = base.dem.window_terrain(job.dem, values)
+    ext = grow(job.window, plan.margin, base.grid.shape)
+    grid, inner = _grid_tile(base, job, window, ext)
+    if grid is None:
+        return result
+    r0, r1, c0, c1 = job.window
+    core = (slice(r0 - ext[0], r1 - ext[0]), slice(c0 - ext[2], c1 - ext[2]))
+    caster = occluder_caster(window, threads=threads)
+    codes, miss, naive = {}, {}, {}
+    for k in job.views:
+        vis = _visibility(base, grid, k, caster, window, threads)
+        code, uv = vis.codes[inner], vis.uv[inner]
+        inside = np.isfinite(uv).all(axis=-1)
+        value = np.full(code.shape, np.nan, np.float32)
+        if inside.any():
+            value[inside] = np.mean(sample_view(plan.views[k], uv[inside], "bilinear"), axis=0)
+        result.inside[k] = int((code[core] != Code.NODATA).sum())
+        result.seen[k] = int(np.isin(code[core], (Code.VISIBLE, Code.OCCLUDED)).sum())
+        m = vis.miss[inner]
+        codes[k], miss[k], naive[k] = code, np.where(np.isposinf(m), 0.0, m), value  # inf: no hit
+    pairs = [(a, b) for i, a in enumerate(job.views) for b in job.views[i + 1 :]]
+    usable = {
+        k: np.isin(codes[k], (Code.VISIBLE, Code.OCCLUDED)) & np.isfinite(naive[k])
+        for k in job.views
+    }
+    result.overlap = {(a, b): int((usable[a] & usable[b])[core].sum()) for a, b in pairs}
+    for e, eps in enumerate(plan.eps_values):
+        _tally_eps(plan, result.tallies, e, eps, pairs, codes, miss, naive, core)
+    return result
+
+
+def _tally_eps(
+    plan: CheckPlan,
+    tallies: dict[Key, NccTally],
+    e: int,
+    eps: float,
+    pairs: list[tuple[int, int]],
+    codes: dict[int, np.ndarray],
+    miss: dict[int, np.ndarray],
+    naive: dict[int, np.ndarray],
+    core: tuple[slice, slice],
+) -> None:
+    """Add the tallies of epsilon number ``e`` (``eps``, DEM posts) of every ordered pair to
+    ``tallies``: each view's posts reclassified by their miss distance, the NCC maps on the
+    grown tile, the tallies at its ``core`` posts."""
+    code_e, ortho = {}, {}
+    for k, code in codes.items():
+        c = code.copy()
+        cast = ~np.isnan(miss[k])
+        c[cast] = classify(miss[k][cast], eps)
+        code_e[k] = c
+        ortho[k] = np.where(c == Code.VISIBLE, naive[k], np.nan)
+    for a, b in pairs:
+        both = None
+        for x, y in ((a, b), (b, a)):
+            seen_y = code_e[y][core] == Code.VISIBLE
+            for c, wanted in enumerate((Code.VISIBLE, Code.OCCLUDED)):
+                mask = (code_e[x][core] == wanted) & seen_y
+                if not mask.any():
+                    continue
+                if wanted == Code.VISIBLE:
+                    if both is None:
+                        both = local_ncc(ortho[a], ortho[b], plan.window)[core]
+                    ncc = both
+                else:
+                    ncc = local_ncc(naive[x], ortho[y], plan.window)[core]
+                _add(tallies, (e, x, y, c), NccTally.of(miss[x][core][mask], ncc[mask]))
+
+
+def _add(tallies: dict[Key, NccTally], key: Key, tally: NccTally) -> None:
+    tallies[key] = tallies[key].merge(tally) if key in tallies else tally
+
+
+# ------------------------------------------------------------------------------ the run
+def tally_rows(eps: float, view: str, other: str, cls: str, tally: NccTally) -> list[dict]:
+    """The rows of one tally: one per miss bin, then one over all bins."""
+    bins = len(MISS_BINS) - 1
+    edges = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.inf)]
+    out = []
+    for k, (lo, hi) in enumerate(edges):
+        posts, scored, mean, median = tally.summary(k if k < bins else None)
+        out.append(
+            {
+                "eps": eps,
+                "view": view,
+                "other": other,
+                "class": cls,
+                "miss_from": lo,
+                "miss_to": hi,
+                "posts": posts,
+                "scored": scored,
+                "ncc_mean": mean,
+                "ncc_median": median,
+            }
+        )
+    return out
+
+
+def check_rows(
+    eps_values: tuple[float, ...],
+    pairs: list[tuple[int, int]],
+    names: tuple[str, ...],
+    tallies: dict[Key, NccTally],
+) -> list[dict]:
+    """Every row of the check: per epsilon, per overlapping pair (0-based) both ways, per
+    class; then the pooled rows (view ``all``) of each class over those pairs."""
+    out: list[dict] = []
+    for e, eps in enumerate(eps_values):
+        pooled = {cls: NccTally.empty() for cls in CLASSES}
+        for a, b in pairs:
+            for x, y in ((a, b), (b, a)):
+                for c, cls in enumerate(CLASSES):
+                    tally = tallies.get((e, x, y, c)) or NccTally.empty()
+                    pooled[cls] = pooled[cls].merge(tally)
+                    out += tally_rows(eps, names[x], names[y], cls, tally)
+        for cls in CLASSES:
+            out += tally_rows(eps, "all", "all", cls, pooled[cls])
+    return out
+
+
+def run_check(
+    plan: CheckPlan,
+    *,
+    threads: int | None = None,
+    processes: int | None = None,
+    client: Any = None,
+    progress: bool = True,
+    inflight: int | None = None,
+) -> CheckResult:
+    """Run every tile of ``plan`` and return the check (as
+    :func:`orthomvp.check.check_views` gives it in memory, medians within
+    :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
+
+    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker
+    processes, or on the Dask ``client``, at most ``inflight`` (default twice the workers) at
+    a time. A pair of views overlaps when both see at least ``window`` x ``window`` of the
+    same posts. Raises InputError before any work when the expected peak memory exceeds what
+    is available, GeometryError when no pair overlaps or a view sees only posts facing away,
+    WorkerError when a worker dies.
+    """
+    workers = workers_of(threads, processes, client)
+    if inflight is not None and inflight < 1:
+        raise InputError(f"inflight must be at least 1, got {inflight}")
+    jobs = [job.index for job in plan.tiles if job.views]
+    at_once = min(workers, max(len(jobs), 1))
+    local = client is None and not processes
+    inner = max(1, workers // max(len(jobs), 1)) if local else 1
+    peak = check_memory(plan, plan.peak_memory(at_once, processes or 0), at_once)
+    n = len(plan.views)
+    inside, seen = [0] * n, [0] * n
+    overlap: dict[tuple[int, int], int] = {}
+    tallies: dict[Key, NccTally] = {}
+    pool = executor(plan, run_check_tile, workers, processes, client)
+    with Progress("checking tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
+        bar.note(plan.summary(peak, at_once))
+        bar.update(len(plan.tiles) - len(jobs))
+        for result in results(submit, wait, jobs, (inner,), inflight or 2 * workers):
+            inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
+            seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
+            for pair, count in result.overlap.items():
+                overlap[pair] = overlap.get(pair, 0) + count
+            for key, tally in result.tallies.items():
+                _add(tallies, key, tally)
+            bar.update()
+    # views inside some tile that saw only posts facing away (views that no tile with
+    # another view holds overlap nothing: their pairs are apart)
+    tried = [k for k, count in enumerate(inside) if count]
+    check_views([plan.views[k] for k in tried], [1] * len(tried), [seen[k] for k in tried])
+    every = [(a, b) for a in range(n) for b in range(a + 1, n)]
+    pairs = [p for p in every if overlap.get(p, 0) >= plan.window * plan.window]
+    if not pairs:
+        raise GeometryError(no_overlap(n, plan.window))
+    apart = [p for p in every if p not in pairs]
+    return CheckResult(
+        check_rows(plan.eps_values, pairs, plan.names, tallies),
+        [(a + 1, b + 1) for a, b in pairs],
+        [(a + 1, b + 1) for a, b in apart],
+        list(plan.names),
+    )

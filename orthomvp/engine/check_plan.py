@@ -1,0 +1,201 @@
+"""Planning the truth-free check (:mod:`orthomvp.check`) through the engine: tiles of the DEM's
+own grid, each of which computes every view's visibility and naive samples on its posts plus
+``window // 2`` posts around them (the NCC box's reach), with the occluder halo of that grown
+window, so that its NCC values are the whole grid's (see :mod:`orthomvp.engine.ncc`).
+
+Only tiles that two views or more may see are run: a tile seen by one view holds no pair.
+The check works on the DEM's grid because its windows and miss distances are in DEM posts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from orthomvp.camera import Camera
+from orthomvp.codes import WorldFrame
+from orthomvp.engine.grid import grid_to_dem, output_grid
+from orthomvp.engine.images import ImageSource, image_source
+from orthomvp.engine.plan import (
+    BASE_BYTES,
+    MESH_BYTES,
+    SAMPLE_BUDGET_PIXELS,
+    TILE_BYTES,
+    VIEW_BYTES,
+    WINDOW_BYTES,
+    Plan,
+    TileJob,
+    _job,
+    check_plan,
+    plan_tiles,
+    read_source,
+)
+from orthomvp.errors import InputError
+from orthomvp.validate import number
+
+DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
+"""Epsilons checked by default, DEM posts."""
+
+# Bytes of memory per post of a tile grown by the NCC margin, beyond those of an orthophoto
+# tile (plan.py), rounded up from the peak resident set size of runs of the scale scene
+# (orthomvp.engine.scale, 2048 x 2048 posts, tiles of 1024, one thread): 70 B per post more
+# than the orthophoto of the same tiles with 2 views, and 21 B per post for each further view.
+# Per view: the codes, miss distances and naive values kept across the epsilons, and each
+# epsilon's codes and orthophoto; the NCC maps of one pair with their box sums.
+CHECK_VIEW_BYTES = 25
+NCC_BYTES = 120
+
+
+@dataclass(frozen=True)
+class CheckPlan:
+    """Everything a worker needs to check tiles: ``base``, the plan of the DEM grid, views and
+    tiles (each tile's views and DEM window cover the tile grown by :attr:`margin`); the
+    ``eps_values`` (DEM posts) and NCC ``window`` (posts, odd) to check, and the views'
+    ``names``."""
+
+    base: Plan
+    eps_values: tuple[float, ...]
+    window: int
+    names: tuple[str, ...]
+
+    @property
+    def tiles(self) -> tuple[TileJob, ...]:
+        return self.base.tiles
+
+    @property
+    def tile(self) -> int:
+        return self.base.tile
+
+    @property
+    def views(self) -> tuple[ImageSource, ...]:
+        return self.base.views
+
+    @property
+    def margin(self) -> int:
+        """Posts computed around every tile: the NCC box's reach."""
+        return self.window // 2
+
+    def tile_bytes(self, job: TileJob) -> int:
+        """Expected peak memory of one tile in a worker, bytes (the constants above and
+        those of :mod:`orthomvp.engine.plan`)."""
+        r0, r1, c0, c1 = job.window
+        ext = (r1 - r0 + 2 + 2 * self.margin) * (c1 - c0 + 2 + 2 * self.margin)
+        pixels = max((min(p, SAMPLE_BUDGET_PIXELS) for p in job.image_pixels), default=0)
+        bands = max((self.views[k].bands for k in job.views), default=0)
+        views = (VIEW_BYTES + CHECK_VIEW_BYTES) * ext * len(job.views)
+        return (
+            (WINDOW_BYTES + MESH_BYTES) * job.dem_posts
+            + (TILE_BYTES + NCC_BYTES) * ext
+            + views
+            + 8 * bands * pixels
+        )
+
+    def peak_memory(self, workers: int, processes: int = 0) -> int:
+        """Expected peak memory of a run with ``workers`` tiles at a time and ``processes``
+        worker processes besides this one, bytes."""
+        sizes = sorted((self.tile_bytes(job) for job in self.tiles), reverse=True)
+        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+
+    def summary(self, peak: int, workers: int) -> str:
+        """One line: grid, tiles, images, epsilons, the NCC margin, the occluder halo, the
+        largest DEM window and the expected ``peak`` memory (bytes) with ``workers`` tiles."""
+        rows, cols = self.base.grid.shape
+        run = [job for job in self.tiles if job.views]
+        biggest = max(run, key=lambda job: job.dem_posts, default=None)
+        window = ""
+        if biggest is not None and biggest.dem is not None:
+            r0, r1, c0, c1 = biggest.dem
+            window = f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
+        return (
+            f"orthomvp: plan: check {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} "
+            f"tiles of {self.tile} x {self.tile} to run, {len(self.views)} images, "
+            f"{len(self.eps_values)} epsilon(s), {self.window} x {self.window} NCC windows "
+            f"({self.margin} posts around each tile), occluder halo up to "
+            f"{max(self.base.reach, default=0.0):.0f} DEM posts{window}; expected peak memory "
+            f"{peak / 2**30:.2f} GiB with {workers} tile(s) at a time"
+        )
+
+
+def check_options(
+    views: int, eps_values: Sequence[float], window: int, names: Sequence[str] | None
+) -> tuple[tuple[float, ...], int, tuple[str, ...]]:
+    """The check's options for ``views`` views, checked: the epsilons (DEM posts, > 0, at
+    least one), the odd ``window`` (3..51 posts) and the views' ``names`` (default 1, 2, ...,
+    one per view); InputError otherwise."""
+    if views < 2:
+        raise InputError("the check needs a list of at least two (image, camera) views")
+    eps = tuple(number(e, "an epsilon (DEM posts)", minimum=0, min_open=True) for e in eps_values)
+    if not eps:
+        raise InputError("the check needs at least one epsilon")
+    window = number(window, "window (posts)", minimum=3, maximum=51, integer=True)
+    if window % 2 == 0:
+        raise InputError(f"window (posts) must be odd, got {window}")
+    labels = tuple(str(k) for k in range(1, views + 1)) if names is None else tuple(names)
+    if len(labels) != views:
+        raise InputError(f"got {len(labels)} names for {views} views")
+    return eps, window, labels
+
+
+def plan_check(
+    dem: str | Path,
+    views: Sequence[tuple[str | Path, str | Path | Camera]],
+    *,
+    eps_values: Sequence[float] = DEFAULT_EPS,
+    window: int = 7,
+    names: Sequence[str] | None = None,
+    tile: int = 1024,
+    dem_crs: object | None = None,
+    radius_values: bool = False,
+    world: WorldFrame | str = "auto",
+    progress: bool = True,
+) -> CheckPlan:
+    """Plan the truth-free check (:func:`orthomvp.check.check_views`) of ``views`` ((image
+    path, camera or camera path) pairs, at least 2, any band counts) on the DEM at path
+    ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid: every epsilon of
+    ``eps_values`` (DEM posts), NCC boxes of ``window`` posts (odd, 3..51), views labelled
+    ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values`` and ``world`` as for
+    :func:`~orthomvp.engine.plan_ortho`.
+
+    Reads the DEM once in blocks and the images' headers. Raises InputError for bad options,
+    GeometryError when an image sees none of the DEM; warns
+    (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is larger than the
+    DEM.
+    """
+    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
+        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    eps, window, labels = check_options(len(views), eps_values, window, names)
+    sources = tuple(image_source(image, camera) for image, camera in views)
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    grid = output_grid(source)
+    to_dem = grid_to_dem(grid, source)
+    margin = window // 2
+    jobs, boxes, reach, elevation = plan_tiles(
+        grid.tiles(int(tile)),
+        lambda index, w: _job(source, to_dem, grid, sources, index, w, True, margin),
+        len(sources),
+        progress,
+    )
+    seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
+    check_plan(source, sources, boxes, seen, reach, elevation)
+    jobs = [
+        job if len(job.views) > 1 else replace(job, views=(), dem=None, image_pixels=())
+        for job in jobs
+    ]
+    base = Plan(
+        source,
+        grid,
+        sources,
+        tuple(jobs),
+        int(tile),
+        True,
+        None,
+        "bilinear",
+        source.post_spacing(),
+        1.0,
+        tuple(reach),
+        tuple(elevation),
+    )
+    return CheckPlan(base, eps, window, labels)
