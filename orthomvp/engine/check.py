@@ -8,23 +8,28 @@ does not depend on the tiles or on what ran them.
 
 from __future__ import annotations
 
-import gc
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from orthomvp.codes import Code, classify
+from orthomvp.engine import heap
 from orthomvp.engine.check_plan import CheckPlan
 from orthomvp.engine.ncc import MISS_BINS, NccTally, local_ncc
 from orthomvp.engine.plan import grow
 from orthomvp.engine.progress import Progress
-from orthomvp.engine.run import check_memory, check_views, executor, results, workers_of
+from orthomvp.engine.run import (
+    check_memory,
+    check_views,
+    default_inflight,
+    executor,
+    results,
+    workers_of,
+)
 from orthomvp.engine.tile import (
-    GC_POSTS,
     _grid_tile,
     _has_cell,
-    _release,
     _visibility,
     sample_view,
 )
@@ -88,13 +93,10 @@ class CheckTile:
 
 def run_check_tile(plan: CheckPlan, index: int, threads: int = 1) -> CheckTile:
     """Check tile ``index`` of ``plan`` with ``threads`` threads for ray casting and
-    visibility. Frees its memory as :func:`~orthomvp.engine.tile.run_tile` does."""
-    try:
+    visibility, inside :func:`orthomvp.engine.heap.tile_heap` as
+    :func:`~orthomvp.engine.tile.run_tile`."""
+    with heap.tile_heap(plan.tiles[index].dem_posts):
         return _run_check_tile(plan, index, threads)
-    finally:
-        if plan.tiles[index].dem_posts >= GC_POSTS:
-            gc.collect()
-            _release()
 
 
 def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
@@ -235,17 +237,15 @@ def run_check(
     progress: bool = True,
     inflight: int | None = None,
 ) -> CheckResult:
-    """Run every tile of ``plan`` and return the check (as
-    :func:`orthomvp.check.check_views` gives it in memory, medians within
-    :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
+    """Run every tile of ``plan`` and return the check (as :func:`orthomvp.check.check_views` gives
+    it in memory, medians within :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
 
-    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker
-    processes, or on the Dask ``client``, at most ``inflight`` (default twice the workers) at
-    a time. A pair of views overlaps when both see at least ``window`` x ``window`` of the
-    same posts. Raises InputError before any work when the expected peak memory exceeds what
-    is available, GeometryError when no pair overlaps or a view sees only posts facing away,
-    WorkerError when a worker dies.
-    """
+    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes,
+    or on the Dask ``client``, at most ``inflight`` (default
+    :func:`~orthomvp.engine.run.default_inflight`) at a time. A pair of views overlaps when both
+    see at least ``window`` x ``window`` of the same posts. Raises InputError before any work
+    when the expected peak memory exceeds what is available, GeometryError when no pair overlaps
+    or a view sees only posts facing away, WorkerError when a worker dies."""
     workers = workers_of(threads, processes, client)
     if inflight is not None and inflight < 1:
         raise InputError(f"inflight must be at least 1, got {inflight}")
@@ -262,7 +262,9 @@ def run_check(
     with Progress("checking tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))
-        for result in results(submit, wait, jobs, (inner,), inflight or 2 * workers):
+        for result in results(
+            submit, wait, jobs, (inner,), inflight or default_inflight(workers, client)
+        ):
             inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
             seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
             for pair, count in result.overlap.items():

@@ -6,7 +6,6 @@ writes every output (:func:`run_fit`). The windows a tile needs, and their bound
 
 from __future__ import annotations
 
-import gc
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ from orthomvp.engine.run import (
     results,
     workers_of,
 )
-from orthomvp.engine.tile import GC_POSTS, _has_cell, _timed
+from orthomvp.engine.tile import _has_cell, _timed
 from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import fit_dem
@@ -93,15 +92,10 @@ def empty_tile(plan: FitPlan, job: FitJob) -> FitTile:
 
 def run_fit_tile(plan: FitPlan, index: int, threads: int = 1, progress: bool = False) -> FitTile:
     """Fit tile ``index`` of ``plan`` with ``threads`` threads (``progress``: the fitter's
-    own bar over its batches). Settles the heap and frees its memory as
-    :func:`~orthomvp.engine.tile.run_tile` does."""
-    heap.settle()
-    try:
+    own bar over its batches), inside :func:`orthomvp.engine.heap.tile_heap` as
+    :func:`~orthomvp.engine.tile.run_tile`."""
+    with heap.tile_heap(plan.tiles[index].dem_posts):
         return _run_fit_tile(plan, index, threads, progress)
-    finally:
-        if plan.tiles[index].dem_posts >= GC_POSTS:
-            gc.collect()
-            heap.release()
 
 
 def _sub(window: WindowT, within: WindowT) -> tuple[slice, slice]:

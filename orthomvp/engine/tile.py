@@ -8,7 +8,6 @@ normals are the same central differences as on the whole grid; the border is cut
 
 from __future__ import annotations
 
-import gc
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -29,7 +28,6 @@ from orthomvp.terrain import Terrain
 from orthomvp.validate import column_range, finite_rows
 from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
-GC_POSTS = 1 << 15
 """DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
 
 
@@ -163,23 +161,11 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
     """Run tile ``index`` of ``plan`` for the outputs ``kinds`` ("ortho": image values,
     "visibility": codes per view, "source": the mosaic's view per post, "stack": a mosaic's
-    uncomposed samples), with
-    ``threads`` threads for ray casting and visibility.
-
-    The garbage collector runs after every tile whose DEM window has at least
-    :data:`GC_POSTS` posts, and freed memory goes back to the system: the mesh library's
-    objects hold reference cycles, and without it the meshes of many tiles pile up before
-    Python collects them. (A full collection takes milliseconds to tens of milliseconds;
-    smaller tiles leave their few megabytes to Python's own schedule.) The process's heap is
-    settled first (:func:`orthomvp.engine.heap.settle`), so that threads, processes and Dask
-    workers run a tile at the same speed."""
-    heap.settle()
-    try:
+    uncomposed samples), with ``threads`` threads for ray casting and visibility, inside
+    :func:`orthomvp.engine.heap.tile_heap` (so that threads, processes and Dask workers run it
+    at the same speed, and its memory goes back to the system)."""
+    with heap.tile_heap(plan.tiles[index].dem_posts):
         return _run_tile(plan, index, kinds, threads)
-    finally:
-        if plan.tiles[index].dem_posts >= GC_POSTS:
-            gc.collect()
-            heap.release()
 
 
 def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> TileResult:
