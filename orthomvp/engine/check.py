@@ -22,7 +22,6 @@ from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
     check_memory,
     check_views,
-    default_inflight,
     executor,
     results,
     workers_of,
@@ -240,12 +239,12 @@ def run_check(
     """Run every tile of ``plan`` and return the check (as :func:`orthomvp.check.check_views` gives
     it in memory, medians within :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
 
-    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes,
-    or on the Dask ``client``, at most ``inflight`` (default
-    :func:`~orthomvp.engine.run.default_inflight`) at a time. A pair of views overlaps when both
-    see at least ``window`` x ``window`` of the same posts. Raises InputError before any work
-    when the expected peak memory exceeds what is available, GeometryError when no pair overlaps
-    or a view sees only posts facing away, WorkerError when a worker dies."""
+    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes, or
+    on the Dask ``client``, at most ``inflight`` (default the workers; see
+    :func:`~orthomvp.engine.run.results`) at a time. A pair of views overlaps when both see at least
+    ``window`` x ``window`` of the same posts. Raises InputError before any work when the expected
+    peak memory exceeds what is available, GeometryError when no pair overlaps or a view sees only
+    posts facing away, WorkerError when a worker dies."""
     workers = workers_of(threads, processes, client)
     if inflight is not None and inflight < 1:
         raise InputError(f"inflight must be at least 1, got {inflight}")
@@ -262,9 +261,7 @@ def run_check(
     with Progress("checking tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))
-        for result in results(
-            submit, wait, jobs, (inner,), inflight or default_inflight(workers, client)
-        ):
+        for result in results(submit, wait, jobs, (inner,), inflight or workers):
             inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
             seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
             for pair, count in result.overlap.items():

@@ -30,7 +30,6 @@ from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
     check_memory,
     check_views,
-    default_inflight,
     executor,
     results,
     workers_of,
@@ -335,13 +334,13 @@ def run_fit(
 ) -> FitReport:
     """Fit every tile of ``plan`` and write ``outputs`` (all of them, or none).
 
-    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes,
-    or on the Dask ``client``, at most ``inflight`` (default
-    :func:`~orthomvp.engine.run.default_inflight`) at a time; with fewer tiles than threads each
-    tile fits with several threads (and, alone, shows the fitter's own progress). Raises
-    InputError before any work when the expected peak memory exceeds what is available,
-    GeometryError (writing nothing) when no post is visible in 2 or more images or an image sees
-    only posts facing away, WorkerError (writing nothing) when a worker dies."""
+    Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes, or
+    on the Dask ``client``, at most ``inflight`` (default the workers; see
+    :func:`~orthomvp.engine.run.results`) at a time; with fewer tiles than threads each tile fits
+    with several threads (and, alone, shows the fitter's own progress). Raises InputError before any
+    work when the expected peak memory exceeds what is available, GeometryError (writing nothing)
+    when no post is visible in 2 or more images or an image sees only posts facing away, WorkerError
+    (writing nothing) when a worker dies."""
     workers = workers_of(threads, processes, client)
     if inflight is not None and inflight < 1:
         raise InputError(f"inflight must be at least 1, got {inflight}")
@@ -374,9 +373,7 @@ def run_fit(
                     writer.write(empty_tile(plan, job))
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(
-                submit, wait, jobs, args, inflight or default_inflight(workers, client)
-            ):
+            for result in results(submit, wait, jobs, args, inflight or workers):
                 t0 = time.perf_counter()
                 writer.write(result)
                 report.phases["write"] = report.phases.get("write", 0.0) + (

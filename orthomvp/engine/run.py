@@ -1,11 +1,10 @@
-"""Running a plan: tiles in threads, in processes, or on a Dask cluster; one writer (this
-process) assembles the outputs.
+"""Running a plan: tiles in threads, in processes, or on a Dask cluster; one writer (this process)
+assembles the outputs.
 
-Workers get the plan (paths and geometry, no pixels) and return finished tiles. At most
-``inflight`` tiles are submitted and not yet written at any time, so memory stays bounded by
-the tile, its halo and the band count. Every tile is computed the same way wherever it runs,
-so outputs are identical on threads, processes and a cluster.
-"""
+Workers get the plan (paths and geometry, no pixels) and return finished tiles. At most ``inflight``
+tiles run or wait to run at any time, besides those being written, so memory stays bounded by the
+tile, its halo and the band count. Every tile is computed the same way wherever it runs, so outputs
+are identical on threads, processes and a cluster."""
 
 from __future__ import annotations
 
@@ -155,34 +154,46 @@ def results(
     submit: Submit, wait: Callable, jobs: list[int], args: tuple, limit: int
 ) -> Iterator[Any]:
     """Run tiles ``jobs`` (indices, first ones first) with ``submit(index, *args)``, at most
-    ``limit`` at a time, and yield their results as they finish; WorkerError (one line) when
-    a worker dies under a tile, any other exception of a tile as it is."""
+    ``limit`` running or waiting to run at a time, and yield their results as they finish;
+    WorkerError (one line) when a worker dies under a tile, any other exception of a tile as
+    it is. The next tiles are submitted before the finished ones are handed over, so workers
+    do not wait while the caller writes; the finished tiles being written are the only others
+    in memory. With ``limit`` = the workers, a Dask cluster gets no task beyond one per
+    worker thread: a second one per worker would go where the plan it depends on lies, pile
+    onto one worker and wait there for work stealing (measured: a worker idle for a second
+    between 3-second tiles)."""
     queue, pending = list(reversed(jobs)), set()
-    while queue or pending:
+
+    def top_up() -> None:
         while queue and len(pending) < limit:
-            pending.add(submit(queue.pop(), *args))
-        done, pending = wait(pending)
+            try:
+                pending.add(submit(queue.pop(), *args))
+            except Exception as exc:  # a broken pool refuses new work
+                if _died(exc):
+                    raise _worker_error(exc) from None
+                raise
+
+    while queue or pending:
+        top_up()
+        done, rest = wait(pending)
+        pending.intersection_update(rest)
+        top_up()
         for future in done:
             try:
                 result = future.result()
             except Exception as exc:
                 if _died(exc):
-                    raise WorkerError(
-                        f"a worker died while running a tile ({type(exc).__name__}: "
-                        f"{' '.join(str(exc).split())[:200]}); nothing was written"
-                    ) from None
+                    raise _worker_error(exc) from None
                 raise
             yield result
 
 
-def default_inflight(workers: int, client: Any) -> int:
-    """Tiles in flight by default: twice the ``workers`` (one running and one waiting to be
-    written each), but on a Dask ``client`` one per worker thread. Dask sends queued tasks
-    where the plan they depend on already is, so a second task per worker piles onto one
-    worker and waits there until work stealing moves it (measured: a worker idle for a
-    second between 3-second tiles); one per thread sends each new tile to the worker that
-    just finished one."""
-    return workers if client is not None else 2 * workers
+def _worker_error(exc: BaseException) -> WorkerError:
+    """The one-line error of a run whose worker died (``exc`` from its pool or cluster)."""
+    return WorkerError(
+        f"a worker died while running a tile ({type(exc).__name__}: "
+        f"{' '.join(str(exc).split())[:200]}); nothing was written"
+    )
 
 
 def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
@@ -269,19 +280,18 @@ def run_plan(
 ) -> RunReport:
     """Run every tile of ``plan`` and write ``outputs``.
 
-    Tiles run in ``threads`` threads (default: one per core), or in ``processes`` worker
-    processes, or on the Dask ``client`` (see :func:`dask_client`); at most ``inflight``
-    tiles (default :func:`default_inflight`) are in flight. A plain ``threads`` run gives each tile
-    ``threads // tiles`` threads when there are fewer tiles than threads.
+    Tiles run in ``threads`` threads (default: one per core), or in ``processes`` worker processes,
+    or on the Dask ``client`` (see :func:`dask_client`); at most ``inflight`` tiles (default: the
+    workers) run or wait to run at a time (see :func:`results`). A plain ``threads`` run gives each
+    tile ``threads // tiles`` threads when there are fewer tiles than threads.
 
     A mosaic plan with blending or balancing first runs its survey
-    (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap,
-    on a decimated grid.
+    (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap, on a
+    decimated grid.
 
-    Raises InputError before any work when the expected peak memory exceeds what is
-    available, GeometryError (and writes nothing) when an image sees no post of the grid or
-    only posts facing away, and WorkerError (writing nothing) when a worker dies.
-    """
+    Raises InputError before any work when the expected peak memory exceeds what is available,
+    GeometryError (and writes nothing) when an image sees no post of the grid or only posts facing
+    away, and WorkerError (writing nothing) when a worker dies."""
     workers = workers_of(threads, processes, client)
     if inflight is not None and inflight < 1:
         raise InputError(f"inflight must be at least 1, got {inflight}")
@@ -296,9 +306,7 @@ def run_plan(
             def run_survey(coarse: Plan, todo: list[int]) -> Iterator[TileResult]:
                 with executor(coarse, run_tile, workers, processes, client) as (submit, wait):
                     stack = frozenset({"stack"})
-                    yield from results(
-                        submit, wait, todo, (stack, 1), default_inflight(workers, client)
-                    )
+                    yield from results(submit, wait, todo, (stack, 1), workers)
 
             plan = survey(plan, run_survey)
     n = len(plan.views)
@@ -309,7 +317,7 @@ def run_plan(
     with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
         inner = 1 if client is not None or processes else max(1, workers // max(len(jobs), 1))
-        limit = inflight or default_inflight(workers, client)
+        limit = inflight or workers
         seen = [0] * len(plan.views)
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), output_set(plan, outputs) as writer:
             for job in plan.tiles:
