@@ -73,14 +73,14 @@ def grid_normals(p: np.ndarray, up: np.ndarray) -> np.ndarray:
     the cross product of the differences along columns and rows (central differences, one-sided
     at borders and next to holes), oriented to agree with ``up``. NaN at holes."""
     a, b = _difference(p, 1), _difference(p, 0)
-    n = np.empty_like(p)
-    n[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    n[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    n[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    n0 = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    n1 = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    n2 = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    # component by component: einsum and masked updates over a last axis of 3 cost 5x more
     with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.sqrt(np.einsum("...i,...i->...", n, n))[..., None]
-    n[np.einsum("...i,...i->...", n, up) < 0] *= -1
-    return n
+        outward = n0 * up[..., 0] + n1 * up[..., 1] + n2 * up[..., 2] >= 0
+        scale = np.where(outward, 1.0, -1.0) / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        return np.stack([n0 * scale, n1 * scale, n2 * scale], axis=-1)
 
 
 def _heights(values: object, name: str) -> np.ndarray:

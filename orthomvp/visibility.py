@@ -226,12 +226,11 @@ def compute_visibility(
         else:  # where each post is imaged from (NaN where it is not imaged)
             origin = camera.origins(np.where(inside[..., None], t_uv, np.nan))
         to_cam = origin - p
-        rng = np.linalg.norm(to_cam, axis=-1)
+        x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]  # (einsum over 3: 3x slower)
         with np.errstate(invalid="ignore"):
-            cos_e = np.einsum("...i,...i->...", n, to_cam) / rng
+            cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
         facing_gsd = camera.gsd(p)
         t_gsd = facing_gsd / np.maximum(cos_e, 0.1)
-        t_eps = np.full(p.shape[:-1], float(eps)) if eps else default_eps(facing_gsd / spacing)
         facing = cos_e > 0
         cast = inside & facing & occlusion
         t_codes = np.where(
@@ -242,6 +241,7 @@ def compute_visibility(
             t_codes[known != 0] = known[known != 0]
             cast &= known == 0
         t_miss = np.full(p.shape[:-1], np.nan)
+        t_eps = np.full(p.shape[:-1], np.nan)  # eps where a ray is cast
         if cast.any():
             o = origin[cast] if fixed_origin is None else fixed_origin
             if _pinhole_ray(camera):
@@ -260,6 +260,7 @@ def compute_visibility(
                 pc, pr = c[front] + cs.start, r[front] + rs.start
                 dist[front] = np.hypot(hc - pc, hr - pr) * post_scale
             t_miss[cast] = dist
+            t_eps[cast] = float(eps) if eps else default_eps(facing_gsd[cast] / spacing)
             # a ray that hits nothing has nothing in its way: the post is visible
             t_codes[cast] = classify(dist, t_eps[cast])
         codes[rs, cs] = t_codes
@@ -267,7 +268,7 @@ def compute_visibility(
         miss[rs, cs] = t_miss
         emission[rs, cs] = np.where(ok, np.degrees(np.arccos(np.clip(cos_e, -1, 1))), np.nan)
         gsd[rs, cs] = np.where(inside & facing, t_gsd, np.nan)
-        eps_out[rs, cs] = np.where(cast, t_eps, np.nan)
+        eps_out[rs, cs] = t_eps
 
     run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
     if strict and not (codes != Code.NODATA).any():

@@ -79,12 +79,16 @@ def format_orthority(row: dict) -> str:
         [
             f"side by side with Orthority {row['orthority_version']}: {row['case']} onto "
             f"{cols} x {rows} posts of {row['res_m']:g} m, best of {row['repeat']}, "
-            f"{row['threads']} threads, file reading and writing included for both",
-            f"  Orthority (no occlusion):      {row['orthority_s']:.3f} s",
-            f"  orthomvp, occlusion on:        {row['orthomvp_s']:.3f} s, ratio {row['ratio']:.2f}",
-            f"  orthomvp, occlusion off:       {row['orthomvp_naive_s']:.3f} s, ratio "
-            f"{row['naive_ratio']:.2f}",
-            "  orthomvp steps with occlusion: "
+            f"{row['threads']} threads, from files to GeoTIFF with overviews for both",
+            "                              in process          whole process (command line)",
+            f"  Orthority (no occlusion):   {row['orthority_s']:7.3f} s            "
+            f"{row['orthority_cli_s']:7.3f} s",
+            f"  orthomvp, occlusion on:     {row['orthomvp_s']:7.3f} s, ratio "
+            f"{row['ratio']:5.2f}  {row['orthomvp_cli_s']:7.3f} s, ratio {row['cli_ratio']:5.2f}",
+            f"  orthomvp, occlusion off:    {row['orthomvp_naive_s']:7.3f} s, ratio "
+            f"{row['naive_ratio']:5.2f}  {row['orthomvp_naive_cli_s']:7.3f} s, ratio "
+            f"{row['cli_naive_ratio']:5.2f}",
+            "  orthomvp steps with occlusion, in process: "
             + ", ".join(f"{k} {v:.3f} s" for k, v in row["orthomvp_steps_s"].items()),
             f"ratio = orthomvp time / Orthority time, same run; largest difference of the two "
             f"orthophotos where both have data: {row['max_abs_diff']:.3g}",

@@ -1,15 +1,21 @@
 """Side by side with Orthority (``orthomvp bench --peer orthority``): the same frame onto the
-same grid by both tools, end to end from files to a float32 GeoTIFF."""
+same grid by both tools, end to end from files to a float32 GeoTIFF with overviews, bilinear.
+
+Each tool writes its own default format for float32: Orthority a tiled GeoTIFF with deflate
+(GDAL's level 6) and internal overviews (``--build-ovw``, its default); orthomvp a
+Cloud-Optimized GeoTIFF with zstd at level 1."""
 
 from __future__ import annotations
 
 import importlib
 import os
+import subprocess
+import sys
 import tempfile
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
 from types import ModuleType
@@ -20,13 +26,10 @@ from affine import Affine
 from pyproj import CRS
 from scipy.ndimage import gaussian_filter
 
-from orthomvp.camera import load_view
+from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
-from orthomvp.ortho import orthorectify
 from orthomvp.raster import open_raster, read_image, write_geotiff
-from orthomvp.terrain import Terrain, horizontal_crs
-from orthomvp.visibility import occluder_caster
-from orthomvp.world import detect_world
+from orthomvp.terrain import horizontal_crs
 
 PEER_IMAGE = "3324c_2015_1004_05_0182_RGB"
 """The ngi-aerial frame that ``orthomvp bench --peer orthority`` orthorectifies."""
@@ -123,7 +126,7 @@ def synthetic_case(workdir: Path, seed: int = 0) -> PeerCase:
 
 def run_orthority(case: PeerCase, out: Path, res: float) -> None:
     """Orthority's orthophoto of ``case`` at ``res`` metres (bilinear image and DEM
-    interpolation, float32 with NaN nodata, deflate, no overviews), written to ``out``: the
+    interpolation, float32 with NaN nodata, deflate, overviews), written to ``out``: the
     camera files, DEM and image are read inside, as ``oty frame`` does."""
     oty = import_orthority()
     with warnings.catch_warnings(), open_raster(case.dem) as dem:
@@ -137,12 +140,12 @@ def run_orthority(case: PeerCase, out: Path, res: float) -> None:
             dem_interp="bilinear",
             dtype="float32",
             compress="deflate",
-            build_ovw=False,
+            build_ovw=True,
             overwrite=True,
         )
 
 
-RUN_STEPS = ("read", "mesh", "grid", "ortho", "write")
+RUN_STEPS = ("plan", "run")
 """The steps that :func:`run_orthomvp` times, in order."""
 
 
@@ -150,42 +153,71 @@ def run_orthomvp(
     case: PeerCase, out: Path, res: float, bounds: tuple[float, ...], occlusion: bool
 ) -> dict[str, float]:
     """orthomvp's orthophoto of ``case`` onto the grid of ``res`` metres and ``bounds`` (left,
-    bottom, right, top) in the DEM's CRS, written to ``out`` as float32 deflate GeoTIFF: the
-    steps of ``orthomvp ortho --res --bounds`` with the world frame detected. Returns the
-    seconds per step: ``read`` (image, camera, DEM, world frame), ``mesh`` (mesh + BVH build),
-    ``grid`` (DEM resampled to the output grid), ``ortho`` (visibility and sampling),
-    ``write``."""
-    times = [time.perf_counter()]
-    image, camera = load_view(case.image, case.exterior)
-    terrain = Terrain.read(case.dem)
-    terrain = replace(terrain, world=detect_world(terrain, camera.center[None]))
-    times.append(time.perf_counter())
-    caster = occluder_caster(terrain)
-    times.append(time.perf_counter())
-    grid = terrain.regrid((res, res), bounds)
-    times.append(time.perf_counter())
-    scale = res / float(np.mean(terrain.post_spacing()))
-    ortho = orthorectify(grid, image, camera, occlusion=occlusion, caster=caster, post_scale=scale)
-    times.append(time.perf_counter())
-    write_geotiff(out, ortho.data, ortho.transform, ortho.crs, nodata=np.nan)
-    times.append(time.perf_counter())
-    return dict(zip(RUN_STEPS, np.diff(times).tolist(), strict=True))
+    bottom, right, top) in the DEM's CRS, written to ``out`` (its default COG) through the
+    engine as ``orthomvp ortho --res --bounds`` runs it. Returns the seconds per step:
+    ``plan`` (cameras, DEM scan, tiles) and ``run`` (tiles on all cores, and the writing)."""
+    t0 = time.perf_counter()
+    plan = plan_ortho(
+        case.dem,
+        [(case.image, case.exterior)],
+        res=(res, res),
+        bounds=bounds,
+        occlusion=occlusion,
+        progress=False,
+    )
+    t1 = time.perf_counter()
+    run_plan(plan, Outputs(ortho=out), progress=False)
+    return {"plan": t1 - t0, "run": time.perf_counter() - t1}
+
+
+def command_lines(
+    case: PeerCase, folder: Path, res: float, bounds: tuple[float, ...]
+) -> dict[str, list[str]]:
+    """The whole-process runs, as a user times them: ``oty frame`` (bilinear image and DEM
+    interpolation, float32, deflate, overviews) and ``orthomvp ortho`` with and without
+    occlusion onto the grid of Orthority's output (``res``, ``bounds``), each writing into
+    ``folder``. Orthority runs from its console entry point's own function."""
+    oty = "import sys; from orthority.cli import cli; sys.exit(cli())"
+    ours = [sys.executable, "-m", "orthomvp", "-q", "ortho", str(case.dem), str(case.image)]
+    ours += [str(case.exterior), "--res", str(res), str(res), "--bounds"]
+    ours += [str(b) for b in bounds]
+    return {
+        "orthority_cli_s": [
+            *(sys.executable, "-c", oty, "frame", "--dem", str(case.dem)),
+            *("-ip", str(case.interior), "-ep", str(case.exterior), "--res", str(res)),
+            *("-i", "bilinear", "-di", "bilinear", "-dt", "float32", "-cm", "deflate", "-bo"),
+            *("-od", str(folder), "-o", str(case.image)),
+        ],
+        "orthomvp_cli_s": [*ours, "-o", str(folder / "ours-cli.tif")],
+        "orthomvp_naive_cli_s": [*ours, "--no-occlusion", "-o", str(folder / "naive-cli.tif")],
+    }
+
+
+def run_command(args: list[str]) -> None:
+    """Run one whole-process command quietly; RuntimeError with its last error line when it
+    fails."""
+    done = subprocess.run(args, capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        raise RuntimeError(f"{args[2] if args[1] == '-m' else 'oty'} failed: {last}")
 
 
 def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -> dict:
-    """orthomvp (occlusion on and off) against Orthority on ``case``: the same image onto the
-    same grid (the DEM's CRS, ``res`` metres, default the DEM's post spacing; the bounds of
-    Orthority's output, which crops to the image footprint). Each tool runs end to end from
-    its input files to a float32 deflate GeoTIFF (reading and writing included for both), with
-    all cores (Orthority: one tile thread per CPU; orthomvp: tiles in a thread pool). The
-    three runs alternate ``repeat`` times after an untimed warm-up; best times are kept, with
-    the steps of orthomvp's best run (see :func:`run_orthomvp`)."""
+    """orthomvp (occlusion on and off) against Orthority on ``case``: the same image onto the same
+    grid (the DEM's CRS, ``res`` metres, default the DEM's post spacing; the bounds of Orthority's
+    output, which crops to the image footprint), from input files to a GeoTIFF with overviews (each
+    tool's default format and compression for float32), with all cores (Orthority: one tile thread
+    per CPU; orthomvp: the engine's tiles on one thread per core). Measured two ways, each
+    alternating its runs ``repeat`` times after an untimed warm-up and keeping the best: in this
+    process (both libraries imported) and as whole processes from the command line, start-up and
+    imports included (what a user times)."""
     import_orthority()
     with open_raster(case.dem) as dem:
         dem_res = abs(dem.transform.a)
     res = float(res or dem_res)
     with tempfile.TemporaryDirectory(prefix="orthomvp-bench-") as tmp:
-        theirs, ours, naive = (Path(tmp) / f"{n}.tif" for n in ("oty", "ours", "naive"))
+        folder = Path(tmp)
+        theirs, ours, naive = (folder / f"{n}.tif" for n in ("oty", "ours", "naive"))
         run_orthority(case, theirs, res)
         with open_raster(theirs) as ds:
             bounds, shape = tuple(ds.bounds), ds.shape
@@ -194,7 +226,12 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
             "orthomvp_s": lambda: run_orthomvp(case, ours, res, bounds, True),
             "orthomvp_naive_s": lambda: run_orthomvp(case, naive, res, bounds, False),
         }
-        run_orthomvp(case, ours, res, bounds, True)  # warm-up
+        lines = command_lines(case, folder / "cli", res, bounds)
+        (folder / "cli").mkdir()
+        for key, args in lines.items():
+            runs[key] = lambda args=args: run_command(args)
+        for fn in runs.values():  # warm-up: caches, compiled bytecode
+            fn()
         best, steps = dict.fromkeys(runs, np.inf), {}
         for _ in range(repeat):
             for key, fn in runs.items():
@@ -206,6 +243,7 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
                     if key == "orthomvp_s":
                         steps = result
         a, b = read_image(ours), read_image(theirs)
+        same_cli = np.array_equal(read_image(folder / "cli" / "ours-cli.tif"), a, equal_nan=True)
     if a.shape != b.shape:
         raise RuntimeError(f"output grids differ: orthomvp {a.shape}, orthority {b.shape}")
     both = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0)
@@ -221,5 +259,8 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
         "orthomvp_steps_s": steps,
         "ratio": best["orthomvp_s"] / best["orthority_s"],
         "naive_ratio": best["orthomvp_naive_s"] / best["orthority_s"],
+        "cli_ratio": best["orthomvp_cli_s"] / best["orthority_cli_s"],
+        "cli_naive_ratio": best["orthomvp_naive_cli_s"] / best["orthority_cli_s"],
+        "cli_equals_api": bool(same_cli),
         "max_abs_diff": float(np.abs(a[:, both] - b[:, both]).max()),
     }

