@@ -38,7 +38,8 @@ from orthomvp.mosaic import (
 )
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.validate import finite_rows, of_type
+from orthomvp.validate import of_type
+from orthomvp.vectors import finite_rows
 from orthomvp.visibility import (
     VISIBILITY_BYTES_PER_POST,
     Visibility,

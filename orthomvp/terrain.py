@@ -31,6 +31,7 @@ from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.memory import check_memory, count_text
 from orthomvp.raster import open_raster, write_geotiff
+from orthomvp.vectors import row_norms
 
 
 def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
@@ -400,7 +401,7 @@ class Terrain:
             up = np.zeros_like(xyz)
             up[..., 2] = 1.0
             return up
-        return xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)
+        return xyz / row_norms(xyz)[..., None]
 
     def normals(self) -> np.ndarray:
         """Unit outward surface normals at every post, (rows, cols, 3); see :func:`grid_normals`."""

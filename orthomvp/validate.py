@@ -1,15 +1,12 @@
 """Argument checks shared by the library's functions and option objects, so that the Python API
 refuses what the command line refuses, with an :class:`~orthomvp.errors.InputError` that names
-the argument and its valid range; and the fast finiteness and range checks of arrays of points
-and pixel positions."""
+the argument and its valid range."""
 
 from __future__ import annotations
 
 import math
 import numbers
 from typing import Any
-
-import numpy as np
 
 from orthomvp.errors import InputError
 
@@ -65,24 +62,3 @@ def range_text(minimum: float | None, maximum: float | None, min_open: bool = Fa
 def _short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
-
-
-def finite_rows(a: np.ndarray) -> np.ndarray:
-    """True where every value along the last axis of ``a`` is finite: ``np.isfinite(a).all(
-    axis=-1)`` without numpy's reduction over a short last axis, which is 2-3x slower for the
-    (..., 2) and (..., 3) arrays of pixel positions and points."""
-    a = np.asarray(a)
-    ok = np.isfinite(a[..., 0])
-    for k in range(1, a.shape[-1]):
-        ok &= np.isfinite(a[..., k])
-    return ok
-
-
-def column_range(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least and greatest value of each column of ``a`` (n, k), (k,) each: ``a.min(axis=0)``
-    and ``a.max(axis=0)`` (NaN propagates) column by column, which is several times faster
-    for a few columns."""
-    return (
-        np.array([a[:, k].min() for k in range(a.shape[1])]),
-        np.array([a[:, k].max() for k in range(a.shape[1])]),
-    )

@@ -31,7 +31,8 @@ from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, grid_normals, perimeter
-from orthomvp.validate import finite_rows, number, of_type
+from orthomvp.validate import number, of_type
+from orthomvp.vectors import finite_rows
 from orthomvp.world import check_cameras_above
 
 TILE = 512

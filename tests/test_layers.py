@@ -12,7 +12,13 @@ PACKAGE = Path(__file__).resolve().parents[1] / "orthomvp"
 
 LAYERS = [
     ("orthomvp", "orthomvp.errors"),
-    ("orthomvp.codes", "orthomvp.optional", "orthomvp.memory", "orthomvp.validate"),
+    (
+        "orthomvp.codes",
+        "orthomvp.optional",
+        "orthomvp.memory",
+        "orthomvp.validate",
+        "orthomvp.vectors",
+    ),
     ("orthomvp.isis",),
     ("orthomvp.raster",),
     ("orthomvp.terrain",),

@@ -27,6 +27,7 @@ import numpy as np
 
 from orthomvp.camera.distortion import Distortion, NullDistortion
 from orthomvp.errors import InputError
+from orthomvp.vectors import row_norms
 
 ORTHONORMAL_TOLERANCE = 1e-6
 """Largest |R^T R - I| entry accepted for a rotation (and for the u, v, w frame)."""
@@ -329,7 +330,7 @@ class PinholeCamera:
         left out)."""
         xyz = _points(xyz, "gsd", 3)
         focal = 0.5 * (self.fu + self.fv) / self.pitch
-        return np.linalg.norm(xyz - self.center, axis=-1) / focal
+        return row_norms(xyz - self.center) / focal
 
 
 def as_image(image: object, name: str = "image") -> np.ndarray:

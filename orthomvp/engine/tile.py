@@ -25,7 +25,7 @@ from orthomvp.mosaic import compose, doubtful, nadir_angle
 from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
-from orthomvp.validate import column_range, finite_rows
+from orthomvp.vectors import column_range, finite_rows
 from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 """DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""

@@ -1,0 +1,38 @@
+"""Row-wise operations on arrays of points and pixel positions, (..., k) with a short last
+axis (k = 2 or 3): numpy's reductions and ``linalg.norm`` over such an axis are several times
+slower than the same arithmetic column by column, and these run once per post and view."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def finite_rows(a: np.ndarray) -> np.ndarray:
+    """True where every value along the last axis of ``a`` is finite: ``np.isfinite(a).all(
+    axis=-1)`` without numpy's reduction over a short last axis, which is 2-3x slower for the
+    (..., 2) and (..., 3) arrays of pixel positions and points."""
+    a = np.asarray(a)
+    ok = np.isfinite(a[..., 0])
+    for k in range(1, a.shape[-1]):
+        ok &= np.isfinite(a[..., k])
+    return ok
+
+
+def column_range(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least and greatest value of each column of ``a`` (n, k), (k,) each: ``a.min(axis=0)``
+    and ``a.max(axis=0)`` (NaN propagates) column by column, which is several times faster
+    for a few columns."""
+    return (
+        np.array([a[:, k].min() for k in range(a.shape[1])]),
+        np.array([a[:, k].max() for k in range(a.shape[1])]),
+    )
+
+
+def row_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row (last axis) of ``a``: ``np.linalg.norm(a, axis=-1)``,
+    about 4x faster for rows of 3."""
+    a = np.asarray(a)
+    total = a[..., 0] * a[..., 0]
+    for k in range(1, a.shape[-1]):
+        total = total + a[..., k] * a[..., k]
+    return np.sqrt(total)

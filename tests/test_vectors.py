@@ -1,0 +1,22 @@
+"""The row-wise helpers give numpy's own results (NaN and inf included)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from orthomvp.vectors import column_range, finite_rows, row_norms
+
+
+def test_rows_as_numpy() -> None:
+    rng = np.random.default_rng(3)
+    for k in (2, 3):
+        a = rng.normal(0, 1e3, (40, 30, k))
+        a[1, 2, 0], a[3, 4, k - 1], a[5, 6] = np.nan, np.inf, -np.inf
+        np.testing.assert_array_equal(finite_rows(a), np.isfinite(a).all(axis=-1))
+        np.testing.assert_allclose(row_norms(a), np.linalg.norm(a, axis=-1), rtol=1e-15)
+        flat = a.reshape(-1, k)[np.isfinite(a).all(axis=-1).ravel()]
+        lo, hi = column_range(flat)
+        np.testing.assert_array_equal(lo, flat.min(axis=0))
+        np.testing.assert_array_equal(hi, flat.max(axis=0))
+    lo, hi = column_range(np.array([[1.0, np.nan], [0.0, 2.0]]))
+    assert lo[0] == 0.0 and np.isnan(lo[1]) and np.isnan(hi[1])
