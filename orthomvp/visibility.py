@@ -326,20 +326,18 @@ class _DemCodes:
         VISIBLE or OCCLUDED where all four surrounding DEM posts agree on it, else 0."""
         r, c = np.mgrid[rs, cs].astype(np.float64)
         dc, dr = _dem_pixels(grid, self.dem, c, r, p=p)
-        out = np.zeros(dc.shape, np.uint8)
         rows, cols = self.codes.shape
         with np.errstate(invalid="ignore"):
             i, j = np.floor(dr) - self.r0, np.floor(dc) - self.c0
             ok = (i >= 0) & (i < rows - 1) & (j >= 0) & (j < cols - 1)
-        i, j = i[ok].astype(np.intp), j[ok].astype(np.intp)
-        corners = np.stack(
-            [self.codes[i, j], self.codes[i + 1, j], self.codes[i, j + 1], self.codes[i + 1, j + 1]]
-        )
-        agree = (corners == corners[0]).all(axis=0) & np.isin(
-            corners[0], (Code.VISIBLE, Code.OCCLUDED)
-        )
-        out[ok] = np.where(agree, corners[0], 0)
-        return out
+        # the four DEM posts around each grid post, gathered from the flat codes
+        at = np.where(ok, i * cols + j, 0).astype(np.intp)
+        flat = self.codes.ravel()
+        first = flat[at]
+        agree = ok & ((first == Code.VISIBLE) | (first == Code.OCCLUDED))
+        for step in (1, cols, cols + 1):
+            agree &= flat[at + step] == first
+        return np.where(agree, first, 0).astype(np.uint8)
 
 
 def _dem_pixels(

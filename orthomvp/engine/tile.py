@@ -206,10 +206,11 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
             with _timed(seconds, "sample"):
                 values = sample_view(view, uv[keep], plan.interp)
             ok = np.isfinite(values).all(axis=0)
-            rows, cols = np.nonzero(keep)
+            if not ok.all():
+                keep[keep] = ok
+                values = values[:, ok]
             if result.data is not None:
-                result.data[:, rows[ok], cols[ok]] = values[:, ok]
-            keep[rows[~ok], cols[~ok]] = False
+                result.data[:, keep] = values
         if result.source is not None:
             result.source[0][keep] = k + 1
         best[keep] = emission[keep]
