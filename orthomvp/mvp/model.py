@@ -67,8 +67,9 @@ class PlaneModel:
         TF, Z = self._outer(level)
         n = self.n0 + theta[:, 1:2] * self.t1 + theta[:, 2:3] * self.t2
         G = plane_map(self.lines, theta[:, 0], n) @ Z
-        per_post = TF.ndim == 4
-        H = np.einsum("bkij,bjl->bkil" if per_post else "kij,bjl->bkil", TF, G)
+        # batched matmul: einsum over these 3x4 by 4x3 products is 4x slower
+        left = TF if TF.ndim == 4 else TF[None]
+        H = left @ G[:, None]
         if not derivatives:
             return H, None
         dG = (
@@ -83,7 +84,7 @@ class PlaneModel:
             )
             @ Z[:, None]
         )
-        dH = np.einsum("bkij,bpjl->bkpil" if per_post else "kij,bpjl->bkpil", TF, dG)
+        dH = left[:, :, None] @ dG[:, None]
         return H, dH
 
     def inside(
@@ -92,7 +93,7 @@ class PlaneModel:
         """(B, K): the patch's corners land inside view k's level image, in front of it."""
         H, _ = self.homographies(theta, level, derivatives=False)
         corners = np.array([[-hwin, -hwin, 1], [hwin, -hwin, 1], [-hwin, hwin, 1], [hwin, hwin, 1]])
-        p = np.einsum("bkij,sj->bksi", H, corners.astype(float))
+        p = np.swapaxes(H @ corners.T.astype(float), -1, -2)
         w = p[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             u, v = p[..., 0] / w, p[..., 1] / w
