@@ -71,6 +71,10 @@ def test_bench_orthority_figures_are_consistent(
         assert row[name] > 0
     assert row["ratio"] == pytest.approx(row["orthomvp_s"] / row["orthority_s"])
     assert row["naive_ratio"] == pytest.approx(row["orthomvp_naive_s"] / row["orthority_s"])
+    for name in ("orthority_cli_s", "orthomvp_cli_s", "orthomvp_naive_cli_s"):
+        assert row[name] > 0
+    assert row["cli_ratio"] == pytest.approx(row["orthomvp_cli_s"] / row["orthority_cli_s"])
+    assert row["cli_equals_api"]  # the command line writes what the engine does in process
     steps = row["orthomvp_steps_s"]
     assert tuple(steps) == bench.RUN_STEPS
     assert sum(steps.values()) == pytest.approx(row["orthomvp_s"], rel=0.05)

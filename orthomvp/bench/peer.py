@@ -174,16 +174,17 @@ def command_lines(
     case: PeerCase, folder: Path, res: float, bounds: tuple[float, ...]
 ) -> dict[str, list[str]]:
     """The whole-process runs, as a user times them: ``oty frame`` (bilinear image and DEM
-    interpolation, float32, deflate, overviews) and ``orthomvp ortho`` with and without
-    occlusion onto the grid of Orthority's output (``res``, ``bounds``), each writing into
-    ``folder``. Orthority runs from its console entry point's own function."""
+    interpolation, float32, deflate, overviews) and ``orthomvp ortho`` with and without occlusion
+    onto the grid of Orthority's output (``res``, ``bounds``), each writing into ``folder``;
+    Orthority takes the DEM's CRS as its world CRS, as in process. Orthority runs from its console
+    entry point's own function."""
     oty = "import sys; from orthority.cli import cli; sys.exit(cli())"
     ours = [sys.executable, "-m", "orthomvp", "-q", "ortho", str(case.dem), str(case.image)]
     ours += [str(case.exterior), "--res", str(res), str(res), "--bounds"]
     ours += [str(b) for b in bounds]
     return {
         "orthority_cli_s": [
-            *(sys.executable, "-c", oty, "frame", "--dem", str(case.dem)),
+            *(sys.executable, "-c", oty, "frame", "--dem", str(case.dem), "-c", str(case.dem)),
             *("-ip", str(case.interior), "-ep", str(case.exterior), "--res", str(res)),
             *("-i", "bilinear", "-di", "bilinear", "-dt", "float32", "-cm", "deflate", "-bo"),
             *("-od", str(folder), "-o", str(case.image)),
