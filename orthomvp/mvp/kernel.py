@@ -161,15 +161,16 @@ def _evaluate(
     B, K = W.shape
     S = xo.shape[0]
     for b in numba.prange(B):
-        Ik = np.zeros((K, S))  # normalised patches, 0 for views not used
-        dI = np.zeros((K, 3, S))  # their derivatives
+        # written before they are read, for the views used (no zeroing: 57 kB a post)
+        Ik = np.empty((K, S))  # normalised patches
+        dI = np.empty((K, 3, S))  # their derivatives
         U = np.empty(S, np.float32)  # positions and 1 / w
         V = np.empty(S, np.float32)
         IW = np.empty(S, np.float32)
         It = np.empty(S, np.float32)  # raw samples and gradients
         Gc = np.empty(S, np.float32)
         Gr = np.empty(S, np.float32)
-        dIt = np.zeros((3, S))  # raw samples' derivatives
+        dIt = np.empty((3, S))  # raw samples' derivatives (with jac)
         A = np.zeros(S)
         dA = np.zeros((3, S))
         n = 0
