@@ -24,7 +24,7 @@ from orthomvp.engine.run import (
     check_views,
     executor,
     results,
-    workers_of,
+    schedule,
 )
 from orthomvp.engine.tile import (
     _grid_tile,
@@ -32,7 +32,7 @@ from orthomvp.engine.tile import (
     _visibility,
     sample_view,
 )
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import GeometryError
 from orthomvp.visibility import occluder_caster
 
 CLASSES = ("visible", "occluded")
@@ -245,13 +245,8 @@ def run_check(
     ``window`` x ``window`` of the same posts. Raises InputError before any work when the expected
     peak memory exceeds what is available, GeometryError when no pair overlaps or a view sees only
     posts facing away, WorkerError when a worker dies."""
-    workers = workers_of(threads, processes, client)
-    if inflight is not None and inflight < 1:
-        raise InputError(f"inflight must be at least 1, got {inflight}")
-    jobs = [job.index for job in plan.tiles if job.views]
-    at_once = min(workers, max(len(jobs), 1))
-    local = client is None and not processes
-    inner = max(1, workers // max(len(jobs), 1)) if local else 1
+    sched = schedule(plan.tiles, threads, processes, client, inflight)
+    workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
     peak = check_memory(plan, plan.peak_memory(at_once, processes or 0), at_once)
     n = len(plan.views)
     inside, seen = [0] * n, [0] * n
@@ -261,7 +256,7 @@ def run_check(
     with Progress("checking tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))
-        for result in results(submit, wait, jobs, (inner,), inflight or workers):
+        for result in results(submit, wait, jobs, (inner,), sched.limit):
             inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
             seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
             for pair, count in result.overlap.items():

@@ -32,7 +32,7 @@ from orthomvp.engine.run import (
     check_views,
     executor,
     results,
-    workers_of,
+    schedule,
 )
 from orthomvp.engine.tile import _has_cell, _timed
 from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
@@ -341,13 +341,8 @@ def run_fit(
     work when the expected peak memory exceeds what is available, GeometryError (writing nothing)
     when no post is visible in 2 or more images or an image sees only posts facing away, WorkerError
     (writing nothing) when a worker dies."""
-    workers = workers_of(threads, processes, client)
-    if inflight is not None and inflight < 1:
-        raise InputError(f"inflight must be at least 1, got {inflight}")
-    jobs = [job.index for job in plan.tiles if job.views]
-    at_once = min(workers, max(len(jobs), 1))
-    local = client is None and not processes
-    inner = max(1, workers // max(len(jobs), 1)) if local else 1
+    sched = schedule(plan.tiles, threads, processes, client, inflight)
+    workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
     peak = check_memory(plan, plan.peak_memory(at_once, processes or 0, inner), at_once)
     start = time.perf_counter()
     rows, cols = plan.grid.shape
@@ -363,6 +358,7 @@ def run_fit(
         Median(folder=folder) as sigmas,
     ):
         bar.note(plan.summary(peak, at_once))
+        local = client is None and not processes  # the fitter's own bar shows in this process
         args = (inner, bool(progress and local and at_once == 1))
         with (
             rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE),
@@ -373,7 +369,7 @@ def run_fit(
                     writer.write(empty_tile(plan, job))
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(submit, wait, jobs, args, inflight or workers):
+            for result in results(submit, wait, jobs, args, sched.limit):
                 t0 = time.perf_counter()
                 writer.write(result)
                 report.phases["write"] = report.phases.get("write", 0.0) + (

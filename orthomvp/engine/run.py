@@ -14,7 +14,7 @@ import importlib
 import multiprocessing
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
@@ -268,6 +268,39 @@ def _died(exc: BaseException) -> bool:
     return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")
 
 
+@dataclass(frozen=True)
+class Schedule:
+    """How a run's tiles are spread: ``workers`` that can run a tile at once, the ``jobs``
+    (indices of the tiles some view sees), ``at_once`` tiles in memory together, ``inner``
+    threads per tile (a plain threads run with fewer tiles than threads shares them out) and
+    the ``limit`` of tiles running or waiting to run (:func:`results`)."""
+
+    workers: int
+    jobs: list[int]
+    at_once: int
+    inner: int
+    limit: int
+
+
+def schedule(
+    tiles: Sequence[Any],
+    threads: int | None,
+    processes: int | None,
+    client: Any,
+    inflight: int | None,
+) -> Schedule:
+    """The :class:`Schedule` of ``tiles`` (with their ``index`` and ``views``) on ``threads``,
+    ``processes`` or the Dask ``client``, at most ``inflight`` in flight (default the workers);
+    InputError for a count under 1 or several of the three."""
+    workers = workers_of(threads, processes, client)
+    if inflight is not None and inflight < 1:
+        raise InputError(f"inflight must be at least 1, got {inflight}")
+    jobs = [job.index for job in tiles if job.views]
+    local = client is None and not processes
+    inner = max(1, workers // max(len(jobs), 1)) if local else 1
+    return Schedule(workers, jobs, min(workers, max(len(jobs), 1)), inner, inflight or workers)
+
+
 def run_plan(
     plan: Plan,
     outputs: Outputs,
@@ -292,12 +325,9 @@ def run_plan(
     Raises InputError before any work when the expected peak memory exceeds what is available,
     GeometryError (and writes nothing) when an image sees no post of the grid or only posts facing
     away, and WorkerError (writing nothing) when a worker dies."""
-    workers = workers_of(threads, processes, client)
-    if inflight is not None and inflight < 1:
-        raise InputError(f"inflight must be at least 1, got {inflight}")
+    sched = schedule(plan.tiles, threads, processes, client, inflight)
+    workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
     kinds = frozenset(outputs.paths())
-    jobs = [job.index for job in plan.tiles if job.views]
-    at_once = min(workers, max(len(jobs), 1))
     peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
     if plan.mosaic is not None and kinds - {"visibility"}:
@@ -316,8 +346,6 @@ def run_plan(
     pool = executor(plan, run_tile, workers, processes, client)
     with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
         bar.note(plan.summary(peak, at_once))
-        inner = 1 if client is not None or processes else max(1, workers // max(len(jobs), 1))
-        limit = inflight or workers
         seen = [0] * len(plan.views)
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), output_set(plan, outputs) as writer:
             for job in plan.tiles:
@@ -327,7 +355,7 @@ def run_plan(
                     _add_counts(report, empty)
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(submit, wait, jobs, (kinds, inner), limit):
+            for result in results(submit, wait, jobs, (kinds, sched.inner), sched.limit):
                 t0 = time.perf_counter()
                 writer.write(result)
                 _account(report, result, time.perf_counter() - t0)
