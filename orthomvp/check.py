@@ -35,7 +35,7 @@ from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, classify
 from orthomvp.engine.check import CheckResult, no_overlap
 from orthomvp.engine.check_plan import DEFAULT_EPS, check_options
-from orthomvp.engine.ncc import MISS_BINS, local_ncc
+from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, check_row, local_ncc
 from orthomvp.errors import GeometryError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.ortho import sample_image
@@ -160,26 +160,14 @@ def _rows(
     eps: float, view: str, other: str, cls: str, miss: np.ndarray, ncc: np.ndarray
 ) -> list[dict]:
     """One row per miss bin and one over all bins."""
-    edges = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.inf)]
     out = []
-    for lo, hi in edges:
+    for lo, hi in ROW_EDGES:
         sel = (miss >= lo) & (miss < hi)
         v = ncc[sel]
         v = v[np.isfinite(v)]
-        out.append(
-            {
-                "eps": eps,
-                "view": view,
-                "other": other,
-                "class": cls,
-                "miss_from": lo,
-                "miss_to": hi,
-                "posts": int(sel.sum()),
-                "scored": int(v.size),
-                "ncc_mean": float(v.mean()) if v.size else np.nan,
-                "ncc_median": float(np.median(v)) if v.size else np.nan,
-            }
-        )
+        median = float(np.median(v)) if v.size else np.nan
+        figures = (int(sel.sum()), int(v.size), float(v.mean()) if v.size else np.nan, median)
+        out.append(check_row(eps, (view, other), cls, (lo, hi), figures))
     return out
 
 

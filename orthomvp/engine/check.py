@@ -16,7 +16,7 @@ import numpy as np
 from orthomvp.codes import Code, classify
 from orthomvp.engine import heap
 from orthomvp.engine.check_plan import CheckPlan
-from orthomvp.engine.ncc import MISS_BINS, NccTally, local_ncc
+from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, NccTally, check_row, local_ncc
 from orthomvp.engine.plan import grow
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
@@ -184,25 +184,10 @@ def _add(tallies: dict[Key, NccTally], key: Key, tally: NccTally) -> None:
 def tally_rows(eps: float, view: str, other: str, cls: str, tally: NccTally) -> list[dict]:
     """The rows of one tally: one per miss bin, then one over all bins."""
     bins = len(MISS_BINS) - 1
-    edges = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.inf)]
-    out = []
-    for k, (lo, hi) in enumerate(edges):
-        posts, scored, mean, median = tally.summary(k if k < bins else None)
-        out.append(
-            {
-                "eps": eps,
-                "view": view,
-                "other": other,
-                "class": cls,
-                "miss_from": lo,
-                "miss_to": hi,
-                "posts": posts,
-                "scored": scored,
-                "ncc_mean": mean,
-                "ncc_median": median,
-            }
-        )
-    return out
+    return [
+        check_row(eps, (view, other), cls, edges, tally.summary(k if k < bins else None))
+        for k, edges in enumerate(ROW_EDGES)
+    ]
 
 
 def check_rows(

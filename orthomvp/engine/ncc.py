@@ -20,6 +20,31 @@ import numpy as np
 
 MISS_BINS = (0.0, 0.25, 1.0, 2.0, 4.0, 8.0, 16.0, np.inf)
 """Edges of the miss-distance bins, DEM posts (each bin includes its lower edge)."""
+ROW_EDGES = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.inf)]
+"""The (from, to) miss distances of a check's rows: each bin, then all of them."""
+
+
+def check_row(
+    eps: float, pair: tuple[str, str], cls: str, edges: tuple[float, float], figures: tuple
+) -> dict:
+    """One row of the check's CSV (:data:`orthomvp.check.CSV_FIELDS`): ``eps``, the views
+    ``pair`` (view, other), the class, the miss ``edges`` and ``figures`` (posts, scored,
+    NCC mean, NCC median)."""
+    posts, scored, mean, median = figures
+    return {
+        "eps": eps,
+        "view": pair[0],
+        "other": pair[1],
+        "class": cls,
+        "miss_from": edges[0],
+        "miss_to": edges[1],
+        "posts": posts,
+        "scored": scored,
+        "ncc_mean": mean,
+        "ncc_median": median,
+    }
+
+
 NCC_BINS = 4000
 """Bins of the NCC histogram over [-1, 1] (width 0.0005)."""
 MEDIAN_BOUND = 1.0 / NCC_BINS
