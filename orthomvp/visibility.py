@@ -25,7 +25,7 @@ from affine import Affine
 from tqdm import tqdm
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
-from orthomvp.codes import Code, classify
+from orthomvp.codes import Code, WorldFrame, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
@@ -39,6 +39,9 @@ TILE = 512
 VISIBILITY_BYTES_PER_POST = 160
 """Peak memory of the visibility test per post (its per-post results, the grid's world
 points and normals, resampling temporaries; about 80 measured), bytes."""
+FUSED_POSTS = 1 << 20
+"""Grids with at least this many posts take :mod:`orthomvp.frame_kernel` where it applies
+(smaller ones the numpy path: importing numba, about 0.2 s, would cost more than it saves)."""
 EPS_FLOOR = 3.0
 EPS_GSD_FACTOR = 1.0
 
@@ -161,6 +164,7 @@ def compute_visibility(
     spacing: float | None = None,
     strict: bool = True,
     dem: Terrain | None = None,
+    fused: bool | None = None,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -185,6 +189,11 @@ def compute_visibility(
     between four DEM posts that all see past it) and casts every post where classes meet, so
     no ghost appears at a boundary; it makes the rays cast scale with the DEM's posts, not the
     output grid's.
+
+    ``fused``: compute each post's geometry in one numba kernel (:mod:`orthomvp.frame_kernel`)
+    where it applies (a frame camera without lens distortion, the map world frame, a DEM in the
+    grid's CRS); None: on grids of at least :data:`~orthomvp.frame_kernel.FUSED_POSTS` posts.
+    The codes are the numpy path's; positions agree to the last bits of float64.
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
@@ -216,8 +225,19 @@ def compute_visibility(
         of_type(dem, Terrain, "dem")
         carry = _DemCodes.of(terrain, dem, camera, eps, caster, threads, spacing)
 
+    kernel = _fused_frame(terrain, camera, carry, fused)
+
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
+        if kernel is not None:
+            t_codes, t_uv, t_emission, t_gsd, facing_gsd, cast = kernel(rs, cs, occlusion)
+            pc = None
+            if cast.any():
+                r, c = np.nonzero(cast)
+                r, c = r + rs.start, c + cs.start
+                pc = terrain.to_world(c.astype(float), r.astype(float), terrain.values[r, c])
+            finish(rs, cs, t_codes, t_uv, t_emission, t_gsd, facing_gsd, cast, pc, None)
+            return
         p, n = _tile_normals(terrain, rs, cs)
         ok = finite_rows(p) & finite_rows(n)
         t_uv, depth = camera.project(p)
@@ -237,38 +257,65 @@ def compute_visibility(
         t_codes = np.where(
             inside, np.where(facing, Code.VISIBLE, Code.FACING_AWAY), Code.NODATA
         ).astype(np.uint8)
-        if carry is not None:
-            known = carry.at(terrain, rs, cs, p) & cast
+        if carry is not None:  # (as a mask: a code & True would drop OCCLUDED, 2 & 1 = 0)
+            known = np.where(cast, carry.at(terrain, rs, cs, p), 0).astype(np.uint8)
             t_codes[known != 0] = known[known != 0]
             cast &= known == 0
-        t_miss = np.full(p.shape[:-1], np.nan)
-        t_eps = np.full(p.shape[:-1], np.nan)  # eps where a ray is cast
+        finish(
+            rs,
+            cs,
+            t_codes,
+            np.where(inside[..., None], t_uv, np.nan),
+            np.where(ok, np.degrees(np.arccos(np.clip(cos_e, -1, 1))), np.nan),
+            np.where(inside & facing, t_gsd, np.nan),
+            facing_gsd,
+            cast,
+            p[cast],
+            None if fixed_origin is not None else origin[cast],
+        )
+
+    def finish(
+        rs: slice,
+        cs: slice,
+        t_codes: np.ndarray,
+        t_uv: np.ndarray,
+        t_emission: np.ndarray,
+        t_gsd: np.ndarray,
+        facing_gsd: np.ndarray,
+        cast: np.ndarray,
+        pc: np.ndarray | None,
+        oc: np.ndarray | None,
+    ) -> None:
+        """Cast the rays of the posts ``cast`` (world points ``pc``, origins ``oc`` unless
+        the camera has one centre) and store the tile."""
+        t_miss = np.full(t_codes.shape, np.nan)
+        t_eps = np.full(t_codes.shape, np.nan)  # eps where a ray is cast
         if cast.any():
-            o = origin[cast] if fixed_origin is None else fixed_origin
+            o = oc if fixed_origin is None else fixed_origin
             if _pinhole_ray(camera):
-                d = p[cast] - o  # the pinhole's own ray through the post's pixel
+                d = pc - o  # the pinhole's own ray through the post's pixel
             else:
                 o, d = camera.ray(t_uv[cast])  # the model's own ray through that pixel
             hits = caster.first_hit(o, d)
             # A first hit more than one post beyond the post means that the ray slipped past
             # the post's own vertex (a crest it grazes) with nothing in front of it: no hit.
-            along = np.einsum("ij,ij->i", p[cast] - o, d) / np.linalg.norm(d, axis=1)
+            along = np.einsum("ij,ij->i", pc - o, d) / np.linalg.norm(d, axis=1)
             front = hits.mask & (hits.distance <= along + spacing)
             dist = np.full(len(d), np.inf)
             if front.any():
                 hc, hr, _ = terrain.from_world(hits.points[front])
                 r, c = np.nonzero(cast)
-                pc, pr = c[front] + cs.start, r[front] + rs.start
-                dist[front] = np.hypot(hc - pc, hr - pr) * post_scale
+                pcol, prow = c[front] + cs.start, r[front] + rs.start
+                dist[front] = np.hypot(hc - pcol, hr - prow) * post_scale
             t_miss[cast] = dist
             t_eps[cast] = float(eps) if eps else default_eps(facing_gsd[cast] / spacing)
             # a ray that hits nothing has nothing in its way: the post is visible
             t_codes[cast] = classify(dist, t_eps[cast])
         codes[rs, cs] = t_codes
-        uv[rs, cs] = np.where(inside[..., None], t_uv, np.nan)
+        uv[rs, cs] = t_uv
         miss[rs, cs] = t_miss
-        emission[rs, cs] = np.where(ok, np.degrees(np.arccos(np.clip(cos_e, -1, 1))), np.nan)
-        gsd[rs, cs] = np.where(inside & facing, t_gsd, np.nan)
+        emission[rs, cs] = t_emission
+        gsd[rs, cs] = t_gsd
         eps_out[rs, cs] = t_eps
 
     run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
@@ -280,6 +327,65 @@ def compute_visibility(
             "from below (is the camera inside the body, or the DEM upside down?)"
         )
     return Visibility(codes, uv, miss, emission, gsd, eps_out)
+
+
+TileGeometry = Callable[[slice, slice, bool], tuple[np.ndarray, ...]]
+"""A tile's (rows, columns, occlusion) to its codes, uv, emission, GSD, facing GSD and the
+posts left to cast (:func:`_fused_frame`)."""
+
+
+def _fused_frame(
+    terrain: Terrain, camera: Camera, carry: _DemCodes | None, fused: bool | None
+) -> TileGeometry | None:
+    """The per-tile geometry of :mod:`orthomvp.frame_kernel` for ``camera`` over ``terrain``
+    (with the DEM codes ``carry``), or None where it does not apply or is not wanted
+    (``fused`` as in :func:`compute_visibility`)."""
+    rows, cols = terrain.shape
+    applies = (
+        isinstance(camera, PinholeCamera)
+        and isinstance(camera.distortion, NullDistortion)
+        and terrain.world == WorldFrame.MAP
+        and (carry is None or carry.dem.crs == terrain.crs)
+        and min(rows, cols) >= 2
+    )
+    if not applies or fused is False or (fused is None and rows * cols < FUSED_POSTS):
+        return None
+    from orthomvp.frame_kernel import frame_posts
+
+    S = np.zeros((3, 3))
+    S[:2] = terrain.S[:2]
+    cam = np.array(
+        [*camera.center, camera.fu, camera.fv, camera.cu, camera.cv, camera.pitch]
+        + [camera.width, camera.height, 0.5 * (camera.fu + camera.fv) / camera.pitch, 0.0]
+    )
+    M = np.ascontiguousarray(camera.world_to_image_axes, dtype=np.float64)
+    known = np.zeros((1, 1), np.uint8)
+    Si = np.zeros((3, 3))
+    if carry is not None:
+        known = np.ascontiguousarray(carry.codes, dtype=np.uint8)
+        Si[:2] = np.linalg.inv(carry.dem.S)[:2]
+        Si[2, 0], Si[2, 1] = carry.c0, carry.r0
+
+    def tile(rs: slice, cs: slice, occlusion: bool) -> tuple[np.ndarray, ...]:
+        r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
+        c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
+        z = np.ascontiguousarray(terrain.values[r0:r1, c0:c1], dtype=np.float64)
+        block = S.copy()
+        block[2, 0], block[2, 1] = c0, r0
+        shape = (rs.stop - rs.start, cs.stop - cs.start)
+        inner = np.array([rs.start - r0, cs.start - c0, *shape], np.int64)
+        out = (
+            np.empty(shape, np.uint8),
+            np.empty((*shape, 2)),
+            np.empty(shape),
+            np.empty(shape),
+            np.empty(shape),
+            np.empty(shape, np.bool_),
+        )
+        frame_posts(z, block, inner, cam, M, known, Si, occlusion, *out)
+        return out
+
+    return tile
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ LAYERS = [
     ("orthomvp.terrain",),
     ("orthomvp.world", "orthomvp.camera"),
     ("orthomvp.mesh", "orthomvp.embree"),
-    ("orthomvp.raycast",),
+    ("orthomvp.raycast", "orthomvp.frame_kernel"),
     ("orthomvp.visibility",),
     ("orthomvp.mosaic",),
     ("orthomvp.ortho", "orthomvp.mvp"),
