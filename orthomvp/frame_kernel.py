@@ -19,23 +19,21 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from orthomvp.codes import Code
+from orthomvp.jit import cached_jit
 
 _NODATA, _VISIBLE = np.uint8(Code.NODATA), np.uint8(Code.VISIBLE)
 _OCCLUDED, _AWAY = np.uint8(Code.OCCLUDED), np.uint8(Code.FACING_AWAY)
 
 
-@numba.njit(cache=True, nogil=True)
 def _point(S: np.ndarray, z: np.ndarray, r: int, c: int) -> tuple[float, float, float]:
     """World point of block post (r, c) whose grid pixel is given by ``S`` rows 2-3."""
     gc, gr = S[2, 0] + c, S[2, 1] + r
     return S[0, 0] * gc + S[0, 1] * gr + S[0, 2], S[1, 0] * gc + S[1, 1] * gr + S[1, 2], z[r, c]
 
 
-@numba.njit(cache=True, nogil=True)
 def _diff(
     S: np.ndarray, z: np.ndarray, r: int, c: int, dr: int, dc: int, n: int, k: int
 ) -> tuple[float, float, float]:
@@ -71,7 +69,6 @@ def _diff(
     return (nan, nan, nan)
 
 
-@numba.njit(cache=True, nogil=True)
 def frame_posts(
     z: np.ndarray,
     S: np.ndarray,
@@ -156,3 +153,8 @@ def frame_posts(
             gsd[i, j] = fg / max(cos_e, 0.1) if inside and facing else nan
             facing_gsd[i, j] = fg
             cast[i, j] = todo
+
+
+_point = cached_jit(_point)
+_diff = cached_jit(_diff)
+frame_posts = cached_jit(frame_posts)

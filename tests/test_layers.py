@@ -18,6 +18,7 @@ LAYERS = [
         "orthomvp.memory",
         "orthomvp.validate",
         "orthomvp.vectors",
+        "orthomvp.jit",
     ),
     ("orthomvp.isis",),
     ("orthomvp.raster",),

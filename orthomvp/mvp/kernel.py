@@ -1,31 +1,30 @@
 """The MVP objective as one fused numba kernel, parallel over posts.
 
-Per post and view the kernel applies the homography to the patch offsets, samples the image,
-its c and r gradients bilinearly (as ``cv2.remap`` does: BORDER_REPLICATE, exact weights),
-normalises the patch (eq. 19), and accumulates the albedo, the cost (eq. 20) and the
-Gauss-Newton normal equations, without the (B, K, P, S) temporaries of the numpy objective
-(:func:`orthomvp.mvp.patches.evaluate`, which stays as its reference). Each post is reduced
-by one thread in a fixed order, so a post's results do not depend on the batch it is in or on
-the number of threads. Per-sample positions and derivatives are float32 as in the numpy
-objective; derivatives and sums over samples and views are float64.
+Per post and view the kernel applies the homography to the patch offsets, samples the image, its c
+and r gradients bilinearly (as ``cv2.remap`` does: BORDER_REPLICATE, exact weights), normalises the
+patch (eq. 19), and accumulates the albedo, the cost (eq. 20) and the Gauss-Newton normal equations,
+without the (B, K, P, S) temporaries of the numpy objective (:func:`orthomvp.mvp.patches.evaluate`,
+which stays as its reference). Each post is reduced by one thread in a fixed order, so a post's
+results do not depend on the batch it is in or on the number of threads. Per-sample positions and
+derivatives are float32 as in the numpy objective; derivatives and sums over samples and views are
+float64.
 
-numba is imported here only, and this module only when the fitter first evaluates; the first
-call compiles (a few seconds, see ``orthomvp bench``) into numba's cache: beside this file
-when its directory is writable, else the user's cache directory (``~/.cache/numba``) or
-``NUMBA_CACHE_DIR``; without any writable place it compiles in every process.
-"""
+numba is imported here (and in :mod:`orthomvp.jit`) only, and this module only when the fitter first
+evaluates; the first call compiles (a few seconds, see ``orthomvp bench``) into numba's cache:
+beside this file when its directory is writable, else the user's cache directory
+(``~/.cache/numba``) or ``NUMBA_CACHE_DIR``; without any writable place it compiles in every
+process."""
 
 from __future__ import annotations
 
 import time
-import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 from numba.typed import List
 
+from orthomvp.jit import cached_jit
 from orthomvp.mvp.window import Window
 
 __all__ = ["KernelResult", "compile_seconds", "fused_evaluate"]
@@ -299,18 +298,8 @@ def _evaluate(
                     loo[b, k] = num / np.sqrt(max(den, 1e-30))
 
 
-def _jit(fn: Callable, **options: object) -> Callable:
-    """``fn`` compiled with ``options`` lazily (on its first call), releasing the GIL, cached
-    on disk where numba can."""
-    try:
-        return numba.njit(cache=True, nogil=True, **options)(fn)
-    except RuntimeError as err:  # no writable cache directory anywhere
-        warnings.warn(f"numba cannot cache the MVP kernel ({err})", stacklevel=2)
-        return numba.njit(nogil=True, **options)(fn)
-
-
-_sample = _jit(_sample, fastmath=False)
-_kernel = _jit(_evaluate, parallel=True, fastmath={"reassoc", "contract"})
+_sample = cached_jit(_sample, fastmath=False)
+_kernel = cached_jit(_evaluate, parallel=True, fastmath={"reassoc", "contract"})
 
 
 def compile_seconds() -> float:

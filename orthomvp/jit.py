@@ -1,0 +1,21 @@
+"""numba compilation shared by the fused kernels (:mod:`orthomvp.frame_kernel`,
+:mod:`orthomvp.mvp.kernel`): lazily on first call, releasing the GIL, cached on disk where
+numba can write (beside the package, else ``~/.cache/numba`` or ``NUMBA_CACHE_DIR``). Import
+this module only where a kernel runs: it imports numba (about 0.2 s)."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import numba
+
+
+def cached_jit(fn: Callable, **options: object) -> Callable:
+    """``fn`` compiled with ``options`` on its first call, without the GIL, cached on disk; where
+    no directory is writable, compiled in every process (with a warning)."""
+    try:
+        return numba.njit(cache=True, nogil=True, **options)(fn)
+    except RuntimeError as err:  # no writable cache directory anywhere
+        warnings.warn(f"numba cannot cache {fn.__name__} ({err})", stacklevel=2)
+        return numba.njit(nogil=True, **options)(fn)
