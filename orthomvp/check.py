@@ -24,8 +24,6 @@ counts and means, medians from a histogram within
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,7 +37,7 @@ from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, check_row, local_ncc
 from orthomvp.errors import GeometryError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.ortho import sample_image
-from orthomvp.raster import write_set
+from orthomvp.present.figures import save_with_table
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
@@ -174,24 +172,7 @@ def _rows(
 def save(result: CheckResult, table: str | Path, figure: str | Path) -> None:
     """Write the check's rows as CSV (``table``) and its :func:`plot` (``figure``, PNG or
     another format matplotlib writes, by the suffix), atomically as a set."""
-    import matplotlib.pyplot as plt
-
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
-    writer.writeheader()
-    for r in result.rows:
-        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    fig = plot(result)
-    fmt = Path(figure).suffix.lstrip(".") or "png"
-    try:
-        write_set(
-            {
-                Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
-                Path(figure): lambda tmp: fig.savefig(tmp, dpi=90, format=fmt),
-            }
-        )
-    finally:
-        plt.close(fig)
+    save_with_table(plot(result), figure, result.rows, CSV_FIELDS, table)
 
 
 def plot(result: CheckResult) -> Figure:

@@ -9,8 +9,6 @@ of the true surface (the truth stays that of the true surface).
 
 from __future__ import annotations
 
-import csv
-import io
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,7 +16,7 @@ import numpy as np
 
 from orthomvp.codes import classify
 from orthomvp.errors import InputError
-from orthomvp.raster import write_set
+from orthomvp.present.figures import save_with_table
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
 from orthomvp.validate import number
 from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
@@ -92,24 +90,7 @@ def _values(values: object) -> tuple:
 def save(rows: list[dict], table: str | Path, figure: str | Path, title: str = "") -> None:
     """Write the study as CSV (``table``) and its :func:`plot` (``figure``, PNG or another
     format matplotlib writes, by the suffix), atomically as a set."""
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_FIELDS)
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    fig = plot(rows, title)
-    fmt = Path(figure).suffix.lstrip(".") or "png"
-    try:
-        write_set(
-            {
-                Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
-                Path(figure): lambda tmp: fig.savefig(tmp, dpi=90, format=fmt),
-            }
-        )
-    finally:
-        import matplotlib.pyplot as plt
-
-        plt.close(fig)
+    save_with_table(plot(rows, title), figure, rows, CSV_FIELDS, table)
 
 
 def plot(rows: list[dict], title: str = "") -> Figure:

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import csv
+import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from orthomvp.codes import Code
 from orthomvp.present.colours import ERROR_CMAP, error_colour_limit
-from orthomvp.raster import atomic_path
+from orthomvp.raster import atomic_path, write_set
 
 CODE_COLOURS = [tuple(v / 255 for v in code.rgb) for code in Code]
 """Matplotlib RGB (0-1) of the visibility codes, indexed by code."""
@@ -27,6 +30,33 @@ def _save(fig, path: str | Path) -> None:  # noqa: ANN001
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format=Path(path).suffix.lstrip(".") or "png")
     _pyplot().close(fig)
+
+
+def save_with_table(
+    fig,
+    figure: str | Path,
+    rows: Sequence[dict],
+    fields: Sequence[str],
+    table: str | Path,  # noqa: ANN001
+) -> None:
+    """Write ``rows`` (dicts with keys ``fields``; floats to 6 significant digits) as CSV to
+    ``table`` and the figure ``fig`` to ``figure`` (the format by its suffix, PNG without one),
+    atomically as one set (:func:`orthomvp.raster.write_set`); the figure is closed."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(fields))
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    fmt = Path(figure).suffix.lstrip(".") or "png"
+    try:
+        write_set(
+            {
+                Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
+                Path(figure): lambda tmp: fig.savefig(tmp, dpi=90, format=fmt),
+            }
+        )
+    finally:
+        _pyplot().close(fig)
 
 
 def scale_bar(ax, metres_per_pixel: float, note: str = "") -> None:  # noqa: ANN001
