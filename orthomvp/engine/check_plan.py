@@ -13,11 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
-from orthomvp.engine.grid import grid_to_dem, output_grid
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
     BASE_BYTES,
@@ -28,10 +25,8 @@ from orthomvp.engine.plan import (
     WINDOW_BYTES,
     Plan,
     TileJob,
-    _job,
-    check_plan,
-    plan_tiles,
-    read_source,
+    check_tile,
+    tile_grid,
 )
 from orthomvp.errors import InputError
 from orthomvp.validate import number
@@ -164,22 +159,20 @@ def plan_check(
     (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is larger than the
     DEM.
     """
-    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
-        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    tile = check_tile(tile)
     eps, window, labels = check_options(len(views), eps_values, window, names)
     sources = tuple(image_source(image, camera) for image, camera in views)
-    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
-    grid = output_grid(source)
-    to_dem = grid_to_dem(grid, source)
-    margin = window // 2
-    jobs, boxes, reach, elevation = plan_tiles(
-        grid.tiles(int(tile)),
-        lambda index, w: _job(source, to_dem, grid, sources, index, w, True, margin),
-        len(sources),
-        progress,
+    source, sources, grid, jobs, reach, elevation = tile_grid(
+        dem,
+        sources,
+        tile=tile,
+        occlusion=True,
+        margin=window // 2,
+        dem_crs=dem_crs,
+        radius_values=radius_values,
+        world=world,
+        progress=progress,
     )
-    seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
-    check_plan(source, sources, boxes, seen, reach, elevation)
     jobs = [
         job if len(job.views) > 1 else replace(job, views=(), dem=None, image_pixels=())
         for job in jobs
@@ -189,7 +182,7 @@ def plan_check(
         grid,
         sources,
         tuple(jobs),
-        int(tile),
+        tile,
         True,
         None,
         "bilinear",

@@ -50,6 +50,7 @@ from orthomvp.engine.plan import (
     _sees,
     _union,
     check_plan,
+    check_tile,
     plan_tiles,
     read_source,
 )
@@ -287,8 +288,7 @@ def plan_fit(
     larger than the DEM.
     """
     opts = options or FitOptions()
-    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
-        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    tile = check_tile(tile)
     if eps is not None and not eps > 0:
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
     opts.window  # noqa: B018 - validates hwin and sigma
@@ -307,7 +307,7 @@ def plan_fit(
     spacing = source.post_spacing()
     margin = opts.deconvolve * opts.hwin
     jobs, boxes, reach, elevation = plan_tiles(
-        grid.tiles(int(tile)),
+        grid.tiles(tile),
         lambda index, window: _job(source, sources, index, window, margin, opts, spacing),
         len(sources),
         progress,
@@ -333,7 +333,7 @@ def plan_fit(
         sources,
         tuple(stats),
         tuple(jobs),
-        int(tile),
+        tile,
         opts,
         eps,
         spacing,

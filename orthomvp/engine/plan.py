@@ -300,8 +300,7 @@ def plan_ortho(
     sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
     larger than the DEM.
     """
-    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
-        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    tile = check_tile(tile)
     if eps is not None and not eps > 0:
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
     if interp not in INTERPOLATION:
@@ -311,17 +310,20 @@ def plan_ortho(
         raise InputError(f"mosaic must be MosaicOptions or None, got {type(mosaic).__name__}")
     mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else None
     margin = mosaic.margin if mosaic is not None else 0
-    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
-    grid = output_grid(source, res, bounds, crs)
-    to_dem = grid_to_dem(grid, source)
-    jobs, boxes, reach, elevation = plan_tiles(
-        grid.tiles(int(tile)),
-        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion, margin),
-        len(sources),
-        progress,
+    source, sources, grid, jobs, reach, elevation = tile_grid(
+        dem,
+        sources,
+        tile=tile,
+        occlusion=occlusion,
+        margin=margin,
+        dem_crs=dem_crs,
+        radius_values=radius_values,
+        world=world,
+        progress=progress,
+        res=res,
+        bounds=bounds,
+        crs=crs,
     )
-    seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
-    check_plan(source, sources, boxes, seen, reach, elevation)
     spacing = source.post_spacing()
     post_scale = 1.0 if grid.on_dem else _grid_spacing(grid, source) / spacing
     return Plan(
@@ -329,7 +331,7 @@ def plan_ortho(
         grid,
         sources,
         tuple(jobs),
-        int(tile),
+        tile,
         occlusion,
         eps,
         interp,
@@ -349,6 +351,48 @@ def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
     c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
     p = dem.to_world(c, r, np.full(3, np.nanmedian(dem.preview.values)))
     return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
+
+
+def check_tile(tile: object) -> int:
+    """``tile`` (posts a side) as an int; InputError unless an integer of at least 2."""
+    if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
+        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+    return int(tile)
+
+
+def tile_grid(
+    dem: str | Path,
+    sources: Sequence[ImageSource],
+    *,
+    tile: int,
+    occlusion: bool,
+    margin: int,
+    dem_crs: object | None,
+    radius_values: bool,
+    world: WorldFrame | str,
+    progress: bool,
+    res: tuple[float, float] | None = None,
+    bounds: tuple[float, float, float, float] | None = None,
+    crs: object | None = None,
+) -> tuple[DemSource, tuple[ImageSource, ...], OutputGrid, list[TileJob], list[float], list[float]]:
+    """What every engine plan starts with: the DEM and views (:func:`read_source`), the output
+    grid (the DEM's, or ``res``, ``bounds``, ``crs``), and its tiles of ``tile`` posts, each
+    with ``margin`` posts around it, its DEM window (with the occluder halo when
+    ``occlusion``) and its image boxes (:func:`plan_tiles`), checked (:func:`check_plan`).
+    Returns the DEM source, the views, the grid, the tiles' jobs, and per view the farthest
+    occluder track and the lowest line of sight."""
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    grid = output_grid(source, res, bounds, crs)
+    to_dem = grid_to_dem(grid, source)
+    jobs, boxes, reach, elevation = plan_tiles(
+        grid.tiles(tile),
+        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion, margin),
+        len(sources),
+        progress,
+    )
+    seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
+    check_plan(source, sources, boxes, seen, reach, elevation)
+    return source, sources, grid, jobs, reach, elevation
 
 
 def read_source(
