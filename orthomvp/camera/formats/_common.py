@@ -102,6 +102,24 @@ def number(path: Path, token: str, key: str, line: int) -> float:
     return float(token)
 
 
+@dataclass(frozen=True)
+class Interior:
+    """A frame camera's interior parameters, in pixels: focal lengths, principal point, image
+    size and lens distortion, as :class:`~orthomvp.camera.model.PinholeCamera` takes them."""
+
+    fu: float
+    fv: float
+    cu: float
+    cv: float
+    width: int
+    height: int
+    distortion: Distortion
+
+    def fields(self) -> dict[str, object]:
+        """The PinholeCamera keyword arguments of these parameters."""
+        return {name: getattr(self, name) for name in Interior.__dataclass_fields__}
+
+
 def build_camera(path: Path, where: Callable[[str], int | None], **kwargs: object) -> PinholeCamera:
     """PinholeCamera(**kwargs), its validation errors as FormatError at the line ``where`` gives
     for the offending field's name."""

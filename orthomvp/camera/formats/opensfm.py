@@ -64,6 +64,7 @@ from orthomvp.camera.distortion import (
 from orthomvp.camera.formats._common import (
     CameraFile,
     CameraFormat,
+    Interior,
     decode_text,
     read_bytes,
 )
@@ -94,17 +95,10 @@ _TRANSLATION_KEY = re.compile(r'"translation"\s*:')
 
 
 @dataclass(frozen=True)
-class _Interior:
+class _Interior(Interior):
     """One camera of a ``cameras`` section: pixels, and the normalised focal length (to match
     ODM's shots)."""
 
-    fu: float
-    fv: float
-    cu: float
-    cv: float
-    width: int
-    height: int
-    distortion: Distortion
     focal: float
 
 
@@ -247,17 +241,7 @@ def _camera(
     """The camera of interior ``intr`` at world ``centre`` with world-to-camera angle-axis
     ``rotation``."""
     try:
-        return PinholeCamera(
-            fu=intr.fu,
-            fv=intr.fv,
-            cu=intr.cu,
-            cv=intr.cv,
-            center=centre,
-            rotation=rodrigues(rotation).T,
-            distortion=intr.distortion,
-            width=intr.width,
-            height=intr.height,
-        )
+        return PinholeCamera(center=centre, rotation=rodrigues(rotation).T, **intr.fields())
     except FieldError as exc:
         raise FormatError(path, f"{where}: {exc}") from None
 

@@ -31,6 +31,7 @@ from orthomvp.camera.distortion import (
 from orthomvp.camera.formats._common import (
     CameraFile,
     CameraFormat,
+    Interior,
     build_camera,
     decode_text,
     number,
@@ -65,19 +66,6 @@ def orthority_rotation(omega: float, phi: float, kappa: float) -> np.ndarray:
     rot_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rot_z = np.array([[ck, -sk, 0.0], [sk, ck, 0.0], [0.0, 0.0, 1.0]])
     return rot_x @ rot_y @ rot_z @ np.diag([1.0, -1.0, -1.0])
-
-
-@dataclass(frozen=True)
-class _Interior:
-    """One camera of an interior parameter file, in pixels."""
-
-    fu: float
-    fv: float
-    cu: float
-    cv: float
-    width: int
-    height: int
-    distortion: Distortion
 
 
 @dataclass(frozen=True)
@@ -125,7 +113,7 @@ def read_orthority_cameras(
 
 
 def _combine(
-    cameras: dict[str, _Interior], interior: Path, exterior: Path, text: str, radians: bool
+    cameras: dict[str, Interior], interior: Path, exterior: Path, text: str, radians: bool
 ) -> dict[str, PinholeCamera]:
     """The cameras of the exterior file ``exterior`` holding ``text``, by image file stem, with
     the interior ``cameras`` of the file ``interior`` (see :func:`read_orthority_cameras`)."""
@@ -154,15 +142,9 @@ def _combine(
         out[key] = build_camera(
             exterior,
             lambda _, line=ext.line: line,
-            fu=intr.fu,
-            fv=intr.fv,
-            cu=intr.cu,
-            cv=intr.cv,
             center=ext.xyz,
             rotation=orthority_rotation(*ext.opk),
-            distortion=intr.distortion,
-            width=intr.width,
-            height=intr.height,
+            **intr.fields(),
         )
     return out
 
@@ -220,7 +202,7 @@ FORMATS = (
 file, whose interior file lies beside it or is given, and an interior file alone, refused."""
 
 
-def _read_interior(path: Path) -> dict[str, _Interior]:
+def _read_interior(path: Path) -> dict[str, Interior]:
     """The cameras of an Orthority interior parameter (YAML) file, by camera id."""
     loader = yaml.SafeLoader(decode_text(path, read_bytes(path, "interior parameter file")))
     try:
@@ -228,7 +210,7 @@ def _read_interior(path: Path) -> dict[str, _Interior]:
         if not isinstance(root, yaml.MappingNode) or not root.value:
             line = 1 if root is None else root.start_mark.line + 1
             raise FormatError(path, "expected a mapping of camera ids to their parameters", line)
-        out: dict[str, _Interior] = {}
+        out: dict[str, Interior] = {}
         for cam_id, line, node in _yaml_items(path, root):
             if not isinstance(node, yaml.MappingNode):
                 raise FormatError(
@@ -265,7 +247,7 @@ def _yaml_items(path: Path, node: yaml.MappingNode) -> list[tuple[str, int, yaml
 
 def _interior(
     path: Path, cam_id: str, params: dict[str, object], line: int, lines: dict[str, int]
-) -> _Interior:
+) -> Interior:
     """One camera of an interior parameter file (see :func:`read_orthority_cameras`);
     ``line`` is the camera id's line, ``lines`` each parameter's."""
 
@@ -319,7 +301,7 @@ def _interior(
     else:
         distortion = OpenCVDistortion(**coeffs)
     big = max(width, height)
-    return _Interior(
+    return Interior(
         fu=fu,
         fv=fv,
         cu=(width - 1) / 2 + big * cx,
