@@ -12,7 +12,6 @@ from orthomvp.cli.command import Command, Variadic
 from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as_lines
 from orthomvp.cli.odm import command_views, odm_option
 from orthomvp.cli.options import (
-    PATH,
     POSITIVE,
     DemInput,
     Output,
@@ -20,6 +19,7 @@ from orthomvp.cli.options import (
     dem_options,
     optional_dem_argument,
     pairs_argument,
+    prefix_option,
     quiet,
 )
 
@@ -37,14 +37,7 @@ DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
 @optional_dem_argument
 @pairs_argument(minimum=2, optional=True)
 @odm_option
-@click.option(
-    "-o",
-    "--output",
-    type=PATH,
-    default=Path("check"),
-    metavar="PREFIX",
-    help="output prefix: writes PREFIX.csv and PREFIX.png",
-)
+@prefix_option("check")
 @click.option(
     "--eps",
     cls=Variadic,

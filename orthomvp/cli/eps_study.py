@@ -7,7 +7,14 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command, Variadic
-from orthomvp.cli.options import NON_NEGATIVE, PATH, POSITIVE, Output, check_outputs
+from orthomvp.cli.options import (
+    NON_NEGATIVE,
+    PATH,
+    POSITIVE,
+    Output,
+    check_outputs,
+    prefix_option,
+)
 
 
 @click.command(
@@ -21,14 +28,7 @@ from orthomvp.cli.options import NON_NEGATIVE, PATH, POSITIVE, Output, check_out
     metavar="SCENE",
     help="a scene directory written by 'orthomvp synth'",
 )
-@click.option(
-    "-o",
-    "--output",
-    type=PATH,
-    default=Path("eps-study"),
-    metavar="PREFIX",
-    help="output prefix: writes PREFIX.csv and PREFIX.png",
-)
+@prefix_option("eps-study")
 @click.option(
     "--eps",
     cls=Variadic,

@@ -232,6 +232,18 @@ def output_option(metavar: str, help: str) -> Callable[[F], F]:  # noqa: A002
     return click.option("-o", "--output", type=PATH, required=True, metavar=metavar, help=help)
 
 
+def prefix_option(default: str) -> Callable[[F], F]:
+    """The ``-o/--output`` prefix of a table and its plot (PREFIX.csv and PREFIX.png)."""
+    return click.option(
+        "-o",
+        "--output",
+        type=PATH,
+        default=Path(default),
+        metavar="PREFIX",
+        help="output prefix: writes PREFIX.csv and PREFIX.png",
+    )
+
+
 eps_option = click.option(
     "--eps",
     type=POSITIVE,
