@@ -35,6 +35,7 @@ import warnings
 from dataclasses import dataclass
 from enum import IntEnum
 
+import cv2
 import numpy as np
 
 from orthomvp.camera import Camera
@@ -195,9 +196,10 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Each view's disagreement (views, rows, cols) in 0..1 with the median of the views that
     see the post (mean over bands of :data:`DISAGREE` times the relative difference, capped)."""
     stack = np.where(visible[:, None], values, np.nan)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(stack, axis=0)
+    seen = visible.any(axis=0)  # the median of the others only (no warning, thread-safe)
+    median = np.full(stack.shape[1:], np.nan, stack.dtype)
+    median[:, seen] = np.nanmedian(stack[:, :, seen], axis=0)
+    with np.errstate(all="ignore"):
         rel = np.abs(stack - median) / (np.abs(stack) + np.abs(median) + 1e-12)
     return np.nan_to_num(np.minimum(DISAGREE * rel, 1.0).mean(axis=1), nan=1.0)
 
@@ -232,7 +234,7 @@ def labels(
         seen = box_sum(visible, SEAM_RADIUS)
         unseen = 1.0 - seen / inside
         total = np.nan_to_num(cost, nan=0.0) + unseen + disagreement(values, visible)
-        q = np.where(visible, np.rint(total * QUANT), 0).astype(np.int64)
+        q = np.rint(np.where(visible, total, 0.0) * QUANT).astype(np.int64)
         with np.errstate(invalid="ignore", divide="ignore"):
             cost = box_sum(q, SEAM_RADIUS) / box_sum(visible, SEAM_RADIUS)
     cost = np.where(visible, cost, np.inf)
@@ -396,19 +398,19 @@ def solve_balance(stats: np.ndarray, mode: str, reference: int | None) -> Correc
 
 
 def overlap_width(codes: np.ndarray, step: float = 1.0) -> float:
-    """Width of the widest overlap between two views, posts: twice the largest distance from
-    a post both see to one that one of them does not see, on a grid whose posts are ``step``
-    posts apart (``codes`` (views, rows, cols))."""
-    from scipy.ndimage import distance_transform_edt
-
-    visible = codes == Code.VISIBLE
+    """Width of the widest overlap of two images' footprints, posts: twice the largest distance
+    from a post inside both images to one outside either, on a grid whose posts are ``step``
+    posts apart (``codes`` (views, rows, cols); inside an image: any code but NODATA, so
+    occlusion does not narrow it and a survey without ray casting gives the same width)."""
+    inside = codes != Code.NODATA
     widest = 0.0
     for i in range(len(codes)):
         for j in range(i + 1, len(codes)):
-            both = visible[i] & visible[j]
+            both = inside[i] & inside[j]
             if both.any():
-                inner = np.pad(both, 1)
-                widest = max(widest, 2 * float(distance_transform_edt(inner).max()) * step)
+                inner = np.pad(both, 1).astype(np.uint8)
+                edt = cv2.distanceTransform(inner, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                widest = max(widest, 2 * float(edt.max()) * step)
     return widest
 
 
@@ -418,7 +420,7 @@ def clamp_blend(blend: int, widest: float) -> int:
     if widest > 0 and blend > widest:
         clamped = int(widest)
         warnings.warn(
-            f"blend width {blend} posts is wider than the widest overlap between two images "
+            f"blend width {blend} posts is wider than the widest overlap of two images "
             f"({widest:.0f} posts): blending over {clamped} posts",
             BlendWarning,
             stacklevel=3,

@@ -22,6 +22,7 @@ from orthomvp.mosaic import (
     Flag,
     MosaicOptions,
     box_sum,
+    overlap_width,
     pair_stats,
     seam_visibility,
     solve_balance,
@@ -106,6 +107,81 @@ def test_blending_removes_the_seam_step(crater_dir: Path, gained: Path, tmp_path
     assert hard_seams > 2 and soft_seams < 1.2, (hard_seams, soft_seams)
     # the same labels, only the values near seams change
     np.testing.assert_array_equal(hard["source"][0], soft["source"][0])
+
+
+@pytest.fixture(scope="module")
+def cropped(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> list:
+    """The oblique image's left 60% and the nadir image's right 60% (of their columns), with
+    their cameras cropped: footprints that overlap on part of the grid."""
+    out = tmp_path_factory.mktemp("cropped")
+    pairs = []
+    for name, left in (("oblique", True), ("nadir", False)):
+        image, camera = load_view(crater_dir / f"{name}.tif", crater_dir / f"{name}.tsai")
+        cols = image.shape[2]
+        c0, c1 = (0, int(0.6 * cols)) if left else (int(0.4 * cols), cols)
+        with rasterio.open(crater_dir / f"{name}.tif") as src:
+            transform, crs = src.transform, src.crs
+        path = out / f"{name}.tif"
+        write_geotiff(path, image[:, :, c0:c1], transform, crs)
+        pairs.append((path, camera.crop(c0, 0, c1 - c0, image.shape[1])))
+    return pairs
+
+
+def footprint_overlap(dem: Path, views: list) -> float:
+    """Twice the largest distance from a post inside two images (projected in float64, in
+    front of the camera, within half a pixel of the outermost pixel centres) to one outside
+    either, over all pairs (scipy's exact Euclidean distance transform)."""
+    from scipy.ndimage import distance_transform_edt
+
+    xyz = Terrain.read(dem).world_points()
+    inside = []
+    for path, camera in views:
+        uv, depth = camera.project(xyz)
+        with rasterio.open(path) as src:
+            rows, cols = src.height, src.width
+        u, v = uv[..., 0], uv[..., 1]
+        inside.append(
+            (depth > 0) & (u >= -0.5) & (u <= cols - 0.5) & (v >= -0.5) & (v <= rows - 0.5)
+        )
+    widest = 0.0
+    for i in range(len(inside)):
+        for j in range(i + 1, len(inside)):
+            both = np.pad(inside[i] & inside[j], 1)
+            widest = max(widest, 2 * float(distance_transform_edt(both).max()))
+    return widest
+
+
+def test_blend_is_clamped_to_the_widest_footprint_overlap(
+    crater_dir: Path, cropped: list, tmp_path: Path
+) -> None:
+    """A blend wider than every overlap is clamped to the widest overlap of two footprints:
+    the engine's survey (no rays cast), in tiles of 16 and 64 posts, and the in-memory mosaic
+    clamp to the same width, scipy's over the projected posts."""
+    dem = crater_dir / "dem.tif"
+    widest = footprint_overlap(dem, cropped)
+    terrain = Terrain.read(dem)
+    assert 8 < widest < min(terrain.shape)
+    blends = set()
+    for tile in (16, 64):
+        with pytest.warns(UserWarning, match="wider than the widest overlap"):
+            got = engine_mosaic(dem, cropped, tmp_path, f"c{tile}", tile=tile, blend=500)
+        blends.add(got["report"].blend)
+    with pytest.warns(UserWarning, match=f"blending over {int(widest)} posts"):
+        mosaic(terrain, [(read(p), c) for p, c in cropped], options=MosaicOptions(blend=500))
+    assert blends == {int(widest)}
+
+
+def test_overlap_width_counts_occluded_posts_as_inside() -> None:
+    """Occluded or facing-away posts lie inside an image: they do not narrow the overlap, and
+    posts outside one image (NODATA) do; the width is twice the exact distance transform."""
+    codes = np.full((2, 21, 31), Code.VISIBLE, np.uint8)
+    assert overlap_width(codes) == 22.0  # 11 posts from the centre of 21 rows to the pad
+    codes[0, 10, :] = Code.OCCLUDED
+    codes[1, :, 15] = Code.FACING_AWAY
+    assert overlap_width(codes) == 22.0
+    codes[0, 10, :] = Code.NODATA
+    assert overlap_width(codes) == 10.0  # two bands of 10 rows: 5 posts to the nearest edge
+    assert overlap_width(codes, 3.0) == 30.0
 
 
 def test_seam_visibility_of_a_known_step() -> None:

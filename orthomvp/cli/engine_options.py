@@ -152,8 +152,9 @@ def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> C
             click.option(
                 "--tile",
                 type=click.IntRange(min=2),
-                default=1024,
                 metavar="POSTS",
+                show_default="1024, or for ortho, mosaic and check on a small grid its longer side "
+                "split among the cores (at least 256)",
                 help="output tile size: memory grows with it, not with the DEM or image",
             ),
             click.option(

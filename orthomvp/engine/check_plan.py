@@ -141,7 +141,7 @@ def plan_check(
     eps_values: Sequence[float] = DEFAULT_EPS,
     window: int = 7,
     names: Sequence[str] | None = None,
-    tile: int = 1024,
+    tile: int | None = None,
     dem_crs: object | None = None,
     radius_values: bool = False,
     world: WorldFrame | str = "auto",
@@ -149,7 +149,8 @@ def plan_check(
 ) -> CheckPlan:
     """Plan the truth-free check (:func:`orthomvp.check.check_views`) of ``views`` ((image
     path, camera or camera path) pairs, at least 2, any band counts) on the DEM at path
-    ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid: every epsilon of
+    ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid (default
+    :func:`~orthomvp.engine.plan.auto_tile`): every epsilon of
     ``eps_values`` (DEM posts), NCC boxes of ``window`` posts (odd, 3..51), views labelled
     ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values`` and ``world`` as for
     :func:`~orthomvp.engine.plan_ortho`.
@@ -162,7 +163,7 @@ def plan_check(
     tile = check_tile(tile)
     eps, window, labels = check_options(len(views), eps_values, window, names)
     sources = tuple(image_source(image, camera) for image, camera in views)
-    source, sources, grid, jobs, reach, elevation = tile_grid(
+    source, sources, grid, jobs, reach, elevation, tile = tile_grid(
         dem,
         sources,
         tile=tile,

@@ -46,6 +46,7 @@ from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
     BASE_BYTES,
     MESH_BYTES,
+    TILE,
     WINDOW_BYTES,
     _sees,
     _union,
@@ -270,7 +271,7 @@ def plan_fit(
     views: Sequence[tuple[str | Path, str | Path | Camera]],
     options: FitOptions | None = None,
     *,
-    tile: int = 1024,
+    tile: int | None = None,
     eps: float | None = None,
     dem_crs: object | None = None,
     radius_values: bool = False,
@@ -279,7 +280,8 @@ def plan_fit(
 ) -> FitPlan:
     """Plan the MVP fit (:func:`orthomvp.mvp.fit_dem` with ``options``) of the DEM at path
     ``dem`` from ``views`` ((image path, camera or camera path) pairs, at least 2), in tiles
-    of ``tile`` x ``tile`` posts of the DEM's grid; ``eps`` (DEM posts), ``dem_crs``,
+    of ``tile`` x ``tile`` posts of the DEM's grid (default :data:`~orthomvp.engine.plan.TILE`:
+    a fit tile's margin is too wide for smaller ones); ``eps`` (DEM posts), ``dem_crs``,
     ``radius_values`` and ``world`` as for :func:`~orthomvp.engine.plan_ortho`.
 
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
@@ -288,7 +290,7 @@ def plan_fit(
     larger than the DEM.
     """
     opts = options or FitOptions()
-    tile = check_tile(tile)
+    tile = check_tile(tile) or TILE
     if eps is not None and not eps > 0:
         raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
     opts.window  # noqa: B018 - validates hwin and sigma

@@ -7,11 +7,13 @@ only the headers of the images; everything else is geometry on the tiles' perime
 
 from __future__ import annotations
 
+import math
+import os
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,6 +31,13 @@ from orthomvp.world import check_cameras_above, detect_world
 
 Box = tuple[float, float, float, float]
 """Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
+
+TILE = 1024
+"""Default tile side, posts."""
+
+SMALL_TILE = 256
+"""Smallest tile side :func:`auto_tile` chooses, posts: below it a tile's fixed costs (its mesh
+over the occluder halo, the mosaic's margin) outweigh the cores it keeps busy."""
 
 IMAGE_MARGIN = 2
 """Image pixels read beyond the outermost sampled positions (cubic interpolation needs 2)."""
@@ -269,7 +278,7 @@ def plan_ortho(
     dem: str | Path,
     views: Sequence[tuple[str | Path, str | Path | Camera]],
     *,
-    tile: int = 1024,
+    tile: int | None = None,
     res: tuple[float, float] | None = None,
     bounds: tuple[float, float, float, float] | None = None,
     crs: object | None = None,
@@ -287,7 +296,8 @@ def plan_ortho(
 
     The output grid is the DEM's, or ``res`` (x, y) and ``bounds`` (left, bottom, right, top)
     in the units of ``crs`` (default the DEM's; any CRS pyproj knows on the same body), cut
-    into tiles of ``tile`` x ``tile`` posts. ``occlusion``, ``eps`` (DEM posts) and ``interp``
+    into tiles of ``tile`` x ``tile`` posts (default :func:`auto_tile`: 1024, smaller on a grid
+    too small to give every core a tile). ``occlusion``, ``eps`` (DEM posts) and ``interp``
     are those of :func:`orthomvp.ortho.orthorectify`; ``dem_crs`` overrides the DEM file's
     CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
     :meth:`orthomvp.terrain.Terrain.read` and :func:`orthomvp.world.detect_world`.
@@ -310,7 +320,7 @@ def plan_ortho(
         raise InputError(f"mosaic must be MosaicOptions or None, got {type(mosaic).__name__}")
     mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else None
     margin = mosaic.margin if mosaic is not None else 0
-    source, sources, grid, jobs, reach, elevation = tile_grid(
+    source, sources, grid, jobs, reach, elevation, tile = tile_grid(
         dem,
         sources,
         tile=tile,
@@ -353,18 +363,43 @@ def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
     return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
 
 
-def check_tile(tile: object) -> int:
-    """``tile`` (posts a side) as an int; InputError unless an integer of at least 2."""
+def auto_tile(shape: tuple[int, int], cores: int | None = None) -> int:
+    """The default tile side for a grid of ``shape`` (rows, cols): :data:`TILE`, or on a grid
+    too small to give each of the ``cores`` (default: this machine's) a tile, its longer side
+    split among them, at least :data:`SMALL_TILE` posts."""
+    cores = cores or os.cpu_count() or 1
+    return min(TILE, max(SMALL_TILE, math.ceil(max(shape) / cores)))
+
+
+def check_tile(tile: object) -> int | None:
+    """``tile`` (posts a side) as an int, or None (:func:`auto_tile`); InputError unless an
+    integer of at least 2 or None."""
+    if tile is None:
+        return None
     if isinstance(tile, bool) or not isinstance(tile, int | np.integer) or tile < 2:
-        raise InputError(f"tile must be an integer of at least 2 posts, got {tile!r}")
+        raise InputError(f"tile must be an integer of at least 2 posts or None, got {tile!r}")
     return int(tile)
+
+
+class TiledGrid(NamedTuple):
+    """What :func:`tile_grid` gives: the DEM source, the views, the output grid, the tiles'
+    jobs, per view the farthest occluder track (DEM posts) and the lowest line of sight
+    (degrees), and the tile side (posts)."""
+
+    source: DemSource
+    sources: tuple[ImageSource, ...]
+    grid: OutputGrid
+    jobs: list[TileJob]
+    reach: list[float]
+    elevation: list[float]
+    tile: int
 
 
 def tile_grid(
     dem: str | Path,
     sources: Sequence[ImageSource],
     *,
-    tile: int,
+    tile: int | None,
     occlusion: bool,
     margin: int,
     dem_crs: object | None,
@@ -374,15 +409,15 @@ def tile_grid(
     res: tuple[float, float] | None = None,
     bounds: tuple[float, float, float, float] | None = None,
     crs: object | None = None,
-) -> tuple[DemSource, tuple[ImageSource, ...], OutputGrid, list[TileJob], list[float], list[float]]:
+) -> TiledGrid:
     """What every engine plan starts with: the DEM and views (:func:`read_source`), the output
-    grid (the DEM's, or ``res``, ``bounds``, ``crs``), and its tiles of ``tile`` posts, each
-    with ``margin`` posts around it, its DEM window (with the occluder halo when
-    ``occlusion``) and its image boxes (:func:`plan_tiles`), checked (:func:`check_plan`).
-    Returns the DEM source, the views, the grid, the tiles' jobs, and per view the farthest
-    occluder track and the lowest line of sight."""
+    grid (the DEM's, or ``res``, ``bounds``, ``crs``), and its tiles of ``tile`` posts (None:
+    :func:`auto_tile`), each with ``margin`` posts around it, its DEM window (with the occluder
+    halo when ``occlusion``) and its image boxes (:func:`plan_tiles`), checked
+    (:func:`check_plan`)."""
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
     grid = output_grid(source, res, bounds, crs)
+    tile = auto_tile(grid.shape) if tile is None else tile
     to_dem = grid_to_dem(grid, source)
     jobs, boxes, reach, elevation = plan_tiles(
         grid.tiles(tile),
@@ -392,7 +427,7 @@ def tile_grid(
     )
     seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
     check_plan(source, sources, boxes, seen, reach, elevation)
-    return source, sources, grid, jobs, reach, elevation
+    return TiledGrid(source, sources, grid, jobs, reach, elevation, tile)
 
 
 def read_source(

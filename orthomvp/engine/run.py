@@ -319,8 +319,8 @@ def run_plan(
     tile ``threads // tiles`` threads when there are fewer tiles than threads.
 
     A mosaic plan with blending or balancing first runs its survey
-    (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap, on a
-    decimated grid.
+    (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap of the
+    images' footprints, on a decimated grid.
 
     Raises InputError before any work when the expected peak memory exceeds what is available,
     GeometryError (and writes nothing) when an image sees no post of the grid or only posts facing
@@ -333,10 +333,11 @@ def run_plan(
     if plan.mosaic is not None and kinds - {"visibility"}:
         if plan.mosaic.balance is not None or plan.mosaic.blend:
 
-            def run_survey(coarse: Plan, todo: list[int]) -> Iterator[TileResult]:
+            def run_survey(
+                coarse: Plan, todo: list[int], kinds: frozenset[str]
+            ) -> Iterator[TileResult]:
                 with executor(coarse, run_tile, workers, processes, client) as (submit, wait):
-                    stack = frozenset({"stack"})
-                    yield from results(submit, wait, todo, (stack, 1), workers)
+                    yield from results(submit, wait, todo, (kinds, 1), workers)
 
             plan = survey(plan, run_survey)
     n = len(plan.views)

@@ -1,8 +1,9 @@
-"""The mosaic's survey, before its tiles: every view's samples and codes on a decimated copy
-of the output grid (at most :data:`SURVEY_POSTS` posts a side, so memory is bounded whatever
-the grid), for the radiometric balance (overlap statistics,
-:func:`orthomvp.mosaic.solve_balance`) and the widest overlap (the blend width is clamped to it,
-with a :class:`~orthomvp.mosaic.BlendWarning`).
+"""The mosaic's survey, before its tiles, on a decimated copy of the output grid (at most
+:data:`SURVEY_POSTS` posts a side, so memory is bounded whatever the grid): every view's samples
+and codes for the radiometric balance (overlap statistics, :func:`orthomvp.mosaic.solve_balance`),
+and the widest overlap of the images' footprints (the blend width is clamped to it, with a
+:class:`~orthomvp.mosaic.BlendWarning`). Without a balance only the footprints are needed: the
+survey then casts no rays and samples no image.
 """
 
 from __future__ import annotations
@@ -18,15 +19,21 @@ from orthomvp.engine.plan import Plan, _grid_spacing, _job, plan_tiles
 from orthomvp.mosaic import clamp_blend, overlap_width, pair_stats, solve_balance
 
 SURVEY_POSTS = 512
-"""Posts along the longer side of the survey grid (at most)."""
+"""Posts along the longer side of the survey grid for a balance (at most)."""
+
+FOOTPRINT_POSTS = 128
+"""Posts along the longer side of the survey grid without a balance (at most): the widest
+overlap is then known to within the survey's step, a fraction of a percent of the grid."""
 
 
 def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
     """The plan of the survey: the output grid decimated by a whole step (the posts every
-    ``step`` posts, about; the grid itself when it fits), uncomposed; and the step."""
+    ``step`` posts, about; the grid itself when it fits), uncomposed, without occlusion unless
+    the balance needs it; and the step."""
     assert plan.mosaic is not None
+    balance = plan.mosaic.balance is not None
     rows, cols = plan.grid.shape
-    step = max(1, math.ceil(max(rows, cols) / SURVEY_POSTS))
+    step = max(1, math.ceil(max(rows, cols) / (SURVEY_POSTS if balance else FOOTPRINT_POSTS)))
     grid, post_scale = plan.grid, plan.post_scale
     if step > 1:
         t = plan.grid.transform
@@ -45,28 +52,39 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
     )
     plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, fill="none")
     coarse = replace(
-        plan, grid=grid, tiles=tuple(jobs), post_scale=post_scale, mosaic=plain, correction=None
+        plan,
+        grid=grid,
+        tiles=tuple(jobs),
+        post_scale=post_scale,
+        mosaic=plain,
+        correction=None,
+        occlusion=plan.occlusion and balance,
     )
     return coarse, step
 
 
 def survey(plan: Plan, run: Any) -> Plan:
     """``plan`` ready to run: with the radiometric correction its options ask for, and the
-    blend width clamped to the widest overlap (warning). ``run(plan, jobs)`` runs the survey
-    plan's tiles (kind "stack") and yields their results."""
+    blend width clamped to the widest overlap (warning). ``run(plan, jobs, kinds)`` runs the
+    survey plan's tiles for the outputs ``kinds`` (samples and codes, "stack", for a balance;
+    else the codes alone, "visibility") and yields their results."""
     options = plan.mosaic
     assert options is not None
     coarse, step = survey_plan(plan)
     n, bands = len(plan.views), plan.bands
     rows, cols = coarse.grid.shape
-    values = np.full((n, bands, rows, cols), np.nan, np.float32)
+    balance = options.balance is not None
+    values = np.full((n, bands, rows, cols), np.nan, np.float32) if balance else None
     codes = np.zeros((n, rows, cols), np.uint8)
-    for result in run(coarse, [job.index for job in coarse.tiles if job.views]):
-        if result.stack is not None:
-            r0, r1, c0, c1 = result.window
+    kinds = frozenset({"stack" if balance else "visibility"})
+    for result in run(coarse, [job.index for job in coarse.tiles if job.views], kinds):
+        r0, r1, c0, c1 = result.window
+        if values is not None and result.stack is not None:
             values[:, :, r0:r1, c0:c1], codes[:, r0:r1, c0:c1] = result.stack
+        elif result.codes is not None:
+            codes[:, r0:r1, c0:c1] = result.codes
     correction = plan.correction
-    if options.balance is not None:
+    if balance:
         stats = pair_stats(values, codes)
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes, step))
