@@ -51,6 +51,7 @@ def test_synthetic_case_is_an_aerial_map_frame_scene(tmp_path: Path) -> None:
     terrain = Terrain.read(case.dem)
     assert terrain.crs.is_projected and terrain.shape == (508, 327)
     assert read_image(case.image).shape == (3, 1152, 640)
+    assert len(case.frames) == 2 and case.frames[0] == case.image
     camera = read_camera(case.exterior, case.image)
     assert detect_world(terrain, camera.center[None]) == "map"
 
@@ -75,6 +76,11 @@ def test_bench_orthority_figures_are_consistent(
         assert row[name] > 0
     assert row["cli_ratio"] == pytest.approx(row["orthomvp_cli_s"] / row["orthority_cli_s"])
     assert row["cli_equals_api"]  # the command line writes what the engine does in process
+    assert row["mosaic_frames"] == 2 and row["orthomvp_mosaic_cli_s"] > 0
+    ratio = row["orthomvp_mosaic_cli_s"] / row["orthority_mosaic_cli_s"]
+    assert row["mosaic_cli_ratio"] == pytest.approx(ratio) and "mosaic" in text
+    rows, cols = row["mosaic_grid"]
+    assert rows * cols > row["posts"]  # the union of both frames' grids
     steps = row["orthomvp_steps_s"]
     assert tuple(steps) == bench.RUN_STEPS
     assert sum(steps.values()) == pytest.approx(row["orthomvp_s"], rel=0.05)

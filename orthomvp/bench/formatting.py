@@ -92,5 +92,19 @@ def format_orthority(row: dict) -> str:
             + ", ".join(f"{k} {v:.3f} s" for k, v in row["orthomvp_steps_s"].items()),
             f"ratio = orthomvp time / Orthority time, same run; largest difference of the two "
             f"orthophotos where both have data: {row['max_abs_diff']:.3g}",
+            *(_mosaic_lines(row) if "mosaic_cli_ratio" in row else []),
         ]
     )
+
+
+def _mosaic_lines(row: dict) -> list[str]:
+    """The mosaic part of :func:`format_orthority`."""
+    rows, cols = row["mosaic_grid"]
+    n = row["mosaic_frames"]
+    return [
+        f"all {n} frames, whole processes: orthomvp's mosaic ({cols} x {rows} posts) against "
+        f"Orthority's {n} orthophotos (one oty frame process)",
+        f"  Orthority:                  {row['orthority_mosaic_cli_s']:7.3f} s",
+        f"  orthomvp mosaic:            {row['orthomvp_mosaic_cli_s']:7.3f} s, ratio "
+        f"{row['mosaic_cli_ratio']:5.2f}",
+    ]

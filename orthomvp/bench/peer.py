@@ -1,5 +1,7 @@
 """Side by side with Orthority (``orthomvp bench --peer orthority``): the same frame onto the
-same grid by both tools, end to end from files to a float32 GeoTIFF with overviews, bilinear.
+same grid by both tools, end to end from files to a float32 GeoTIFF with overviews, bilinear;
+and every frame of the survey, as orthomvp's one mosaic against Orthority's orthophotos of each
+frame (one ``oty frame`` process).
 
 Each tool writes its own default format for float32: Orthority a tiled GeoTIFF with deflate
 (GDAL's level 6) and internal overviews (``--build-ovw``, its default); orthomvp a
@@ -63,13 +65,16 @@ def import_orthority() -> ModuleType:
 class PeerCase:
     """One frame as files both tools read: a DEM GeoTIFF whose CRS is the horizontal part of
     the original (so that Orthority needs no geoid grid: both tools take the DEM values as the
-    cameras' z, metres), the image, and Orthority's interior (YAML) and exterior (CSV) files."""
+    cameras' z, metres), the image, and Orthority's interior (YAML) and exterior (CSV) files
+    (which also hold the other ``frames`` of the survey, the image among them; none: the image
+    alone)."""
 
     name: str
     dem: Path
     image: Path
     interior: Path
     exterior: Path
+    frames: tuple[Path, ...] = ()
 
 
 def horizontal_dem(src: Path, dst: Path) -> Path:
@@ -94,6 +99,7 @@ def ngi_case(data_dir: Path, workdir: Path) -> PeerCase:
         data_dir / f"{PEER_IMAGE}.tif",
         params / "ngi_int_param.yaml",
         params / "ngi_xyz_opk.csv",
+        tuple(sorted(data_dir.glob("*_RGB.tif"))),
     )
 
 
@@ -101,7 +107,7 @@ def synthetic_case(workdir: Path, seed: int = 0) -> PeerCase:
     """A stand-in for :func:`ngi_case` when the real data is absent: rolling hills (149..781 m
     like the real DEM) on 327 x 508 posts 24 m apart in the ngi DEM's transverse Mercator, a
     640 x 1152 RGB noise image, and the same interior parameters (120 mm lens, 833 px) flown
-    5 km up, slightly tilted."""
+    5 km up, slightly tilted; a second frame (its own noise) 1.5 km north for the mosaic."""
     rows, cols, step = 508, 327, 24.0
     r, c = np.mgrid[0:rows, 0:cols].astype(np.float64)
     z = 465 + 220 * np.sin(c / 23.0) * np.cos(r / 37.0) + 90 * np.sin((c + r) / 9.0)
@@ -109,10 +115,11 @@ def synthetic_case(workdir: Path, seed: int = 0) -> PeerCase:
     dem = workdir / "dem.tif"
     write_geotiff(dem, z.astype(np.float32), transform, SYNTHETIC_PEER_CRS, nodata=np.nan)
     rng = np.random.default_rng(seed)
-    pixels = gaussian_filter(rng.random((3, 1152, 640)), (0, 1.5, 1.5))
-    pixels = np.clip((pixels - pixels.mean()) * 1200 + 128, 0, 255).astype(np.uint8)
-    image = workdir / "synthetic.tif"
-    write_geotiff(image, pixels, Affine.identity(), None)
+    frames = (workdir / "synthetic.tif", workdir / "synthetic2.tif")
+    for frame in frames:
+        pixels = gaussian_filter(rng.random((3, 1152, 640)), (0, 1.5, 1.5))
+        pixels = np.clip((pixels - pixels.mean()) * 1200 + 128, 0, 255).astype(np.uint8)
+        write_geotiff(frame, pixels, Affine.identity(), None)
     interior, exterior = workdir / "int_param.yaml", workdir / "xyz_opk.csv"
     interior.write_text(
         "synthetic:\n  type: pinhole\n  im_size: [640, 1152]\n  focal_len: 120.0\n"
@@ -120,8 +127,9 @@ def synthetic_case(workdir: Path, seed: int = 0) -> PeerCase:
     )
     exterior.write_text(
         "filename,x,y,z,omega,phi,kappa\nsynthetic,-56530.0,-3729600.0,5300.0,1.2,-0.8,-179.0\n"
+        "synthetic2,-56530.0,-3728100.0,5300.0,-0.6,0.9,-179.0\n"
     )
-    return PeerCase("synthetic hills", dem, image, interior, exterior)
+    return PeerCase("synthetic hills", dem, frames[0], interior, exterior, frames)
 
 
 def run_orthority(case: PeerCase, out: Path, res: float) -> None:
@@ -170,6 +178,18 @@ def run_orthomvp(
     return {"plan": t1 - t0, "run": time.perf_counter() - t1}
 
 
+def _orthority_args(case: PeerCase, res: float) -> list[str]:
+    """``oty frame`` with ``case``'s DEM (its CRS as the world CRS) and camera files at
+    ``res`` metres, bilinear image and DEM interpolation, float32, deflate, overviews; from
+    its console entry point's own function."""
+    oty = "import sys; from orthority.cli import cli; sys.exit(cli())"
+    return [
+        *(sys.executable, "-c", oty, "frame", "--dem", str(case.dem), "-c", str(case.dem)),
+        *("-ip", str(case.interior), "-ep", str(case.exterior), "--res", str(res)),
+        *("-i", "bilinear", "-di", "bilinear", "-dt", "float32", "-cm", "deflate", "-bo"),
+    ]
+
+
 def command_lines(
     case: PeerCase, folder: Path, res: float, bounds: tuple[float, ...]
 ) -> dict[str, list[str]]:
@@ -178,20 +198,39 @@ def command_lines(
     onto the grid of Orthority's output (``res``, ``bounds``), each writing into ``folder``;
     Orthority takes the DEM's CRS as its world CRS, as in process. Orthority runs from its console
     entry point's own function."""
-    oty = "import sys; from orthority.cli import cli; sys.exit(cli())"
     ours = [sys.executable, "-m", "orthomvp", "-q", "ortho", str(case.dem), str(case.image)]
     ours += [str(case.exterior), "--res", str(res), str(res), "--bounds"]
     ours += [str(b) for b in bounds]
     return {
         "orthority_cli_s": [
-            *(sys.executable, "-c", oty, "frame", "--dem", str(case.dem), "-c", str(case.dem)),
-            *("-ip", str(case.interior), "-ep", str(case.exterior), "--res", str(res)),
-            *("-i", "bilinear", "-di", "bilinear", "-dt", "float32", "-cm", "deflate", "-bo"),
+            *_orthority_args(case, res),
             *("-od", str(folder), "-o", str(case.image)),
         ],
         "orthomvp_cli_s": [*ours, "-o", str(folder / "ours-cli.tif")],
         "orthomvp_naive_cli_s": [*ours, "--no-occlusion", "-o", str(folder / "naive-cli.tif")],
     }
+
+
+def mosaic_command_lines(case: PeerCase, folder: Path, res: float) -> dict[str, list[str]]:
+    """The whole-process runs over every frame of ``case``: ``oty frame`` with all of them (one
+    orthophoto per frame, options as in :func:`command_lines`) into ``folder``/oty, and
+    ``orthomvp mosaic`` of all of them at ``res`` onto the union of Orthority's outputs (read
+    from ``folder``/oty, so Orthority's command runs first) into ``folder``/mosaic.tif."""
+    oty = _orthority_args(case, res) + ["-od", str(folder / "oty"), "-o", *map(str, case.frames)]
+    lines = {"orthority_mosaic_cli_s": oty}
+    (folder / "oty").mkdir(parents=True, exist_ok=True)
+    run_command(oty)
+    boxes = []
+    for frame in case.frames:
+        with open_raster(folder / "oty" / f"{frame.stem}_ORTHO.tif") as ds:
+            boxes.append(tuple(ds.bounds))
+    union = (*np.min(boxes, axis=0)[:2], *np.max(boxes, axis=0)[2:])
+    ours = [sys.executable, "-m", "orthomvp", "-q", "mosaic", str(case.dem)]
+    for frame in case.frames:
+        ours += [str(frame), str(case.exterior)]
+    ours += ["--res", str(res), str(res), "--bounds", *(f"{b:.6f}" for b in union)]
+    lines["orthomvp_mosaic_cli_s"] = [*ours, "-o", str(folder / "mosaic.tif")]
+    return lines
 
 
 def run_command(args: list[str]) -> None:
@@ -211,7 +250,8 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
     per CPU; orthomvp: the engine's tiles on one thread per core). Measured two ways, each
     alternating its runs ``repeat`` times after an untimed warm-up and keeping the best: in this
     process (both libraries imported) and as whole processes from the command line, start-up and
-    imports included (what a user times)."""
+    imports included (what a user times). With several frames also the mosaic of all of them
+    against Orthority's orthophoto of each, whole processes (:func:`mosaic_command_lines`)."""
     import_orthority()
     with open_raster(case.dem) as dem:
         dem_res = abs(dem.transform.a)
@@ -227,8 +267,11 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
             "orthomvp_s": lambda: run_orthomvp(case, ours, res, bounds, True),
             "orthomvp_naive_s": lambda: run_orthomvp(case, naive, res, bounds, False),
         }
-        lines = command_lines(case, folder / "cli", res, bounds)
         (folder / "cli").mkdir()
+        lines = command_lines(case, folder / "cli", res, bounds)
+        mosaic = len(case.frames) > 1
+        if mosaic:
+            lines |= mosaic_command_lines(case, folder / "mosaic", res)
         for key, args in lines.items():
             runs[key] = lambda args=args: run_command(args)
         for fn in runs.values():  # warm-up: caches, compiled bytecode
@@ -245,6 +288,14 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
                         steps = result
         a, b = read_image(ours), read_image(theirs)
         same_cli = np.array_equal(read_image(folder / "cli" / "ours-cli.tif"), a, equal_nan=True)
+        extra: dict[str, object] = {}
+        if mosaic:
+            with open_raster(folder / "mosaic" / "mosaic.tif") as ds:
+                extra["mosaic_grid"] = list(ds.shape)
+            extra["mosaic_frames"] = len(case.frames)
+            extra["mosaic_cli_ratio"] = (
+                best["orthomvp_mosaic_cli_s"] / best["orthority_mosaic_cli_s"]
+            )
     if a.shape != b.shape:
         raise RuntimeError(f"output grids differ: orthomvp {a.shape}, orthority {b.shape}")
     both = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0)
@@ -264,4 +315,5 @@ def bench_orthority(case: PeerCase, res: float | None = None, repeat: int = 3) -
         "cli_naive_ratio": best["orthomvp_naive_cli_s"] / best["orthority_cli_s"],
         "cli_equals_api": bool(same_cli),
         "max_abs_diff": float(np.abs(a[:, both] - b[:, both]).max()),
+        **extra,
     }
