@@ -21,10 +21,8 @@ import contextlib
 import errno
 import itertools
 import os
-import secrets
 import shutil
 import signal
-import socket
 import sys
 import threading
 import warnings
@@ -41,13 +39,12 @@ from rasterio._err import CPLE_BaseError
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from orthomvp.errors import InputError, OrthoMVPError, OutputError
-from orthomvp.isis import read_cube
 
 SIGNALS_HELD = (signal.SIGINT, signal.SIGTERM)
 """The signals that :class:`HeldSignals` holds (Ctrl-C, and ``timeout``'s or a scheduler's)."""
 TEMP_TAG = "orthomvp"
 """Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME."""
-_HOST = f"{zlib.crc32(socket.gethostname().encode()):08x}"
+_HOST = f"{zlib.crc32(os.uname().nodename.encode()):08x}"
 _CAUSES = {
     errno.ENOSPC: "no space left on device",
     errno.EDQUOT: "disk quota exceeded",
@@ -167,7 +164,7 @@ def remove_temporaries() -> None:
 def temp_name(path: Path, tag: str = "") -> Path:
     """A new temporary name beside ``path`` that :func:`remove_stale` recognises: hidden, with
     this process's id and machine, ending as ``path`` does (``tag`` before the suffix)."""
-    token = secrets.token_hex(4)
+    token = os.urandom(4).hex()
     name = f".{path.name}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{path.suffix}"
     return path.with_name(name)
 
@@ -481,6 +478,8 @@ def read_image(path: str | Path) -> np.ndarray:
     everything else (GeoTIFF/TIFF of any dtype and band count, PNG, JPEG, ...) by rasterio.
     """
     if isinstance(path, (str, os.PathLike)) and Path(path).suffix.lower() == ".cub":
+        from orthomvp.isis import read_cube  # pvl, only for cubes
+
         return read_cube(path)
     with open_raster(path) as src:
         try:

@@ -22,7 +22,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from affine import Affine
-from tqdm import tqdm
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
 from orthomvp.codes import Code, WorldFrame, classify
@@ -135,11 +134,14 @@ def run_tiles(
     """Call ``work`` on every tile of a grid of ``shape`` in a thread pool (numpy, OpenCV and
     Embree release the GIL), with a progress bar over tiles when asked."""
     tiles = grid_tiles(shape, tile)
-    bar = tqdm(total=len(tiles), desc=desc, unit="tile", disable=not progress or None)
     with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
-        for _ in pool.map(work, tiles):
-            bar.update()
-    bar.close()
+        done = pool.map(work, tiles)
+        if progress:
+            from tqdm import tqdm
+
+            done = tqdm(done, total=len(tiles), desc=desc, unit="tile", disable=None)
+        for _ in done:
+            pass
 
 
 def _tile_normals(terrain: Terrain, rs: slice, cs: slice) -> tuple[np.ndarray, np.ndarray]:

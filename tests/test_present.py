@@ -51,18 +51,29 @@ def test_core_modules_import_no_heavy_library() -> None:
     assert out.stdout.strip() == "[]"
 
 
-ORTHO_PATH_SPARE = (*HEAVY, "scipy", "embreex", "orthomvp.mvp", "orthomvp.engine.fit")
-"""What an orthophoto run never loads: the heavy libraries, scipy at all, embreex's Python
-modules (only its Embree library), and the MVP fit."""
+ORTHO_PATH_SPARE = (
+    *HEAVY,
+    *("scipy", "embreex", "orthomvp.mvp", "orthomvp.engine.fit"),
+    *("orthomvp.camera.csm", "orthomvp.isis", "pvl", "yaml", "tqdm", "multiprocessing"),
+)
+"""What a quiet orthophoto or mosaic run from ``.tsai`` cameras never loads: the heavy
+libraries, scipy at all, embreex's Python modules (only its Embree library), the MVP fit, the
+other camera formats' models and parsers, the progress bar, and process pools."""
 
 
-def test_orthophoto_run_loads_no_heavy_module(crater_dir: Path, tmp_path: Path) -> None:
-    """The whole `orthomvp ortho` command, occlusion on, in a fresh process."""
+@pytest.mark.parametrize("command", ["ortho", "mosaic"])
+def test_orthophoto_run_loads_no_heavy_module(
+    crater_dir: Path, tmp_path: Path, command: str
+) -> None:
+    """The whole `orthomvp ortho` (or `mosaic` of two views) command, occlusion on, in a
+    fresh process."""
     d = crater_dir
-    args = [str(d / "dem.tif"), str(d / "oblique.tif"), str(d / "oblique.tsai")]
+    views = ("oblique", "nadir") if command == "mosaic" else ("oblique",)
+    args = [str(d / "dem.tif"), *(str(d / f"{v}.{e}") for v in views for e in ("tif", "tsai"))]
+    out_path = str(tmp_path / "o.tif")
     code = (
         "import sys; from orthomvp.cli import main; "
-        f"assert main(['--quiet', 'ortho', *{args!r}, '-o', {str(tmp_path / 'o.tif')!r}]) == 0; "
+        f"assert main(['--quiet', {command!r}, *{args!r}, '-o', {out_path!r}]) == 0; "
         f"print([m for m in {ORTHO_PATH_SPARE!r} if m in sys.modules])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

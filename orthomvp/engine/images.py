@@ -14,7 +14,6 @@ from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
-from orthomvp.isis import cube_layout, read_label
 from orthomvp.raster import open_raster
 
 
@@ -49,6 +48,8 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     header alone: no pixel is read."""
     path = Path(image)
     if path.suffix.lower() == ".cub":
+        from orthomvp.isis import cube_layout, read_label  # pvl, only for cubes
+
         layout = cube_layout(path, read_label(path))
         bands, rows, cols = layout.bands, layout.lines, layout.samples
     else:
@@ -66,6 +67,8 @@ def _read_cube_window(
     """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
     map of its pixels (see :func:`orthomvp.isis.read_cube` for the layout and the special
     pixels)."""
+    from orthomvp.isis import cube_layout, read_label
+
     layout = cube_layout(path, read_label(path))
     r0, r1, c0, c1 = window
     ts, tl = layout.tile_samples, layout.tile_lines

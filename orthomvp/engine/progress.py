@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
-from tqdm import tqdm
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 LOG_EVERY = 0.1
 LOG_SECONDS = 30.0
@@ -29,6 +31,8 @@ class Progress:
         self._start = time.monotonic()
         self._logged = (-1.0, self._start)
         if enabled and sys.stderr.isatty():
+            from tqdm import tqdm  # only for a bar on a terminal
+
             self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr)
 
     def __enter__(self) -> Progress:

@@ -11,11 +11,9 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import importlib
-import multiprocessing
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -136,6 +134,8 @@ def executor(
             client.cancel([shared])
         return
     if processes:
+        import multiprocessing
+
         ctx = multiprocessing.get_context("spawn")
         pool: cf.Executor = cf.ProcessPoolExecutor(
             processes, mp_context=ctx, initializer=_worker_init, initargs=(plan,)
@@ -263,7 +263,7 @@ def _identity(value: Any) -> Any:
 def _died(exc: BaseException) -> bool:
     """Whether ``exc`` says that a worker died under a tile (Dask's KilledWorker after its
     retries, or a future cancelled because the data it needed died with a worker)."""
-    if isinstance(exc, BrokenProcessPool):
+    if isinstance(exc, cf.BrokenExecutor):  # a process pool whose worker died
         return True
     return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")
 

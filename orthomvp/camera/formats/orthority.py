@@ -17,9 +17,9 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import yaml
 
 from orthomvp.camera.distortion import (
     Distortion,
@@ -39,6 +39,9 @@ from orthomvp.camera.formats._common import (
 )
 from orthomvp.camera.model import PinholeCamera
 from orthomvp.errors import FormatError, InputError
+
+if TYPE_CHECKING:
+    import yaml
 
 _ORTHORITY_MODELS: dict[str, tuple[str, ...]] = {
     "pinhole": (),
@@ -204,6 +207,8 @@ file, whose interior file lies beside it or is given, and an interior file alone
 
 def _read_interior(path: Path) -> dict[str, Interior]:
     """The cameras of an Orthority interior parameter (YAML) file, by camera id."""
+    import yaml
+
     loader = yaml.SafeLoader(decode_text(path, read_bytes(path, "interior parameter file")))
     try:
         root = loader.get_single_node()
@@ -234,6 +239,8 @@ def _read_interior(path: Path) -> dict[str, Interior]:
 def _yaml_items(path: Path, node: yaml.MappingNode) -> list[tuple[str, int, yaml.Node]]:
     """(key, 1-based line of the key, value node) of a YAML mapping; keys as written in the
     file (``1`` is the id "1"). FormatError on a key that is not a scalar or is given twice."""
+    import yaml
+
     items: list[tuple[str, int, yaml.Node]] = []
     for key, value in node.value:
         line = key.start_mark.line + 1

@@ -26,7 +26,6 @@ import warnings
 from pathlib import Path
 
 import rasterio
-import yaml
 from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from orthomvp.camera.formats._common import CameraFile, CameraFormat, number
@@ -181,6 +180,8 @@ def read_rpb(file: CameraFile) -> RpcCamera:
 def read_orthority_rpc(file: CameraFile) -> RpcCamera:
     """The RPC camera of ``file.image`` (by stem) in Orthority's RPC parameter YAML file;
     without an image, the file must hold one camera."""
+    import yaml
+
     path = file.path
     try:
         root = yaml.safe_load(file.text)
