@@ -516,3 +516,30 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
     view = [(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")]
     plan = plan_ortho(crater_dir / "dem.tif", view, progress=False)
     assert plan.tile == auto_tile(plan.grid.shape) and len(plan.tiles) == 1
+
+
+@pytest.mark.parametrize("views", [("oblique",), ("oblique", "nadir")])
+def test_a_tile_leaves_no_reference_cycles(crater_dir: Path, views: tuple[str, ...]) -> None:
+    """An ortho or mosaic tile's arrays go back when its result is dropped, without a garbage
+    collection (the engine runs none after a tile): no array is left in a reference cycle."""
+    import gc
+
+    from orthomvp.engine.tile import run_tile
+
+    pairs = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in views]
+    plan = plan_ortho(crater_dir / "dem.tif", pairs, tile=32, progress=False)
+    run_tile(plan, 0, frozenset({"ortho", "source"}))  # first calls: caches, lazy imports
+    gc.collect()
+    gc.disable()
+    try:
+        gc.set_debug(gc.DEBUG_SAVEALL)  # keep what a collection finds, to look at
+        for job in plan.tiles:
+            result = run_tile(plan, job.index, frozenset({"ortho", "source", "visibility"}))
+            del result
+            gc.collect()
+            assert not [o for o in gc.garbage if isinstance(o, np.ndarray)], job.index
+            gc.garbage.clear()
+    finally:
+        gc.set_debug(0)
+        gc.garbage.clear()
+        gc.enable()

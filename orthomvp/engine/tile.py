@@ -28,8 +28,6 @@ from orthomvp.terrain import Terrain
 from orthomvp.vectors import column_range, finite_rows
 from orthomvp.visibility import FUSED_POSTS, Visibility, compute_visibility, occluder_caster
 
-"""DEM window posts from which a tile ends with a full garbage collection (see run_tile)."""
-
 
 @dataclass
 class TileResult:
