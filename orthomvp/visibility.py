@@ -24,26 +24,20 @@ import numpy as np
 from affine import Affine
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
-from orthomvp.codes import Code, WorldFrame, classify
+from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
+from orthomvp.post_geometry import PostGeometry, general, separable, separable_applies
 from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain, grid_normals, perimeter
+from orthomvp.terrain import Terrain, perimeter
 from orthomvp.validate import number, of_type
-from orthomvp.vectors import finite_rows
 from orthomvp.world import check_cameras_above
 
 TILE = 512
 VISIBILITY_BYTES_PER_POST = 160
 """Peak memory of the visibility test per post (its per-post results, the grid's world
 points and normals, resampling temporaries; about 80 measured), bytes."""
-FUSED_POSTS = 1 << 22
-"""Grids with at least this many posts (4.2 million) take :mod:`orthomvp.frame_kernel` where it
-applies. A process pays 0.5 s for it (importing numba 0.2 s, loading the compiled kernel from
-numba's cache 0.3 s), and it saves about 0.11 s per million posts on this 2-core machine, so
-it pays from about 4.4 million posts (measured whole process on ngi-aerial: 3 million posts
-0.18 s slower with it, 12 million 0.88 s faster)."""
 EPS_FLOOR = 3.0
 EPS_GSD_FACTOR = 1.0
 
@@ -144,18 +138,6 @@ def run_tiles(
             pass
 
 
-def _tile_normals(terrain: Terrain, rs: slice, cs: slice) -> tuple[np.ndarray, np.ndarray]:
-    """World points and unit outward normals of the posts in one tile (one-post halo)."""
-    rows, cols = terrain.shape
-    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
-    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
-    r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
-    p = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
-    n = grid_normals(p, terrain.up_vectors(p))
-    inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
-    return p[inner], n[inner]
-
-
 def compute_visibility(
     terrain: Terrain,
     camera: Camera,
@@ -169,7 +151,7 @@ def compute_visibility(
     spacing: float | None = None,
     strict: bool = True,
     dem: Terrain | None = None,
-    fused: bool | None = None,
+    fast: bool = True,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -195,10 +177,10 @@ def compute_visibility(
     no ghost appears at a boundary; it makes the rays cast scale with the DEM's posts, not the
     output grid's.
 
-    ``fused``: compute each post's geometry in one numba kernel (:mod:`orthomvp.frame_kernel`)
-    where it applies (a frame camera without lens distortion, the map world frame, a DEM in the
-    grid's CRS); None: on grids of at least :data:`~orthomvp.frame_kernel.FUSED_POSTS` posts.
-    The codes are the numpy path's; positions agree to the last bits of float64.
+    ``fast``: where it applies (a frame camera without lens distortion, the map world frame, a
+    DEM in the grid's CRS), compute each post's geometry from the grid's row and column terms
+    (:func:`orthomvp.post_geometry.separable`); the codes are those of the general path
+    (``fast=False``), the positions agree to the last bits of float64.
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
@@ -229,54 +211,36 @@ def compute_visibility(
     if dem is not None and occlusion and post_scale < 1:
         of_type(dem, Terrain, "dem")
         carry = _DemCodes.of(terrain, dem, camera, eps, caster, threads, spacing)
-
-    kernel = _fused_frame(terrain, camera, carry, fused)
+    fast = (
+        fast
+        and separable_applies(terrain, camera)
+        and (carry is None or carry.dem.crs == terrain.crs)
+    )
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
-        if kernel is not None:
-            t_codes, t_uv, t_emission, t_gsd, facing_gsd, cast = kernel(rs, cs, occlusion)
-            pc = None
-            if cast.any():
-                r, c = np.nonzero(cast)
-                r, c = r + rs.start, c + cs.start
-                pc = terrain.to_world(c.astype(float), r.astype(float), terrain.values[r, c])
-            finish(rs, cs, t_codes, t_uv, t_emission, t_gsd, facing_gsd, cast, pc, None)
-            return
-        p, n = _tile_normals(terrain, rs, cs)
-        ok = finite_rows(p) & finite_rows(n)
-        t_uv, depth = camera.project(p)
-        inside = ok & (depth > 0) & camera.in_image(t_uv)
-        if fixed_origin is not None:  # the same for every pixel (frame cameras)
-            origin = np.broadcast_to(fixed_origin, p.shape)
-        else:  # where each post is imaged from (NaN where it is not imaged)
-            origin = camera.origins(np.where(inside[..., None], t_uv, np.nan))
-        to_cam = origin - p
-        x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]  # (einsum over 3: 3x slower)
-        with np.errstate(invalid="ignore"):
-            cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
-        facing_gsd = camera.gsd(p)
-        t_gsd = facing_gsd / np.maximum(cos_e, 0.1)
-        facing = cos_e > 0
-        cast = inside & facing & occlusion
+        g = separable(terrain, camera, rs, cs) if fast else general(terrain, camera, rs, cs)
+        t_gsd = g.facing_gsd / np.maximum(g.cos_e, 0.1)
+        facing = g.cos_e > 0
+        cast = g.inside & facing & occlusion
         t_codes = np.where(
-            inside, np.where(facing, Code.VISIBLE, Code.FACING_AWAY), Code.NODATA
+            g.inside, np.where(facing, Code.VISIBLE, Code.FACING_AWAY), Code.NODATA
         ).astype(np.uint8)
         if carry is not None:  # (as a mask: a code & True would drop OCCLUDED, 2 & 1 = 0)
-            known = np.where(cast, carry.at(terrain, rs, cs, p), 0).astype(np.uint8)
+            known = np.where(cast, carry.at(terrain, rs, cs, g), 0).astype(np.uint8)
             t_codes[known != 0] = known[known != 0]
             cast &= known == 0
         finish(
             rs,
             cs,
             t_codes,
-            np.where(inside[..., None], t_uv, np.nan),
-            np.where(ok, np.degrees(np.arccos(np.clip(cos_e, -1, 1))), np.nan),
-            np.where(inside & facing, t_gsd, np.nan),
-            facing_gsd,
+            np.where(g.inside[..., None], g.uv, np.nan),
+            np.where(g.ok, np.degrees(np.arccos(np.clip(g.cos_e, -1, 1))), np.nan),
+            np.where(g.inside & facing, t_gsd, np.nan),
+            g.facing_gsd,
             cast,
-            p[cast],
-            None if fixed_origin is not None else origin[cast],
+            g.points(cast),
+            None if g.origins is None else g.origins[cast],
         )
 
     def finish(
@@ -334,65 +298,6 @@ def compute_visibility(
     return Visibility(codes, uv, miss, emission, gsd, eps_out)
 
 
-TileGeometry = Callable[[slice, slice, bool], tuple[np.ndarray, ...]]
-"""A tile's (rows, columns, occlusion) to its codes, uv, emission, GSD, facing GSD and the
-posts left to cast (:func:`_fused_frame`)."""
-
-
-def _fused_frame(
-    terrain: Terrain, camera: Camera, carry: _DemCodes | None, fused: bool | None
-) -> TileGeometry | None:
-    """The per-tile geometry of :mod:`orthomvp.frame_kernel` for ``camera`` over ``terrain``
-    (with the DEM codes ``carry``), or None where it does not apply or is not wanted
-    (``fused`` as in :func:`compute_visibility`)."""
-    rows, cols = terrain.shape
-    applies = (
-        isinstance(camera, PinholeCamera)
-        and isinstance(camera.distortion, NullDistortion)
-        and terrain.world == WorldFrame.MAP
-        and (carry is None or carry.dem.crs == terrain.crs)
-        and min(rows, cols) >= 2
-    )
-    if not applies or fused is False or (fused is None and rows * cols < FUSED_POSTS):
-        return None
-    from orthomvp.frame_kernel import frame_posts
-
-    S = np.zeros((3, 3))
-    S[:2] = terrain.S[:2]
-    cam = np.array(
-        [*camera.center, camera.fu, camera.fv, camera.cu, camera.cv, camera.pitch]
-        + [camera.width, camera.height, 0.5 * (camera.fu + camera.fv) / camera.pitch, 0.0]
-    )
-    M = np.ascontiguousarray(camera.world_to_image_axes, dtype=np.float64)
-    known = np.zeros((1, 1), np.uint8)
-    Si = np.zeros((3, 3))
-    if carry is not None:
-        known = np.ascontiguousarray(carry.codes, dtype=np.uint8)
-        Si[:2] = np.linalg.inv(carry.dem.S)[:2]
-        Si[2, 0], Si[2, 1] = carry.c0, carry.r0
-
-    def tile(rs: slice, cs: slice, occlusion: bool) -> tuple[np.ndarray, ...]:
-        r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
-        c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
-        z = np.ascontiguousarray(terrain.values[r0:r1, c0:c1], dtype=np.float64)
-        block = S.copy()
-        block[2, 0], block[2, 1] = c0, r0
-        shape = (rs.stop - rs.start, cs.stop - cs.start)
-        inner = np.array([rs.start - r0, cs.start - c0, *shape], np.int64)
-        out = (
-            np.empty(shape, np.uint8),
-            np.empty((*shape, 2)),
-            np.empty(shape),
-            np.empty(shape),
-            np.empty(shape),
-            np.empty(shape, np.bool_),
-        )
-        frame_posts(z, block, inner, cam, M, known, Si, occlusion, *out)
-        return out
-
-    return tile
-
-
 @dataclass(frozen=True)
 class _DemCodes:
     """Visibility codes of the DEM posts under a finer grid (see :func:`compute_visibility`'s
@@ -432,10 +337,11 @@ class _DemCodes:
             ).codes
         return cls(dem, codes, r0, c0)
 
-    def at(self, grid: Terrain, rs: slice, cs: slice, p: np.ndarray) -> np.ndarray:
-        """Codes carried to the grid posts of tile (``rs``, ``cs``) at world points ``p``:
+    def at(self, grid: Terrain, rs: slice, cs: slice, g: PostGeometry) -> np.ndarray:
+        """Codes carried to the grid posts of tile (``rs``, ``cs``) whose geometry is ``g``:
         VISIBLE or OCCLUDED where all four surrounding DEM posts agree on it, else 0."""
         r, c = np.mgrid[rs, cs].astype(np.float64)
+        p = None if grid.crs == self.dem.crs else g.points(np.ones(c.shape, bool))
         dc, dr = _dem_pixels(grid, self.dem, c, r, p=p)
         rows, cols = self.codes.shape
         with np.errstate(invalid="ignore"):

@@ -25,7 +25,7 @@ LAYERS = [
     ("orthomvp.terrain",),
     ("orthomvp.world", "orthomvp.camera"),
     ("orthomvp.mesh", "orthomvp.embree"),
-    ("orthomvp.raycast", "orthomvp.frame_kernel"),
+    ("orthomvp.raycast", "orthomvp.post_geometry"),
     ("orthomvp.visibility",),
     ("orthomvp.mosaic",),
     ("orthomvp.ortho", "orthomvp.mvp"),

@@ -26,7 +26,7 @@ from orthomvp.ortho import sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.vectors import column_range, finite_rows
-from orthomvp.visibility import FUSED_POSTS, Visibility, compute_visibility, occluder_caster
+from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 
 @dataclass
@@ -218,10 +218,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
 def _visibility(
     plan: Plan, grid: Terrain, k: int, caster: RayCaster | None, window: Terrain, threads: int
 ) -> Visibility:
-    """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``), with the fused
-    kernel on every tile of a plan whose whole grid is large enough for it (one path for all
-    tiles; see :func:`~orthomvp.visibility.compute_visibility`)."""
-    rows, cols = plan.grid.shape
+    """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``)."""
     return compute_visibility(
         grid,
         plan.views[k].camera,
@@ -233,7 +230,6 @@ def _visibility(
         spacing=plan.spacing,
         strict=False,
         dem=window,
-        fused=rows * cols >= FUSED_POSTS,
     )
 
 

@@ -1,0 +1,151 @@
+"""Per-post geometry of the visibility test for one tile: world points, normals, pixels, the
+emission cosine and the GSD, in two ways with the same results.
+
+:func:`general` works for any camera and world frame on (rows, cols, 3) float64 points and
+normals. :func:`separable` covers the common aerial case, a frame camera without lens
+distortion over a grid in the map world frame: there a post's easting depends on its column
+alone and its northing on its row alone (a Terrain is never rotated), so only the heights vary
+over the tile. Every quantity is built from one row of eastings, one column of northings and
+the (rows, cols) heights by the same formulas in the same order as :func:`general`, so normals,
+emission cosines and GSDs are the same to the bit; the projection sums its three terms in order
+where the general path's matrix product may fuse them, which moves pixel positions by the last
+bits of float64. It does a fifth of the work, in numpy, with nothing to import or compile.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from orthomvp.camera import Camera, NullDistortion, PinholeCamera
+from orthomvp.codes import WorldFrame
+from orthomvp.terrain import Terrain, grid_normals
+from orthomvp.vectors import finite_rows
+
+
+@dataclass
+class PostGeometry:
+    """One tile's posts: world points (``x``, ``y``, ``z``, metres, each broadcastable to the
+    tile), whether point and normal are finite (``ok``), the pixels ``uv`` (rows, cols, 2)
+    (NaN where not imaged), whether the post is ``inside`` the image, the cosine ``cos_e`` of
+    its emission angle, its GSD on a surface facing the camera (``facing_gsd``, metres), and
+    the ray ``origins`` (rows, cols, 3) where the camera has no single centre (else None)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    ok: np.ndarray
+    uv: np.ndarray
+    inside: np.ndarray
+    cos_e: np.ndarray
+    facing_gsd: np.ndarray
+    origins: np.ndarray | None
+
+    def points(self, mask: np.ndarray) -> np.ndarray:
+        """The world points (n, 3) of the posts where ``mask`` (rows, cols)."""
+        return np.stack(
+            [np.broadcast_to(a, mask.shape)[mask] for a in (self.x, self.y, self.z)], -1
+        )
+
+
+def separable_applies(terrain: Terrain, camera: Camera) -> bool:
+    """Whether :func:`separable` covers ``camera`` over ``terrain``: a frame camera without
+    lens distortion, the map world frame, at least 2 x 2 posts."""
+    return (
+        isinstance(camera, PinholeCamera)
+        and isinstance(camera.distortion, NullDistortion)
+        and terrain.world == WorldFrame.MAP
+        and min(terrain.shape) >= 2
+    )
+
+
+def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeometry:
+    """The posts of tile (``rs``, ``cs``) of ``terrain`` seen by ``camera``, any camera and
+    world frame; normals are central differences over the tile with one post around it."""
+    rows, cols = terrain.shape
+    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
+    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
+    r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
+    n = grid_normals(block, terrain.up_vectors(block))
+    inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
+    p, n = block[inner], n[inner]
+    ok = finite_rows(p) & finite_rows(n)
+    uv, depth = camera.project(p)
+    inside = ok & (depth > 0) & camera.in_image(uv)
+    if isinstance(camera, PinholeCamera):  # one centre for every pixel
+        origins, origin = None, camera.center
+    else:  # where each post is imaged from (NaN where it is not imaged)
+        origins = origin = camera.origins(np.where(inside[..., None], uv, np.nan))
+    to_cam = origin - p
+    x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]  # (einsum over 3: 3x slower)
+    with np.errstate(invalid="ignore"):
+        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
+    return PostGeometry(
+        p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, camera.gsd(p), origins
+    )
+
+
+def separable(terrain: Terrain, camera: PinholeCamera, rs: slice, cs: slice) -> PostGeometry:
+    """:func:`general` for a case :func:`separable_applies` to, from row and column terms."""
+    rows, cols = terrain.shape
+    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
+    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
+    c = np.arange(c0, c1, dtype=np.float64)[None, :]
+    r = np.arange(r0, r1, dtype=np.float64)[:, None]
+    S = terrain.S  # never rotated (Terrain refuses it): S[0, 1] = S[1, 0] = 0, and adding
+    # their zero terms is exact, so these are Terrain.pixel_to_crs's values
+    bx, by = S[0, 0] * c + S[0, 2], S[1, 1] * r + S[1, 2]  # the block's eastings, northings
+    bz = terrain.values[r0:r1, c0:c1].astype(np.float64, copy=False)
+    inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
+    # differences along columns (a) and rows (b), as terrain._difference: in the map frame the
+    # easting is never NaN, so the one-sided fallback next to holes never applies
+    a = [_difference(v, 1)[_cut(v, inner)] for v in (bx, by, bz)]
+    b = [_difference(v, 0)[_cut(v, inner)] for v in (bx, by, bz)]
+    n0 = a[1] * b[2] - a[2] * b[1]
+    n1 = a[2] * b[0] - a[0] * b[2]
+    n2 = a[0] * b[1] - a[1] * b[0]
+    with np.errstate(invalid="ignore", divide="ignore"):  # as grid_normals, up = (0, 0, 1)
+        outward = n0 * 0.0 + n1 * 0.0 + n2 * 1.0 >= 0
+        scale = np.where(outward, 1.0, -1.0) / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        n0, n1, n2 = n0 * scale, n1 * scale, n2 * scale
+    x, y, z = bx[_cut(bx, inner)], by[_cut(by, inner)], bz[inner]
+    ok = np.isfinite(z) & np.isfinite(n0) & np.isfinite(n1) & np.isfinite(n2)
+    ok &= np.isfinite(x) & np.isfinite(y)
+    cx, cy, cz = camera.center
+    dx, dy, dz = x - cx, y - cy, z - cz
+    M = camera.world_to_image_axes
+    depth = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+    uv = np.full((*z.shape, 2), np.nan)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        s0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        s1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        front = depth > 0
+        uv[..., 0] = np.where(front, (s0 / depth * camera.fu + camera.cu) / camera.pitch, np.nan)
+        uv[..., 1] = np.where(front, (s1 / depth * camera.fv + camera.cv) / camera.pitch, np.nan)
+    inside = ok & front & camera.in_image(uv)
+    tx, ty, tz = cx - x, cy - y, cz - z
+    with np.errstate(invalid="ignore"):
+        cos_e = (n0 * tx + n1 * ty + n2 * tz) / np.sqrt(tx * tx + ty * ty + tz * tz)
+    focal_px = 0.5 * (camera.fu + camera.fv) / camera.pitch  # as PinholeCamera.gsd
+    facing_gsd = np.sqrt(dx * dx + dy * dy + dz * dz) / focal_px
+    return PostGeometry(x, y, z, ok, uv, inside, cos_e, facing_gsd, None)
+
+
+def _cut(v: np.ndarray, inner: tuple[slice, slice]) -> tuple[slice, slice]:
+    """``inner`` on the axes where ``v`` varies (a broadcast axis of length 1 stays whole)."""
+    return tuple(s if n > 1 else slice(None) for s, n in zip(inner, v.shape, strict=True))
+
+
+def _difference(v: np.ndarray, axis: int) -> np.ndarray:
+    """Per-step difference along ``axis``: central, one-sided at the ends (zero along an axis
+    of length 1, where ``v`` is constant)."""
+    if v.shape[axis] == 1:
+        return np.zeros_like(v)
+    v = np.moveaxis(v, axis, 0)
+    d = np.empty_like(v)
+    d[1:-1] = (v[2:] - v[:-2]) * 0.5
+    d[0] = v[1] - v[0]
+    d[-1] = v[-1] - v[-2]
+    return np.moveaxis(d, 0, axis)
