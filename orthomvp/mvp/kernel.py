@@ -48,89 +48,101 @@ def _sample(
     Gr: np.ndarray,
     dIt: np.ndarray,
     box: np.ndarray,
+    corner: np.ndarray,
+    weight: np.ndarray,
+    D: np.ndarray,
 ) -> None:
     """One view of one post, as the numpy objective: float32 positions ``U``, ``V`` and 1/w
     ``IW`` of the window's offsets through ``H`` (3, 3), their bounding ``box`` (4,), float32
     samples ``It`` of ``img`` (rows, cols, 3) (whose first pixel is ``origin`` (2,)) and,
     with ``jac``, gradients ``Gc``, ``Gr`` and float64 derivatives ``dIt`` (3, S) through
-    ``dH`` (3, 3, 3). Compiled without fast-math, so that the roundings are the numpy
-    objective's."""
+    ``dH`` (3, 3, 3). Scratch: ``corner`` (4, S) int64 flat indices of the four pixels
+    around each position, ``weight`` (4, S) float32 their bilinear weights, ``D`` (3, 3, 3)
+    float64. Compiled without fast-math, so that the roundings are the numpy objective's;
+    the corners and weights are computed in a loop of their own, which vectorises, apart
+    from the gathers."""
     one = np.float32(1.0)
     S = xo.shape[0]
-    h = H / H[2, 2]
-    h00, h01, h02 = np.float32(h[0, 0]), np.float32(h[0, 1]), np.float32(h[0, 2])
-    h10, h11, h12 = np.float32(h[1, 0]), np.float32(h[1, 1]), np.float32(h[1, 2])
-    h20, h21, h22 = np.float32(h[2, 0]), np.float32(h[2, 1]), np.float32(h[2, 2])
+    h22 = H[2, 2]
+    h00, h01, h02 = np.float32(H[0, 0] / h22), np.float32(H[0, 1] / h22), np.float32(H[0, 2] / h22)
+    h10, h11, h12 = np.float32(H[1, 0] / h22), np.float32(H[1, 1] / h22), np.float32(H[1, 2] / h22)
+    h20, h21, h2 = np.float32(H[2, 0] / h22), np.float32(H[2, 1] / h22), np.float32(h22 / h22)
     for s in range(S):
-        iw = one / (h20 * xo[s] + h21 * yo[s] + h22)
+        iw = one / (h20 * xo[s] + h21 * yo[s] + h2)
         IW[s] = iw
         U[s] = (h00 * xo[s] + h01 * yo[s] + h02) * iw
         V[s] = (h10 * xo[s] + h11 * yo[s] + h12) * iw
-    umin, umax, vmin, vmax = U[0], U[0], V[0], V[0]
     finite = True
     for s in range(S):
         finite &= np.isfinite(U[s]) & np.isfinite(V[s])
-        umin, umax = min(umin, U[s]), max(umax, U[s])
-        vmin, vmax = min(vmin, V[s]), max(vmax, V[s])
     if finite:
+        umin, umax, vmin, vmax = U[0], U[0], V[0], V[0]
+        for s in range(S):
+            u, v = U[s], V[s]
+            umin = u if u < umin else umin
+            umax = u if u > umax else umax
+            vmin = v if v < vmin else vmin
+            vmax = v if v > vmax else vmax
         box[0], box[1], box[2], box[3] = umin, umax, vmin, vmax
     else:
         box[:] = np.nan
     # bilinear, as cv2.remap with BORDER_REPLICATE (a position that is not finite
     # takes the first pixel)
     rows, cols = img.shape[0], img.shape[1]
+    pixels = img.reshape(img.size)  # (r, c, channel) at 3 (r cols + c) + channel
+    zero = np.float32(0.0)
     oc, orr = origin[0], origin[1]
     for s in range(S):
         uc = U[s] - oc
         vc = V[s] - orr
-        if not (np.isfinite(uc) and np.isfinite(vc)):
-            uc = vc = np.float32(0.0)
+        ok = np.isfinite(uc) & np.isfinite(vc)
+        uc = uc if ok else zero
+        vc = vc if ok else zero
         fu = np.floor(uc)
         fv = np.floor(vc)
         fx = uc - fu
         fy = vc - fv
-        ic = int(min(max(fu, -1.0), cols))  # far outside: the border pixel
-        ir = int(min(max(fv, -1.0), rows))
-        c0 = min(max(ic, 0), cols - 1)
-        c1 = min(max(ic + 1, 0), cols - 1)
-        r0 = min(max(ir, 0), rows - 1)
-        r1 = min(max(ir + 1, 0), rows - 1)
-        w00 = (one - fy) * (one - fx)
-        w01 = (one - fy) * fx
-        w10 = fy * (one - fx)
-        w11 = fy * fx
-        It[s] = (
-            img[r0, c0, 0] * w00
-            + img[r0, c1, 0] * w01
-            + img[r1, c0, 0] * w10
-            + img[r1, c1, 0] * w11
-        )
+        ic = np.int64(min(max(fu, np.float32(-1.0)), np.float32(cols)))  # far outside: border
+        ir = np.int64(min(max(fv, np.float32(-1.0)), np.float32(rows)))
+        c0 = 3 * min(max(ic, 0), cols - 1)
+        c1 = 3 * min(max(ic + 1, 0), cols - 1)
+        r0 = 3 * cols * min(max(ir, 0), rows - 1)
+        r1 = 3 * cols * min(max(ir + 1, 0), rows - 1)
+        corner[0, s] = r0 + c0
+        corner[1, s] = r0 + c1
+        corner[2, s] = r1 + c0
+        corner[3, s] = r1 + c1
+        weight[0, s] = (one - fy) * (one - fx)
+        weight[1, s] = (one - fy) * fx
+        weight[2, s] = fy * (one - fx)
+        weight[3, s] = fy * fx
+    for s in range(S):  # unsigned indices: no wraparound of negative ones
+        i00, i01 = np.uintp(corner[0, s]), np.uintp(corner[1, s])
+        i10, i11 = np.uintp(corner[2, s]), np.uintp(corner[3, s])
+        w00, w01, w10, w11 = weight[0, s], weight[1, s], weight[2, s], weight[3, s]
+        It[s] = pixels[i00] * w00 + pixels[i01] * w01 + pixels[i10] * w10 + pixels[i11] * w11
         if jac:
-            Gc[s] = (
-                img[r0, c0, 1] * w00
-                + img[r0, c1, 1] * w01
-                + img[r1, c0, 1] * w10
-                + img[r1, c1, 1] * w11
-            )
-            Gr[s] = (
-                img[r0, c0, 2] * w00
-                + img[r0, c1, 2] * w01
-                + img[r1, c0, 2] * w10
-                + img[r1, c1, 2] * w11
-            )
+            nxt = np.uintp(1)  # the next channel
+            i00, i01, i10, i11 = i00 + nxt, i01 + nxt, i10 + nxt, i11 + nxt
+            Gc[s] = pixels[i00] * w00 + pixels[i01] * w01 + pixels[i10] * w10 + pixels[i11] * w11
+            i00, i01, i10, i11 = i00 + nxt, i01 + nxt, i10 + nxt, i11 + nxt
+            Gr[s] = pixels[i00] * w00 + pixels[i01] * w01 + pixels[i10] * w10 + pixels[i11] * w11
     if jac:  # d(u, v) = (d(x, y) - (u, v) dw) / w with d(x, y, w) = dH (xo, yo, 1), float64
         for p in range(3):
-            d = (dH[p] / H[2, 2]).astype(np.float32).astype(np.float64)
-            for s in range(S):
-                x, y = np.float64(xo[s]), np.float64(yo[s])
-                iw = np.float64(IW[s])
-                a = Gc[s] * iw
-                bb = Gr[s] * iw
-                cc = -(a * U[s] + bb * V[s])
+            for i in range(3):
+                for j in range(3):
+                    D[p, i, j] = np.float32(dH[p, i, j] / h22)
+        for s in range(S):
+            x, y = np.float64(xo[s]), np.float64(yo[s])
+            iw = np.float64(IW[s])
+            a = Gc[s] * iw
+            bb = Gr[s] * iw
+            cc = -(a * U[s] + bb * V[s])
+            for p in range(3):
                 dIt[p, s] = (
-                    a * (d[0, 0] * x + d[0, 1] * y + d[0, 2])
-                    + bb * (d[1, 0] * x + d[1, 1] * y + d[1, 2])
-                    + cc * (d[2, 0] * x + d[2, 1] * y + d[2, 2])
+                    a * (D[p, 0, 0] * x + D[p, 0, 1] * y + D[p, 0, 2])
+                    + bb * (D[p, 1, 0] * x + D[p, 1, 1] * y + D[p, 1, 2])
+                    + cc * (D[p, 2, 0] * x + D[p, 2, 1] * y + D[p, 2, 2])
                 )
 
 
@@ -170,6 +182,9 @@ def _evaluate(
         Gc = np.empty(S, np.float32)
         Gr = np.empty(S, np.float32)
         dIt = np.empty((3, S))  # raw samples' derivatives (with jac)
+        corner = np.empty((4, S), np.int64)  # scratch of _sample
+        weight = np.empty((4, S), np.float32)
+        D = np.empty((3, 3, 3))
         A = np.zeros(S)
         dA = np.zeros((3, S))
         n = 0
@@ -196,6 +211,9 @@ def _evaluate(
                 Gr,
                 dIt,
                 box[b, k],
+                corner,
+                weight,
+                D,
             )
             # eq. 19: I = (It - <1, It>) / sd with <x, y> = sum g x y, and through it
             # dI = (dIt - <1, dIt> - I <I, dIt>) / sd
@@ -212,21 +230,36 @@ def _evaluate(
             used[b, k] = True
             n += 1
             isd = 1.0 / sd
+            if not jac:
+                for s in range(S):
+                    i = (It[s] - m) * isd
+                    Ik[k, s] = i
+                    A[s] += i
+                continue
+            dm0 = dm1 = dm2 = ds0 = ds1 = ds2 = 0.0
             for s in range(S):
                 i = (It[s] - m) * isd
                 Ik[k, s] = i
                 A[s] += i
-            if jac:
-                for p in range(3):
-                    dm = 0.0
-                    ds = 0.0
-                    for s in range(S):
-                        dm += g[s] * dIt[p, s]
-                        ds += g[s] * Ik[k, s] * dIt[p, s]
-                    for s in range(S):
-                        d = (dIt[p, s] - dm - Ik[k, s] * ds) * isd
-                        dI[k, p, s] = d
-                        dA[p, s] += d
+                gs = g[s]
+                gi = gs * i
+                dm0 += gs * dIt[0, s]
+                dm1 += gs * dIt[1, s]
+                dm2 += gs * dIt[2, s]
+                ds0 += gi * dIt[0, s]
+                ds1 += gi * dIt[1, s]
+                ds2 += gi * dIt[2, s]
+            for s in range(S):
+                i = Ik[k, s]
+                d0 = (dIt[0, s] - dm0 - i * ds0) * isd
+                d1 = (dIt[1, s] - dm1 - i * ds1) * isd
+                d2 = (dIt[2, s] - dm2 - i * ds2) * isd
+                dI[k, 0, s] = d0
+                dI[k, 1, s] = d1
+                dI[k, 2, s] = d2
+                dA[0, s] += d0
+                dA[1, s] += d1
+                dA[2, s] += d2
         nn = max(n, 1)
         inn = 1.0 / nn
         for s in range(S):
@@ -298,8 +331,12 @@ def _evaluate(
                     loo[b, k] = num / np.sqrt(max(den, 1e-30))
 
 
-_sample = cached_jit(_sample, fastmath=False)
-_kernel = cached_jit(_evaluate, parallel=True, fastmath={"reassoc", "contract"})
+# numpy's error model: a division by zero gives inf or NaN (as in the numpy objective), not
+# an exception, and divisions need no test
+_sample = cached_jit(_sample, fastmath=False, error_model="numpy")
+_kernel = cached_jit(
+    _evaluate, parallel=True, fastmath={"reassoc", "contract"}, error_model="numpy"
+)
 
 
 def compile_seconds() -> float:
@@ -360,8 +397,8 @@ def fused_evaluate(
     if dH.shape[2:] != (3, 3, 3):
         raise ValueError(f"the kernel fits 3 plane parameters, dH is {dH.shape}")
     P = 3
-    if not hasattr(images, "_numba_type_"):
-        images = List(images)
+    if not hasattr(images, "_numba_type_"):  # C order: _sample indexes them flat
+        images = List([np.ascontiguousarray(img, np.float32) for img in images])
     out = KernelResult(
         cost=np.empty(B),
         used=np.empty((B, K), bool),
