@@ -159,17 +159,28 @@ class Composite:
 
 def box_sum(a: np.ndarray, radius: int) -> np.ndarray:
     """Exact sums of integer array ``a`` (..., rows, cols) over the (2 radius + 1)^2 box
-    around each post, zero beyond the array (int64)."""
-    a = a.astype(np.int64)
-    for axis in (-2, -1):
-        n = a.shape[axis]
-        pad = [(0, 0)] * a.ndim
-        pad[axis] = (radius + 1, radius)
-        c = np.cumsum(np.pad(a, pad), axis=axis)
-        hi = np.take(c, np.arange(2 * radius + 1, 2 * radius + 1 + n), axis=axis)
-        lo = np.take(c, np.arange(0, n), axis=axis)
-        a = hi - lo
-    return a
+    around each post, zero beyond the array (int64). OpenCV's box filter on float64: sums of
+    integers below 2^53 come out exact in any order."""
+    a = np.asarray(a)
+    k = 2 * radius + 1
+    planes = a.reshape(-1, *a.shape[-2:]).astype(np.float64)
+    out = np.empty(planes.shape, np.int64)
+    for i, plane in enumerate(planes):
+        out[i] = cv2.boxFilter(plane, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return out.reshape(a.shape)
+
+
+def nan_median(stack: np.ndarray) -> np.ndarray:
+    """The median over the first axis of ``stack``, NaN ignored, NaN where all are: the values
+    of ``np.nanmedian(stack, axis=0)`` bit for bit, by one sort along a contiguous axis (2-3x
+    faster for a few views) and without its warnings (which cannot be silenced
+    thread-safely)."""
+    s = np.sort(np.moveaxis(stack, 0, -1), axis=-1)  # NaN last
+    n = np.count_nonzero(~np.isnan(s), axis=-1)
+    low = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], -1)[..., 0]
+    high = np.take_along_axis(s, (n // 2)[..., None], -1)[..., 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, (low + high) / 2, np.nan).astype(stack.dtype)
 
 
 def priority_cost(
@@ -196,9 +207,7 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Each view's disagreement (views, rows, cols) in 0..1 with the median of the views that
     see the post (mean over bands of :data:`DISAGREE` times the relative difference, capped)."""
     stack = np.where(visible[:, None], values, np.nan)
-    seen = visible.any(axis=0)  # the median of the others only (no warning, thread-safe)
-    median = np.full(stack.shape[1:], np.nan, stack.dtype)
-    median[:, seen] = np.nanmedian(stack[:, :, seen], axis=0)
+    median = nan_median(stack)
     with np.errstate(all="ignore"):
         rel = np.abs(stack - median) / (np.abs(stack) + np.abs(median) + 1e-12)
     return np.nan_to_num(np.minimum(DISAGREE * rel, 1.0).mean(axis=1), nan=1.0)
@@ -236,7 +245,7 @@ def labels(
         total = np.nan_to_num(cost, nan=0.0) + unseen + disagreement(values, visible)
         q = np.rint(np.where(visible, total, 0.0) * QUANT).astype(np.int64)
         with np.errstate(invalid="ignore", divide="ignore"):
-            cost = box_sum(q, SEAM_RADIUS) / box_sum(visible, SEAM_RADIUS)
+            cost = box_sum(q, SEAM_RADIUS) / seen
     cost = np.where(visible, cost, np.inf)
     best = np.argmin(cost, axis=0)
     return np.where(visible.any(axis=0), best, -1)

@@ -4,6 +4,7 @@ gives a post it calls occluded."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from orthomvp.mosaic import (
     Flag,
     MosaicOptions,
     box_sum,
+    nan_median,
     overlap_width,
     pair_stats,
     seam_visibility,
@@ -251,6 +253,29 @@ def test_box_sum_is_exact_and_zero_off_the_grid() -> None:
     got = box_sum(a, 1)
     padded = np.pad(a, 1)
     expected = sum(padded[i : i + 5, j : j + 6] for i in range(3) for j in range(3))
+    np.testing.assert_array_equal(got, expected)
+    rng = np.random.default_rng(3)
+    for shape, radius in (((3, 40, 50), 4), ((2, 3, 70), 5), ((1, 2), 0)):
+        a = rng.integers(0, 4000, shape)
+        got = box_sum(a, radius)
+        k, (rows, cols) = 2 * radius + 1, shape[-2:]
+        padded = np.pad(a, [(0, 0)] * (a.ndim - 2) + [(radius, radius)] * 2)
+        expected = sum(padded[..., i : i + rows, j : j + cols] for i in range(k) for j in range(k))
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("views", [1, 2, 3, 4, 7, 12])
+def test_nan_median_is_numpys_bit_for_bit(views: int) -> None:
+    rng = np.random.default_rng(views)
+    stack = (rng.random((views, 3, 40, 30)) * 255).astype(np.float32)
+    stack[rng.random(stack.shape) < 0.35] = np.nan
+    stack[:, :, 0, 0] = np.nan  # a post no view sees
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices
+        expected = np.nanmedian(stack, axis=0)
+    got = nan_median(stack)
+    assert got.dtype == np.float32 and np.isnan(got[:, 0, 0]).all()
     np.testing.assert_array_equal(got, expected)
 
 
