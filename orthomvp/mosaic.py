@@ -73,6 +73,8 @@ DOUBT = 0.5
 """A view's first hit farther than epsilon minus this many posts from the post makes it
 doubtful there (:func:`trusted`)."""
 
+NETWORK_LAYERS = 8
+"""Views up to which :func:`nan_median` sorts by a network of minima and maxima."""
 TRUST_RADIUS = 1
 """A view is at its occlusion boundary where a post within this box radius is not visible in
 it (:func:`trusted`)."""
@@ -172,13 +174,24 @@ def box_sum(a: np.ndarray, radius: int) -> np.ndarray:
 
 def nan_median(stack: np.ndarray) -> np.ndarray:
     """The median over the first axis of ``stack``, NaN ignored, NaN where all are: the values
-    of ``np.nanmedian(stack, axis=0)`` bit for bit, by one sort along a contiguous axis (2-3x
-    faster for a few views) and without its warnings (which cannot be silenced
-    thread-safely)."""
-    s = np.sort(np.moveaxis(stack, 0, -1), axis=-1)  # NaN last
-    n = np.count_nonzero(~np.isnan(s), axis=-1)
-    low = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], -1)[..., 0]
-    high = np.take_along_axis(s, (n // 2)[..., None], -1)[..., 0]
+    of ``np.nanmedian(stack, axis=0)`` bit for bit, without its warnings (which cannot be
+    silenced thread-safely). Up to :data:`NETWORK_LAYERS` layers are sorted by an odd-even
+    transposition network of elementwise minima and maxima (NaN as +inf, last; 2.5x faster
+    than numpy's sort for 4 views), more by one sort along a contiguous axis."""
+    if len(stack) > NETWORK_LAYERS:
+        s = np.sort(np.moveaxis(stack, 0, -1), axis=-1)  # NaN last
+        n = np.count_nonzero(~np.isnan(s), axis=-1)
+        low = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], -1)[..., 0]
+        high = np.take_along_axis(s, (n // 2)[..., None], -1)[..., 0]
+    else:
+        layers = [np.where(np.isnan(layer), np.inf, layer) for layer in stack]
+        n = sum((layer != np.inf).astype(np.uint8) for layer in layers)
+        for i in range(len(layers)):
+            for j in range(i % 2, len(layers) - 1, 2):
+                a, b = layers[j], layers[j + 1]
+                layers[j], layers[j + 1] = np.minimum(a, b), np.maximum(a, b)
+        low = np.choose((np.maximum(n, 1) - 1) // 2, layers)
+        high = np.choose(n // 2, layers)
     with np.errstate(invalid="ignore"):
         return np.where(n > 0, (low + high) / 2, np.nan).astype(stack.dtype)
 
@@ -226,10 +239,14 @@ def trusted(visible: np.ndarray, doubt: np.ndarray | None = None) -> np.ndarray:
     counts as visible) where the post has one, else those with its four nearest neighbours
     visible, else the others."""
     sure = visible if doubt is None else visible & ~doubt
-    hidden = ~visible
-    pad = np.pad(hidden, [(0, 0), (1, 1), (1, 1)])
-    cross = pad[:, :-2, 1:-1] | pad[:, 2:, 1:-1] | pad[:, 1:-1, :-2] | pad[:, 1:-1, 2:]
-    tier = np.where(sure, 1 + ~cross + (box_sum(hidden, TRUST_RADIUS) == 0), 0)
+    box = np.ones((2 * TRUST_RADIUS + 1,) * 2, np.uint8)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    tier = np.zeros(visible.shape, np.uint8)
+    for k, plane in enumerate(np.ascontiguousarray(visible).view(np.uint8)):
+        # erosions of the view's visible posts, with every post off the grid visible
+        four = cv2.erode(plane, cross, borderType=cv2.BORDER_CONSTANT, borderValue=1)
+        every = cv2.erode(plane, box, borderType=cv2.BORDER_CONSTANT, borderValue=1)
+        tier[k] = np.where(sure[k], 1 + four + every, 0)
     return sure & (tier == tier.max(axis=0))
 
 

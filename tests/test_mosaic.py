@@ -28,6 +28,7 @@ from orthomvp.mosaic import (
     pair_stats,
     seam_visibility,
     solve_balance,
+    trusted,
 )
 from orthomvp.ortho import mosaic, orthorectify
 from orthomvp.raster import write_geotiff
@@ -265,8 +266,33 @@ def test_box_sum_is_exact_and_zero_off_the_grid() -> None:
         np.testing.assert_array_equal(got, expected)
 
 
-@pytest.mark.parametrize("views", [1, 2, 3, 4, 7, 12])
+def test_trusted_views_by_tier() -> None:
+    """Each post keeps the sure views of its highest tier: 3 when all posts within
+    TRUST_RADIUS are visible (off the grid counts as visible), 2 when its four nearest are,
+    1 otherwise; never a doubtful view. Checked post by post against the definition."""
+    rng = np.random.default_rng(5)
+    visible = rng.random((3, 23, 17)) < 0.7
+    doubt = visible & (rng.random(visible.shape) < 0.1)
+    got = trusted(visible, doubt)
+    k, rows, cols = visible.shape
+    seen = np.pad(visible, [(0, 0), (1, 1), (1, 1)], constant_values=True)
+    for r in range(rows):
+        for c in range(cols):
+            tiers = []
+            for v in range(k):
+                box = seen[v, r : r + 3, c : c + 3]
+                four = box[1, 1] and box[0, 1] and box[2, 1] and box[1, 0] and box[1, 2]
+                sure = visible[v, r, c] and not doubt[v, r, c]
+                tiers.append(0 if not sure else 3 if box.all() else 2 if four else 1)
+            best = max(tiers)
+            want = [t == best and t > 0 for t in tiers]
+            assert list(got[:, r, c]) == want, (r, c)
+    assert got.any() and (got.sum(axis=0) < visible.sum(axis=0)).any()
+
+
+@pytest.mark.parametrize("views", [1, 2, 3, 4, 7, 8, 9, 12])
 def test_nan_median_is_numpys_bit_for_bit(views: int) -> None:
+    """Both ways: the network (up to NETWORK_LAYERS views) and the sort."""
     rng = np.random.default_rng(views)
     stack = (rng.random((views, 3, 40, 30)) * 255).astype(np.float32)
     stack[rng.random(stack.shape) < 0.35] = np.nan
