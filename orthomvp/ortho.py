@@ -112,13 +112,8 @@ def sample_image(
     out = np.empty((image.shape[0], n), np.float32)
     for b, band in enumerate(image):
         band = np.ascontiguousarray(band, dtype=np.float32)
-        s = cv2.remap(
-            band,
-            maps[..., 0],
-            maps[..., 1],
-            flag,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=np.nan,
+        s = cv2.remap(  # one two-channel map: no copy of each coordinate per band
+            band, maps, None, flag, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
         )
         out[b] = s.reshape(-1)[:n]
     out[:, ~finite_rows(flat)] = np.nan

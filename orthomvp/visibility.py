@@ -340,9 +340,18 @@ class _DemCodes:
     def at(self, grid: Terrain, rs: slice, cs: slice, g: PostGeometry) -> np.ndarray:
         """Codes carried to the grid posts of tile (``rs``, ``cs``) whose geometry is ``g``:
         VISIBLE or OCCLUDED where all four surrounding DEM posts agree on it, else 0."""
-        r, c = np.mgrid[rs, cs].astype(np.float64)
-        p = None if grid.crs == self.dem.crs else g.points(np.ones(c.shape, bool))
-        dc, dr = _dem_pixels(grid, self.dem, c, r, p=p)
+        if grid.crs == self.dem.crs:
+            # neither grid is rotated (Terrain refuses it), so DEM columns follow from grid
+            # columns alone and rows from rows: Terrain.pixel_to_crs and crs_to_pixel without
+            # their zero terms (adding zero is exact: the same values)
+            S, Si = grid.S, np.linalg.inv(self.dem.S)
+            c = np.arange(cs.start, cs.stop, dtype=np.float64)[None, :]
+            r = np.arange(rs.start, rs.stop, dtype=np.float64)[:, None]
+            dc = Si[0, 0] * (S[0, 0] * c + S[0, 2]) + Si[0, 2]
+            dr = Si[1, 1] * (S[1, 1] * r + S[1, 2]) + Si[1, 2]
+        else:
+            r, c = np.mgrid[rs, cs].astype(np.float64)
+            dc, dr = _dem_pixels(grid, self.dem, c, r, p=g.points(np.ones(c.shape, bool)))
         rows, cols = self.codes.shape
         with np.errstate(invalid="ignore"):
             i, j = np.floor(dr) - self.r0, np.floor(dc) - self.c0
