@@ -1,7 +1,7 @@
-"""numba compilation shared by the fused kernels (:mod:`orthomvp.frame_kernel`,
-:mod:`orthomvp.mvp.kernel`): lazily on first call, releasing the GIL, cached on disk where
-numba can write (beside the package, else ``~/.cache/numba`` or ``NUMBA_CACHE_DIR``). Import
-this module only where a kernel runs: it imports numba (about 0.2 s)."""
+"""numba compilation of the fused MVP kernel (:mod:`orthomvp.mvp.kernel`): lazily on first
+call, releasing the GIL, cached on disk where numba can write (beside the package, else
+``~/.cache/numba`` or ``NUMBA_CACHE_DIR``). Import this module only where a kernel runs: it
+imports numba (about 0.2 s)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,11 @@ import warnings
 from collections.abc import Callable
 
 import numba
+
+# OpenMP first: the layer numba takes here anyway, and the older TBB that Open3D loads (when
+# its ray caster or the bench ran first) would otherwise print a warning at the first
+# parallel call
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 
 def cached_jit(fn: Callable, **options: object) -> Callable:

@@ -157,3 +157,19 @@ def test_kept_patches_come_from_the_numpy_objective(hills_stack) -> None:  # noq
     assert kept.patches.shape == (2, H.shape[1], len(window.offsets))
     np.testing.assert_allclose(fused.cost, kept.cost, rtol=RTOL)
     problem.stack.samples = 0
+
+
+def test_no_threading_warning_after_open3d() -> None:
+    """Open3D loads an older TBB; the kernel's first parallel call then still prints nothing
+    (numba takes OpenMP first) and runs, in a fresh process with warnings as errors."""
+    import subprocess
+    import sys
+
+    code = (
+        "import warnings; warnings.simplefilter('error'); import open3d; "
+        "from orthomvp.mvp.kernel import compile_seconds; compile_seconds(); "
+        "import numba; print(numba.threading_layer())"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stderr == "", out.stderr[-500:]
+    assert out.stdout.split()[-1] in ("omp", "tbb", "workqueue")
