@@ -9,7 +9,8 @@ over the tile. Every quantity is built from one row of eastings, one column of n
 the (rows, cols) heights by the same formulas in the same order as :func:`general`, so normals,
 emission cosines and GSDs are the same to the bit; the projection sums its three terms in order
 where the general path's matrix product may fuse them, which moves pixel positions by the last
-bits of float64. It does a fifth of the work, in numpy, with nothing to import or compile.
+bits of float64. It takes about half the time (22 against 48 ms for a 512-post tile), in
+numpy, with nothing to import or compile.
 """
 
 from __future__ import annotations

@@ -410,3 +410,21 @@ def test_city_mosaic_takes_no_post_from_a_view_that_hides_it(
     filled = np.isfinite(data)
     assert filled.mean() > 0.99
     assert np.corrcoef(data[filled], scene.radiance[filled])[0, 1] >= least_r
+
+
+def test_cli_reports_the_posts_taken_from_each_image(
+    crater_dir: Path, views: list, tmp_path: Path, capsys
+) -> None:
+    """The closing line counts, per image, the posts whose value it gave (also without
+    --source, where it said 0 before): together they are the output's filled posts."""
+    out = tmp_path / "m.tif"
+    args = [str(p) for pair in views for p in pair]
+    assert main(["mosaic", str(crater_dir / "dem.tif"), *args, "-o", str(out)]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    parts = line.split(": ", 1)[1].rsplit("; ", 1)
+    taken = [int(part.split(" from ")[0].replace(",", "")) for part in parts[0].split(", ")]
+    none = int(parts[1].split()[0].replace(",", ""))
+    data = read(out)
+    filled = int(np.isfinite(data).all(axis=0).sum())
+    assert len(taken) == len(views) and all(n > 0 for n in taken), line
+    assert sum(taken) == filled and filled + none == data[0].size, line

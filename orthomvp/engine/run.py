@@ -41,8 +41,9 @@ class RunReport:
     workers' seconds per phase summed over tiles (read, mesh, visibility, sample) and the
     writer's (write), posts filled in ``ortho``, the grid's posts with a height (``valid``;
     tiles that no image sees count whole), and per view the posts inside the image, the posts
-    taken from it (``source``) and the posts of each visibility code (``counts``); for a
-    mosaic, the radiometric ``correction`` applied and the ``blend`` width used (posts)."""
+    taken from it (``taken``, when values or sources are made) and the posts of each
+    visibility code (``counts``); for a mosaic, the radiometric ``correction`` applied and the
+    ``blend`` width used (posts)."""
 
     tiles_run: int = 0
     tiles_skipped: int = 0
@@ -379,9 +380,7 @@ def _account(report: RunReport, result: TileResult, write_seconds: float) -> Non
         report.filled += int(np.isfinite(result.data).all(axis=0).sum())
     report.inside = [a + b for a, b in zip(report.inside, result.inside, strict=True)]
     _add_counts(report, result)
-    if result.source is not None:
-        counts = np.bincount(result.source[0].ravel(), minlength=len(report.taken) + 1)
-        report.taken = [a + int(b) for a, b in zip(report.taken, counts[1:], strict=True)]
+    report.taken = [a + b for a, b in zip(report.taken, result.taken, strict=True)]
 
 
 def _add_counts(report: RunReport, result: TileResult) -> None:

@@ -40,7 +40,8 @@ class TileResult:
     each :class:`~orthomvp.codes.Code`; ``valid`` the tile's posts with a height (for a tile
     that no image sees: all of them, unread); ``seconds`` per phase (read, mesh, visibility,
     sample, compose); ``stack`` (kind "stack" of a mosaic plan) every view's samples (views,
-    bands, rows, cols) and codes (views, rows, cols), uncomposed."""
+    bands, rows, cols) and codes (views, rows, cols), uncomposed; ``taken`` per view the posts
+    whose value it gave (zeros unless values or sources were made)."""
 
     index: int
     window: WindowT
@@ -53,6 +54,7 @@ class TileResult:
     valid: int
     seconds: dict[str, float] = field(default_factory=dict)
     stack: tuple[np.ndarray, np.ndarray] | None = None
+    taken: list[int] = field(default_factory=list)
 
 
 @contextmanager
@@ -77,6 +79,7 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
         [0] * n,
         [[shape[0] * shape[1], 0, 0, 0] for _ in range(n)],
         shape[0] * shape[1],
+        taken=[0] * n,
     )
 
 
@@ -188,6 +191,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
             caster = occluder_caster(window, threads=threads)
     result.valid = int(np.isfinite(grid.values[inner]).sum())
     best = np.full(grid.values[inner].shape, np.inf)
+    label = np.zeros(best.shape, np.int64)  # the 1-based view each post came from, 0 none
     for k in job.views:
         view = plan.views[k]
         with _timed(seconds, "visibility"):
@@ -209,10 +213,18 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
                 values = values[:, ok]
             if result.data is not None:
                 result.data[:, keep] = values
-        if result.source is not None:
-            result.source[0][keep] = k + 1
+        label[keep] = k + 1
         best[keep] = emission[keep]
+    if result.source is not None:
+        result.source[0] = label
+    if result.data is not None or result.source is not None:
+        result.taken = _taken(label, len(plan.views))
     return result
+
+
+def _taken(label: np.ndarray, views: int) -> list[int]:
+    """Posts per view in ``label`` (the 1-based view of each post, 0 none)."""
+    return np.bincount(label.ravel(), minlength=views + 1)[1:].tolist()
 
 
 def _visibility(
@@ -295,6 +307,7 @@ def _mosaic_tile(
         return result
     with _timed(seconds, "compose"):
         comp = compose(values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt)
+    result.taken = _taken(comp.source[core], n)
     if result.data is not None:
         result.data = comp.data[:, core[0], core[1]]
     if result.source is not None:
