@@ -61,6 +61,31 @@ def separable_applies(terrain: Terrain, camera: Camera) -> bool:
     )
 
 
+def image_window(terrain: Terrain, camera: PinholeCamera) -> tuple[int, int, int, int]:
+    """The posts of ``terrain`` (a case :func:`separable_applies` to) that can lie in the
+    image, as a window (r0, r1, c0, c1), grown by two posts and clipped to the grid (the whole
+    grid where the image reaches the horizon). The image's outline back-projected onto the
+    horizontal planes of the grid's lowest and highest heights bounds it: a post at height z
+    in the image lies in the outline at z, whose corners lie on the segments between the
+    corners at the two heights (the rays through the image's corners), so within the bounding
+    box of those eight points."""
+    rows, cols = terrain.shape
+    whole = (0, rows, 0, cols)
+    z = terrain.values[np.isfinite(terrain.values)]
+    if not len(z):
+        return whole
+    w, h = camera.width - 0.5, camera.height - 0.5
+    origin, d = camera.ray(np.array([[-0.5, -0.5], [w, -0.5], [-0.5, h], [w, h]]))
+    if not ((d[:, 2] < 0).all() and (origin[:, 2] > z.max()).all()):
+        return whole  # a corner ray does not come down to the grid: the horizon is in view
+    corners = [origin + ((at - origin[:, 2]) / d[:, 2])[:, None] * d for at in (z.min(), z.max())]
+    x, y = np.concatenate(corners)[:, 0], np.concatenate(corners)[:, 1]
+    c, r = terrain.crs_to_pixel(x, y)
+    r0, r1 = int(np.floor(r.min())) - 2, int(np.ceil(r.max())) + 3
+    c0, c1 = int(np.floor(c.min())) - 2, int(np.ceil(c.max())) + 3
+    return max(r0, 0), min(max(r1, 0), rows), max(c0, 0), min(max(c1, 0), cols)
+
+
 def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeometry:
     """The posts of tile (``rs``, ``cs``) of ``terrain`` seen by ``camera``, any camera and
     world frame; normals are central differences over the tile with one post around it."""

@@ -28,7 +28,13 @@ from orthomvp.codes import Code, classify
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mesh import occluder_mesh
-from orthomvp.post_geometry import PostGeometry, general, separable, separable_applies
+from orthomvp.post_geometry import (
+    PostGeometry,
+    general,
+    image_window,
+    separable,
+    separable_applies,
+)
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain, perimeter
 from orthomvp.validate import number, of_type
@@ -91,8 +97,8 @@ class Visibility:
     position of every post (NaN outside); ``miss`` (rows, cols) the distance in posts from each
     post to its ray's first hit (inf where the ray found nothing, NaN where not cast);
     ``emission`` (rows, cols) degrees between the surface normal and the direction to the
-    camera; ``gsd`` (rows, cols) the image's ground sample distance at the post in metres;
-    ``eps`` (rows, cols) the tolerance used, in posts.
+    camera (NaN where the post is not in the image); ``gsd`` (rows, cols) the image's ground
+    sample distance at the post in metres; ``eps`` (rows, cols) the tolerance used, in posts.
     """
 
     codes: np.ndarray
@@ -235,7 +241,7 @@ def compute_visibility(
             cs,
             t_codes,
             np.where(g.inside[..., None], g.uv, np.nan),
-            np.where(g.ok, np.degrees(np.arccos(np.clip(g.cos_e, -1, 1))), np.nan),
+            np.where(g.inside, np.degrees(np.arccos(np.clip(g.cos_e, -1, 1))), np.nan),
             np.where(g.inside & facing, t_gsd, np.nan),
             g.facing_gsd,
             cast,
@@ -287,7 +293,15 @@ def compute_visibility(
         gsd[rs, cs] = t_gsd
         eps_out[rs, cs] = t_eps
 
-    run_tiles(work, terrain.shape, TILE, "visibility", progress, threads)
+    # posts outside the image keep NODATA and NaN: only the window that can hold the image
+    r0, r1, c0, c1 = image_window(terrain, camera) if fast else (0, rows, 0, cols)
+
+    def in_window(tile: tuple[slice, slice]) -> None:
+        rs, cs = tile
+        work((slice(rs.start + r0, rs.stop + r0), slice(cs.start + c0, cs.stop + c0)))
+
+    if r1 > r0 and c1 > c0:
+        run_tiles(in_window, (r1 - r0, c1 - c0), TILE, "visibility", progress, threads)
     if strict and not (codes != Code.NODATA).any():
         raise GeometryError(_no_overlap_reason(terrain, camera))
     if strict and not np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).any():

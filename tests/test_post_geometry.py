@@ -12,7 +12,7 @@ import pytest
 from affine import Affine
 
 from orthomvp.camera import BrownConradyDistortion
-from orthomvp.post_geometry import general, separable
+from orthomvp.post_geometry import general, image_window, separable
 from orthomvp.synthetic.loader import load_scene
 from orthomvp.visibility import compute_visibility, occluder_caster
 
@@ -94,3 +94,23 @@ def test_general_path_where_separable_does_not_apply(city_dir: Path, crater_dir:
     a = compute_visibility(crater.terrain, cam, fast=False)
     b = compute_visibility(crater.terrain, cam)
     np.testing.assert_array_equal(a.uv, b.uv)
+
+
+def test_image_window_bounds_the_posts_in_the_image(city_dir: Path) -> None:
+    """A camera cropped to a corner of its image sees part of the city: the window holds
+    every post the general path finds in the image, is smaller than the grid, and the fast
+    path (which works only inside it) gives the general path's result everywhere."""
+    scene = load_scene(city_dir)
+    dem = scene.terrain
+    caster = occluder_caster(dem)
+    for view in scene.views.values():
+        cam = view.camera
+        corner = cam.crop(0, 0, cam.width // 2, cam.height // 3)
+        a = compute_visibility(dem, corner, caster=caster, fast=False)
+        b = compute_visibility(dem, corner, caster=caster)
+        assert_same(a, b)
+        r0, r1, c0, c1 = image_window(dem, corner)
+        rows, cols = np.nonzero(a.codes)
+        assert len(rows) > 100
+        assert r0 <= rows.min() and rows.max() < r1 and c0 <= cols.min() and cols.max() < c1
+        assert (r1 - r0) * (c1 - c0) < 0.7 * dem.values.size
