@@ -161,14 +161,20 @@ class Composite:
 
 def box_sum(a: np.ndarray, radius: int) -> np.ndarray:
     """Exact sums of integer array ``a`` (..., rows, cols) over the (2 radius + 1)^2 box
-    around each post, zero beyond the array (int64). OpenCV's box filter on float64: sums of
-    integers below 2^53 come out exact in any order."""
+    around each post, zero beyond the array (int64). OpenCV's box filter: sums of integers
+    come out exact in any order below 2^53 in float64, and below 2^24 in float32, where
+    boolean and uint8 arrays are summed without a conversion (at most 255 (2 radius + 1)^2)."""
     a = np.asarray(a)
     k = 2 * radius + 1
-    planes = a.reshape(-1, *a.shape[-2:]).astype(np.float64)
+    small = a.dtype in (np.bool_, np.uint8) and 255 * k * k < 1 << 24
+    planes = a.reshape(-1, *a.shape[-2:])
+    planes = np.ascontiguousarray(planes).view(np.uint8) if small else planes.astype(np.float64)
+    depth = cv2.CV_32F if small else cv2.CV_64F
     out = np.empty(planes.shape, np.int64)
     for i, plane in enumerate(planes):
-        out[i] = cv2.boxFilter(plane, -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        out[i] = cv2.boxFilter(
+            plane, depth, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT
+        )
     return out.reshape(a.shape)
 
 
@@ -263,7 +269,7 @@ def labels(
     """The 0-based view of each post (-1 where none is ``visible``): least priority ``cost``,
     or with ``seamlines`` least seam cost (module docstring)."""
     if seamlines:
-        inside = box_sum(np.ones(visible.shape[1:], np.int8), SEAM_RADIUS)
+        inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)
         unseen = 1.0 - seen / inside
         total = np.nan_to_num(cost, nan=0.0) + unseen + disagreement(values, visible)

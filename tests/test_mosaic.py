@@ -256,11 +256,14 @@ def test_box_sum_is_exact_and_zero_off_the_grid() -> None:
     expected = sum(padded[i : i + 5, j : j + 6] for i in range(3) for j in range(3))
     np.testing.assert_array_equal(got, expected)
     rng = np.random.default_rng(3)
-    for shape, radius in (((3, 40, 50), 4), ((2, 3, 70), 5), ((1, 2), 0)):
-        a = rng.integers(0, 4000, shape)
+    cases = [((3, 40, 50), 4, np.int64), ((2, 3, 70), 5, np.int64), ((1, 2), 0, np.int64)]
+    cases += [((2, 30, 20), 4, np.uint8), ((3, 9, 11), 2, np.bool_)]
+    for shape, radius, dtype in cases:
+        top = 2 if dtype == np.bool_ else 256 if dtype == np.uint8 else 4000
+        a = rng.integers(0, top, shape).astype(dtype)
         got = box_sum(a, radius)
         k, (rows, cols) = 2 * radius + 1, shape[-2:]
-        padded = np.pad(a, [(0, 0)] * (a.ndim - 2) + [(radius, radius)] * 2)
+        padded = np.pad(a.astype(np.int64), [(0, 0)] * (a.ndim - 2) + [(radius, radius)] * 2)
         expected = sum(padded[..., i : i + rows, j : j + cols] for i in range(k) for j in range(k))
         assert got.dtype == np.int64
         np.testing.assert_array_equal(got, expected)

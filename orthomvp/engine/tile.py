@@ -271,10 +271,14 @@ def _mosaic_tile(
     result.valid = int(np.isfinite(grid.values[inner][core]).sum())
     values = np.full((n, plan.bands, *shape), np.nan, np.float32)
     codes = np.zeros((n, *shape), np.uint8)
-    emission, gsd = np.full((n, *shape), np.inf), np.full((n, *shape), np.inf)
-    nadir = np.full((n, *shape), np.inf)
+    fill, priority = plan.mosaic.fill, plan.mosaic.priority
+    emission = np.full((n, *shape), np.inf)
+    # GSD and nadir angles only where the options use them (else read-only infinities)
+    use_gsd, use_nadir = priority == "gsd", priority == "nadir" or fill == "naive"
+    none = np.broadcast_to(np.inf, (n, *shape))
+    gsd = np.full((n, *shape), np.inf) if use_gsd else none
+    nadir = np.full((n, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((n, *shape), bool)
-    fill = plan.mosaic.fill
     for k in job.views:
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads)
@@ -288,9 +292,11 @@ def _mosaic_tile(
         result.counts[k] = np.bincount(tile_codes.ravel(), minlength=len(Code)).tolist()
         if result.codes is not None:
             result.codes[k] = tile_codes
-        codes[k], emission[k], gsd[k] = code, vis.emission[inner], vis.gsd[inner]
+        codes[k], emission[k] = code, vis.emission[inner]
+        if use_gsd:
+            gsd[k] = vis.gsd[inner]
         doubt[k] = doubtful(vis.miss[inner], vis.eps[inner])
-        if plan.mosaic.priority == "nadir" or fill == "naive":
+        if use_nadir:
             nadir[k] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
         if fill == "any-view":
