@@ -97,18 +97,20 @@ def sample_image(
     """
     flag = INTERPOLATION[Interp(interp)]
     image = as_image(image)
-    uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
+    if uv is not None and np.asarray(uv).dtype != np.float32:  # float32 positions as they are
+        uv = np.asarray(uv, dtype=np.float64)
     if uv is None or uv.shape[-1:] != (2,):
         raise InputError(
             f"pixel positions must have shape (..., 2), got {getattr(uv, 'shape', uv)}"
         )
     shape = uv.shape[:-1]
-    flat = uv.reshape(-1, 2).astype(np.float32)
     # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
-    n = len(flat)
+    n = int(np.prod(shape))
     width = 4096
-    pad = (-n) % width
-    maps = np.concatenate([flat, np.full((pad, 2), -1e6, np.float32)]).reshape(-1, width, 2)
+    maps = np.full((n + (-n) % width, 2), -1e6, np.float32)
+    maps[:n] = uv.reshape(-1, 2)
+    flat = maps[:n]
+    maps = maps.reshape(-1, width, 2)
     out = np.empty((image.shape[0], n), np.float32)
     for b, band in enumerate(image):
         band = np.ascontiguousarray(band, dtype=np.float32)

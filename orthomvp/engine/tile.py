@@ -139,7 +139,7 @@ def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndar
     c1 = min(max(hi[0] + IMAGE_MARGIN + 2, c0 + 1), view.width)
     r1 = min(max(hi[1] + IMAGE_MARGIN + 2, r0 + 1), view.height)
     shifted = uv.astype(np.float32) - np.array([c0, r0], np.float32)
-    return view.read((r0, r1, c0, c1)), shifted.astype(np.float64)
+    return view.read((r0, r1, c0, c1)), shifted
 
 
 def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
