@@ -71,14 +71,14 @@ def image_window(terrain: Terrain, camera: PinholeCamera) -> tuple[int, int, int
     box of those eight points."""
     rows, cols = terrain.shape
     whole = (0, rows, 0, cols)
-    z = terrain.values[np.isfinite(terrain.values)]
-    if not len(z):
+    low, high = np.fmin.reduce(terrain.values, axis=None), np.fmax.reduce(terrain.values, axis=None)
+    if not np.isfinite(low):  # no height (NaN ignored, unless all are)
         return whole
     w, h = camera.width - 0.5, camera.height - 0.5
     origin, d = camera.ray(np.array([[-0.5, -0.5], [w, -0.5], [-0.5, h], [w, h]]))
-    if not ((d[:, 2] < 0).all() and (origin[:, 2] > z.max()).all()):
+    if not ((d[:, 2] < 0).all() and (origin[:, 2] > high).all()):
         return whole  # a corner ray does not come down to the grid: the horizon is in view
-    corners = [origin + ((at - origin[:, 2]) / d[:, 2])[:, None] * d for at in (z.min(), z.max())]
+    corners = [origin + ((at - origin[:, 2]) / d[:, 2])[:, None] * d for at in (low, high)]
     x, y = np.concatenate(corners)[:, 0], np.concatenate(corners)[:, 1]
     c, r = terrain.crs_to_pixel(x, y)
     r0, r1 = int(np.floor(r.min())) - 2, int(np.ceil(r.max())) + 3
