@@ -23,7 +23,7 @@ SURVEY_POSTS = 512
 
 FOOTPRINT_POSTS = 128
 """Posts along the longer side of the survey grid without a balance (at most): the widest
-overlap is then known to within the survey's step, a fraction of a percent of the grid."""
+overlap is then known to within one step of the survey grid, under 1% of the grid's side."""
 
 
 def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
