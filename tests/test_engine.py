@@ -513,6 +513,17 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
     assert auto_tile((3000, 600), 4) == 750
     assert auto_tile((100, 50), 2) == 256
     assert check_tile(None) is None
+    # a mosaic's tiles keep every view's samples under the heap's mmap threshold
+    from orthomvp.engine.heap import MMAP_THRESHOLD
+    from orthomvp.engine.plan import mosaic_tile
+
+    assert mosaic_tile(2, 3, 13) == 1024 and mosaic_tile(50, 3, 13) == 256
+    for views, bands in ((3, 1), (4, 3), (6, 3), (8, 4)):
+        tile = mosaic_tile(views, bands, 13)
+        stack = (tile + 26) ** 2 * views * bands * 4  # bytes, the tile with its margin
+        bigger = (tile + 128 + 26) ** 2 * views * bands * 4
+        assert stack <= MMAP_THRESHOLD and (tile == 1024 or bigger > MMAP_THRESHOLD)
+    assert auto_tile((5000, 3000), 2, largest=768) == 768
     view = [(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")]
     plan = plan_ortho(crater_dir / "dem.tif", view, progress=False)
     assert plan.tile == auto_tile(plan.grid.shape) and len(plan.tiles) == 1
