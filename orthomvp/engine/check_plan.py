@@ -17,7 +17,6 @@ from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
-    BASE_BYTES,
     MESH_BYTES,
     SAMPLE_BUDGET_PIXELS,
     TILE_BYTES,
@@ -26,6 +25,8 @@ from orthomvp.engine.plan import (
     Plan,
     TileJob,
     check_tile,
+    largest_dem_window,
+    peak_bytes,
     tile_grid,
 )
 from orthomvp.errors import InputError
@@ -91,19 +92,14 @@ class CheckPlan:
     def peak_memory(self, workers: int, processes: int = 0) -> int:
         """Expected peak memory of a run with ``workers`` tiles at a time and ``processes``
         worker processes besides this one, bytes."""
-        sizes = sorted((self.tile_bytes(job) for job in self.tiles), reverse=True)
-        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+        return peak_bytes((self.tile_bytes(job) for job in self.tiles), workers, processes)
 
     def summary(self, peak: int, workers: int) -> str:
         """One line: grid, tiles, images, epsilons, the NCC margin, the occluder halo, the
         largest DEM window and the expected ``peak`` memory (bytes) with ``workers`` tiles."""
         rows, cols = self.base.grid.shape
         run = [job for job in self.tiles if job.views]
-        biggest = max(run, key=lambda job: job.dem_posts, default=None)
-        window = ""
-        if biggest is not None and biggest.dem is not None:
-            r0, r1, c0, c1 = biggest.dem
-            window = f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
+        window = largest_dem_window(run)
         return (
             f"orthomvp: plan: check {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} "
             f"tiles of {self.tile} x {self.tile} to run, {len(self.views)} images, "

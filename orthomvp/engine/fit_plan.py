@@ -44,7 +44,6 @@ from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.halo import footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
-    BASE_BYTES,
     MESH_BYTES,
     TILE,
     WINDOW_BYTES,
@@ -52,6 +51,8 @@ from orthomvp.engine.plan import (
     _union,
     check_plan,
     check_tile,
+    largest_dem_window,
+    peak_bytes,
     plan_tiles,
     read_source,
 )
@@ -159,23 +160,18 @@ class FitPlan:
     def peak_memory(self, workers: int, processes: int = 0, threads: int = 1) -> int:
         """Expected peak memory of a run with ``workers`` tiles at a time (each with
         ``threads`` threads) and ``processes`` worker processes besides this one, bytes."""
-        sizes = sorted((self.tile_bytes(job, threads) for job in self.tiles), reverse=True)
-        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+        sizes = (self.tile_bytes(job, threads) for job in self.tiles)
+        return peak_bytes(sizes, workers, processes)
 
     def summary(self, peak: int, workers: int) -> str:
         """One line: grid size, tiles, images, the largest windows and the expected ``peak``
         memory (bytes) with ``workers`` tiles at a time."""
         rows, cols = self.grid.shape
         run = [job for job in self.tiles if job.views]
-        biggest = max(run, key=lambda job: job.dem_posts, default=None)
-        windows = ""
-        if biggest is not None and biggest.dem is not None:
-            r0, r1, c0, c1 = biggest.dem
-            r0_, r1_, c0_, c1_ = max((w for job in run for w in job.images), key=_posts)
-            windows = (
-                f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts, image windows up to "
-                f"{c1_ - c0_:,} x {r1_ - r0_:,} px"
-            )
+        windows = largest_dem_window(run)
+        if windows:
+            r0, r1, c0, c1 = max((w for job in run for w in job.images), key=_posts)
+            windows += f", image windows up to {c1 - c0:,} x {r1 - r0:,} px"
         return (
             f"plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
             f"{self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -148,19 +148,14 @@ class Plan:
         """Expected peak memory of a run with ``workers`` tiles in flight at once and
         ``processes`` worker processes besides this one (each an interpreter of
         :data:`BASE_BYTES`), reading images or not, bytes."""
-        sizes = sorted((self.tile_bytes(job, images) for job in self.tiles), reverse=True)
-        return (1 + processes) * BASE_BYTES + sum(sizes[:workers])
+        return peak_bytes((self.tile_bytes(job, images) for job in self.tiles), workers, processes)
 
     def summary(self, peak: int, workers: int) -> str:
         """One line: grid size, tiles, images, the largest DEM window, and the expected
         ``peak`` memory (bytes) with ``workers`` tiles at a time."""
         rows, cols = self.grid.shape
         run = [job for job in self.tiles if job.views]
-        biggest = max(run, key=lambda job: job.dem_posts, default=None)
-        window = ""
-        if biggest is not None and biggest.dem is not None:
-            r0, r1, c0, c1 = biggest.dem
-            window = f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
+        window = largest_dem_window(run)
         reach = max(self.reach, default=0.0)
         return (
             f"orthomvp: plan: {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
@@ -357,6 +352,23 @@ def plan_ortho(
         tuple(elevation),
         mosaic,
     )
+
+
+def peak_bytes(sizes: Iterable[int], workers: int, processes: int) -> int:
+    """Expected peak memory of a run whose tiles take ``sizes`` bytes each, with ``workers``
+    tiles in flight at once (the largest) and ``processes`` worker processes besides this one,
+    each an interpreter of :data:`BASE_BYTES`, bytes."""
+    return (1 + processes) * BASE_BYTES + sum(sorted(sizes, reverse=True)[:workers])
+
+
+def largest_dem_window(run: Sequence[Any]) -> str:
+    """``", DEM windows up to C x R posts"`` for the largest DEM window (``dem``, with
+    ``dem_posts``) of the tiles ``run``, for a plan's summary; empty without one."""
+    biggest = max(run, key=lambda job: job.dem_posts, default=None)
+    if biggest is None or biggest.dem is None:
+        return ""
+    r0, r1, c0, c1 = biggest.dem
+    return f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
 
 
 def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
