@@ -33,6 +33,7 @@ from orthomvp.engine.tile import (
     sample_view,
 )
 from orthomvp.errors import GeometryError
+from orthomvp.vectors import finite_rows
 from orthomvp.visibility import occluder_caster
 
 CLASSES = ("visible", "occluded")
@@ -119,7 +120,7 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
     for k in job.views:
         vis = _visibility(base, grid, k, caster, window, threads)
         code, uv = vis.codes[inner], vis.uv[inner]
-        inside = np.isfinite(uv).all(axis=-1)
+        inside = finite_rows(uv)
         value = np.full(code.shape, np.nan, np.float32)
         if inside.any():
             value[inside] = np.mean(sample_view(plan.views[k], uv[inside], "bilinear"), axis=0)
