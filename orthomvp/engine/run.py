@@ -167,34 +167,33 @@ def results(
 
     def top_up() -> None:
         while queue and len(pending) < limit:
-            try:
+            with _worker_deaths():  # a broken pool refuses new work
                 pending.add(submit(queue.pop(), *args))
-            except Exception as exc:  # a broken pool refuses new work
-                if _died(exc):
-                    raise _worker_error(exc) from None
-                raise
 
-    while queue or pending:
-        top_up()
+    top_up()
+    while pending:  # empty only once the queue is (top_up refills it up to the limit)
         done, rest = wait(pending)
         pending.intersection_update(rest)
         top_up()
         for future in done:
-            try:
+            with _worker_deaths():
                 result = future.result()
-            except Exception as exc:
-                if _died(exc):
-                    raise _worker_error(exc) from None
-                raise
             yield result
 
 
-def _worker_error(exc: BaseException) -> WorkerError:
-    """The one-line error of a run whose worker died (``exc`` from its pool or cluster)."""
-    return WorkerError(
-        f"a worker died while running a tile ({type(exc).__name__}: "
-        f"{' '.join(str(exc).split())[:200]}); nothing was written"
-    )
+@contextlib.contextmanager
+def _worker_deaths() -> Iterator[None]:
+    """Within the block, an exception that says a worker died (:func:`_died`, from its pool or
+    cluster) becomes one WorkerError line; any other passes as it is."""
+    try:
+        yield
+    except Exception as exc:
+        if not _died(exc):
+            raise
+        raise WorkerError(
+            f"a worker died while running a tile ({type(exc).__name__}: "
+            f"{' '.join(str(exc).split())[:200]}); nothing was written"
+        ) from None
 
 
 def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
