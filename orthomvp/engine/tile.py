@@ -14,7 +14,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from affine import Affine
 
 from orthomvp.codes import Code
 from orthomvp.engine import heap
@@ -111,8 +110,9 @@ def _grid_tile(
     w0, _, w2, _ = job.dem
     if plan.grid.on_dem:
         values = window.values[ext[0] - w0 : ext[1] - w0, ext[2] - w2 : ext[3] - w2]
-    elif plan.grid.crs == plan.dem.crs and _north_up(plan.dem.transform):
-        to_dem = grid_to_dem(plan.grid, plan.dem)  # columns and rows map apart
+    elif plan.grid.crs == plan.dem.crs:  # neither is rotated (both make Terrains, which
+        # refuse it), so columns and rows map apart
+        to_dem = grid_to_dem(plan.grid, plan.dem)
         dc, _ = to_dem(np.arange(ext[2], ext[3], dtype=np.float64), 0.0)
         _, dr = to_dem(0.0, np.arange(ext[0], ext[1], dtype=np.float64))
         values = window.interpolate_grid(dc - w2, dr - w0)
@@ -122,11 +122,6 @@ def _grid_tile(
         values = window.interpolate(dc - w2, dr - w0)
     grid = plan.grid.georef(ext, window)
     return (grid.with_values(values) if np.isfinite(values).any() else None), inner
-
-
-def _north_up(transform: Affine) -> bool:
-    """Whether a grid's columns run east and its rows south, with no rotation or shear."""
-    return transform.b == 0 and transform.d == 0
 
 
 def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
