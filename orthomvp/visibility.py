@@ -212,7 +212,6 @@ def compute_visibility(
     gsd = np.full((rows, cols), np.nan)
     eps_out = np.full((rows, cols), np.nan)
     spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
-    fixed_origin = camera.center if isinstance(camera, PinholeCamera) else None
     carry = None
     if dem is not None and occlusion and post_scale < 1:
         of_type(dem, Terrain, "dem")
@@ -236,37 +235,12 @@ def compute_visibility(
             known = np.where(cast, carry.at(terrain, rs, cs, g), 0).astype(np.uint8)
             t_codes[known != 0] = known[known != 0]
             cast &= known == 0
-        finish(
-            rs,
-            cs,
-            t_codes,
-            np.where(g.inside[..., None], g.uv, np.nan),
-            np.where(g.inside, np.degrees(np.arccos(np.clip(g.cos_e, -1, 1))), np.nan),
-            np.where(g.inside & facing, t_gsd, np.nan),
-            g.facing_gsd,
-            cast,
-            g.points(cast),
-            None if g.origins is None else g.origins[cast],
-        )
-
-    def finish(
-        rs: slice,
-        cs: slice,
-        t_codes: np.ndarray,
-        t_uv: np.ndarray,
-        t_emission: np.ndarray,
-        t_gsd: np.ndarray,
-        facing_gsd: np.ndarray,
-        cast: np.ndarray,
-        pc: np.ndarray | None,
-        oc: np.ndarray | None,
-    ) -> None:
-        """Cast the rays of the posts ``cast`` (world points ``pc``, origins ``oc`` unless
-        the camera has one centre) and store the tile."""
+        t_uv = np.where(g.inside[..., None], g.uv, np.nan)
         t_miss = np.full(t_codes.shape, np.nan)
         t_eps = np.full(t_codes.shape, np.nan)  # eps where a ray is cast
-        if cast.any():
-            o = oc if fixed_origin is None else fixed_origin
+        if cast.any():  # cast the rays, from the camera's centre or each pixel's origin
+            pc = g.points(cast)
+            o = camera.center if g.origins is None else g.origins[cast]
             if _pinhole_ray(camera):
                 d = pc - o  # the pinhole's own ray through the post's pixel
             else:
@@ -283,14 +257,15 @@ def compute_visibility(
                 pcol, prow = c[front] + cs.start, r[front] + rs.start
                 dist[front] = np.hypot(hc - pcol, hr - prow) * post_scale
             t_miss[cast] = dist
-            t_eps[cast] = float(eps) if eps else default_eps(facing_gsd[cast] / spacing)
+            t_eps[cast] = float(eps) if eps else default_eps(g.facing_gsd[cast] / spacing)
             # a ray that hits nothing has nothing in its way: the post is visible
             t_codes[cast] = classify(dist, t_eps[cast])
         codes[rs, cs] = t_codes
         uv[rs, cs] = t_uv
         miss[rs, cs] = t_miss
-        emission[rs, cs] = t_emission
-        gsd[rs, cs] = t_gsd
+        angle = np.degrees(np.arccos(np.clip(g.cos_e, -1, 1)))
+        emission[rs, cs] = np.where(g.inside, angle, np.nan)
+        gsd[rs, cs] = np.where(g.inside & facing, t_gsd, np.nan)
         eps_out[rs, cs] = t_eps
 
     # posts outside the image keep NODATA and NaN: only the window that can hold the image
