@@ -21,7 +21,7 @@ import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.terrain import Terrain, grid_normals
+from orthomvp.terrain import Terrain, central_difference, grid_normals, unit_normals
 from orthomvp.vectors import finite_rows
 
 
@@ -127,15 +127,9 @@ def separable(terrain: Terrain, camera: PinholeCamera, rs: slice, cs: slice) -> 
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     # differences along columns (a) and rows (b), as terrain._difference: in the map frame the
     # easting is never NaN, so the one-sided fallback next to holes never applies
-    a = [_difference(v, 1)[_cut(v, inner)] for v in (bx, by, bz)]
-    b = [_difference(v, 0)[_cut(v, inner)] for v in (bx, by, bz)]
-    n0 = a[1] * b[2] - a[2] * b[1]
-    n1 = a[2] * b[0] - a[0] * b[2]
-    n2 = a[0] * b[1] - a[1] * b[0]
-    with np.errstate(invalid="ignore", divide="ignore"):  # as grid_normals, up = (0, 0, 1)
-        outward = n0 * 0.0 + n1 * 0.0 + n2 * 1.0 >= 0
-        scale = np.where(outward, 1.0, -1.0) / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        n0, n1, n2 = n0 * scale, n1 * scale, n2 * scale
+    a = tuple(central_difference(v, 1)[_cut(v, inner)] for v in (bx, by, bz))
+    b = tuple(central_difference(v, 0)[_cut(v, inner)] for v in (bx, by, bz))
+    n0, n1, n2 = unit_normals(a, b, (0.0, 0.0, 1.0))  # as grid_normals, up = (0, 0, 1)
     x, y, z = bx[_cut(bx, inner)], by[_cut(by, inner)], bz[inner]
     ok = np.isfinite(z) & np.isfinite(n0) & np.isfinite(n1) & np.isfinite(n2)
     ok &= np.isfinite(x) & np.isfinite(y)
@@ -162,16 +156,3 @@ def separable(terrain: Terrain, camera: PinholeCamera, rs: slice, cs: slice) -> 
 def _cut(v: np.ndarray, inner: tuple[slice, slice]) -> tuple[slice, slice]:
     """``inner`` on the axes where ``v`` varies (a broadcast axis of length 1 stays whole)."""
     return tuple(s if n > 1 else slice(None) for s, n in zip(inner, v.shape, strict=True))
-
-
-def _difference(v: np.ndarray, axis: int) -> np.ndarray:
-    """Per-step difference along ``axis``: central, one-sided at the ends (zero along an axis
-    of length 1, where ``v`` is constant)."""
-    if v.shape[axis] == 1:
-        return np.zeros_like(v)
-    v = np.moveaxis(v, axis, 0)
-    d = np.empty_like(v)
-    d[1:-1] = (v[2:] - v[:-2]) * 0.5
-    d[0] = v[1] - v[0]
-    d[-1] = v[-1] - v[-2]
-    return np.moveaxis(d, 0, axis)
