@@ -90,9 +90,7 @@ def check(
             window=window,
             names=names,
             tile=engine.tile,
-            dem_crs=dem.crs,
-            radius_values=dem.radius_values,
-            world=dem.world,
+            **dem.plan_options(),
             progress=not quiet(),
         )
         with engine.workers() as executor:

@@ -145,9 +145,7 @@ def fit(
         options,
         tile=engine.tile,
         eps=eps,
-        dem_crs=dem.crs,
-        radius_values=dem.radius_values,
-        world=dem.world,
+        **dem.plan_options(),
         progress=not quiet(),
     )
     report = engine.run(plan, outputs, progress=not quiet(), runner=run_fit)

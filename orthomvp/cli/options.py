@@ -111,6 +111,11 @@ class DemInput:
     world: str = "auto"
     """"auto", or a :class:`WorldFrame` value"""
 
+    def plan_options(self) -> dict[str, object]:
+        """How the engine's plans (``plan_ortho``, ``plan_check``, ``plan_fit``) read the DEM:
+        their ``dem_crs``, ``radius_values`` and ``world``."""
+        return {"dem_crs": self.crs, "radius_values": self.radius_values, "world": self.world}
+
     def read(self, cameras: Sequence[Camera] = ()) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
         :func:`orthomvp.world.detect_world`), body-fixed when there are none. In the body frame

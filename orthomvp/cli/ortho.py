@@ -78,9 +78,7 @@ def _plan(
         occlusion=occlusion,
         eps=eps,
         interp=interp,
-        dem_crs=dem.crs,
-        radius_values=dem.radius_values,
-        world=dem.world,
+        **dem.plan_options(),
         progress=not quiet(),
         mosaic=mosaic,
     )
