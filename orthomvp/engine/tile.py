@@ -192,11 +192,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads)
         codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
-        result.inside[k] = int((codes != Code.NODATA).sum())
-        result.seen[k] = int(np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).sum())
-        result.counts[k] = np.bincount(codes.ravel(), minlength=len(Code)).tolist()
-        if result.codes is not None:
-            result.codes[k] = codes
+        _record_codes(result, k, codes)
         keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
         keep &= emission < best
         if (result.data is not None or result.source is not None) and keep.any():
@@ -215,6 +211,18 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     if result.data is not None or result.source is not None:
         result.taken = _taken(label, len(plan.views))
     return result
+
+
+def _record_codes(result: TileResult, k: int, codes: np.ndarray) -> None:
+    """View ``k``'s ``codes`` of the tile's posts into ``result``: its posts of each code,
+    those inside the image and those seen (visible or occluded), and the codes themselves
+    when they are an output."""
+    counts = np.bincount(codes.ravel(), minlength=len(Code))
+    result.counts[k] = counts.tolist()
+    result.inside[k] = int(codes.size - counts[Code.NODATA])
+    result.seen[k] = int(counts[Code.VISIBLE] + counts[Code.OCCLUDED])
+    if result.codes is not None:
+        result.codes[k] = codes
 
 
 def _taken(label: np.ndarray, views: int) -> list[int]:
@@ -281,12 +289,7 @@ def _mosaic_tile(
         inside = finite_rows(uv)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
-        tile_codes = code[core]
-        result.inside[k] = int((tile_codes != Code.NODATA).sum())
-        result.seen[k] = int(np.isin(tile_codes, (Code.VISIBLE, Code.OCCLUDED)).sum())
-        result.counts[k] = np.bincount(tile_codes.ravel(), minlength=len(Code)).tolist()
-        if result.codes is not None:
-            result.codes[k] = tile_codes
+        _record_codes(result, k, code[core])
         codes[k], emission[k] = code, vis.emission[inner]
         if use_gsd:
             gsd[k] = vis.gsd[inner]
