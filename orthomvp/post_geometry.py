@@ -79,8 +79,8 @@ def image_window(terrain: Terrain, camera: PinholeCamera) -> tuple[int, int, int
     if not ((d[:, 2] < 0).all() and (origin[:, 2] > high).all()):
         return whole  # a corner ray does not come down to the grid: the horizon is in view
     corners = [origin + ((at - origin[:, 2]) / d[:, 2])[:, None] * d for at in (low, high)]
-    x, y = np.concatenate(corners)[:, 0], np.concatenate(corners)[:, 1]
-    c, r = terrain.crs_to_pixel(x, y)
+    points = np.concatenate(corners)
+    c, r = terrain.crs_to_pixel(points[:, 0], points[:, 1])
     r0, r1 = int(np.floor(r.min())) - 2, int(np.ceil(r.max())) + 3
     c0, c1 = int(np.floor(c.min())) - 2, int(np.ceil(c.max())) + 3
     return max(r0, 0), min(max(r1, 0), rows), max(c0, 0), min(max(c1, 0), cols)
