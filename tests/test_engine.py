@@ -503,14 +503,14 @@ def test_outputs_switch_to_bigtiff_when_they_may_pass_4_gib(tmp_path: Path, comp
 
 
 def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> None:
-    """The default tile: 1024 posts, or the longer side split among the cores (at least
-    256 posts); a plan without ``tile`` uses it."""
+    """The default tile: 1024 posts, or the longer side split among the cores (rounded up to
+    a multiple of 64, at least 256 posts); a plan without ``tile`` uses it."""
     from orthomvp.engine.plan import auto_tile, check_tile
 
     assert auto_tile((5000, 3000), 2) == 1024
     assert auto_tile((508, 327), 2) == 256  # 2 x 2 tiles
-    assert auto_tile((1400, 600), 2) == 700
-    assert auto_tile((3000, 600), 4) == 750
+    assert auto_tile((1400, 600), 2) == 704  # a multiple of 64: overviews from the tiles
+    assert auto_tile((3000, 600), 4) == 768
     assert auto_tile((100, 50), 2) == 256
     assert check_tile(None) is None
     # a mosaic's tiles keep every view's samples under the heap's mmap threshold

@@ -40,6 +40,10 @@ SMALL_TILE = 256
 """Smallest tile side :func:`auto_tile` chooses, posts: below it a tile's fixed costs (its mesh
 over the occluder halo, the mosaic's margin) outweigh the cores it keeps busy."""
 
+TILE_STEP = 64
+""":func:`auto_tile` gives multiples of it, so that each tile makes the output's first six
+overview levels from its own posts (:mod:`orthomvp.engine.overviews`)."""
+
 IMAGE_MARGIN = 2
 """Image pixels read beyond the outermost sampled positions (cubic interpolation needs 2)."""
 
@@ -384,9 +388,11 @@ def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
 def auto_tile(shape: tuple[int, int], cores: int | None = None, largest: int = TILE) -> int:
     """The default tile side for a grid of ``shape`` (rows, cols): ``largest`` (default
     :data:`TILE`), or on a grid too small to give each of the ``cores`` (default: this
-    machine's) a tile, its longer side split among them, at least :data:`SMALL_TILE` posts."""
+    machine's) a tile, its longer side split among them, rounded up to a multiple of
+    :data:`TILE_STEP` and at least :data:`SMALL_TILE` posts."""
     cores = cores or os.cpu_count() or 1
-    return min(largest, max(SMALL_TILE, math.ceil(max(shape) / cores)))
+    split = math.ceil(max(shape) / cores / TILE_STEP) * TILE_STEP
+    return min(largest, max(SMALL_TILE, split))
 
 
 def mosaic_tile(views: int, bands: int, margin: int) -> int:
