@@ -47,6 +47,12 @@ from orthomvp.visibility import (
     occluder_caster,
 )
 
+MAP_COLUMNS = 32767
+"""The most columns a map of ``cv2.remap`` may have."""
+CUBIC_FRAME = 3
+"""Pixels of NaN around an image sampled by cubic interpolation (whose taps reach 2 pixels)."""
+OUTSIDE = -1e6
+"""A pixel position far outside any image (where ``cv2.remap``'s border, NaN, is sampled)."""
 BYTES_PER_BAND_POST = 12
 """Memory of an orthophoto per band and post beyond its visibility: the float32 result and the
 samples, bytes."""
@@ -104,22 +110,31 @@ def sample_image(
             f"pixel positions must have shape (..., 2), got {getattr(uv, 'shape', uv)}"
         )
     shape = uv.shape[:-1]
-    # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
     n = int(np.prod(shape))
-    width = 4096
-    maps = np.full((n + (-n) % width, 2), -1e6, np.float32)
-    maps[:n] = uv.reshape(-1, 2)
-    flat = maps[:n]
-    maps = maps.reshape(-1, width, 2)
-    out = np.empty((image.shape[0], n), np.float32)
+    if uv.ndim == 3 and uv.dtype == np.float32 and 0 < shape[1] <= MAP_COLUMNS:
+        maps = np.ascontiguousarray(uv)  # a grid of positions is the map as it is
+    else:  # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
+        width = 4096
+        maps = np.full((n + (-n) % width, 2), OUTSIDE, np.float32)
+        maps[:n] = uv.reshape(-1, 2)
+        maps = maps.reshape(-1, width, 2)
+    bad = ~finite_rows(maps)
+    if bad.any():  # a NaN position samples nothing: far outside, where the border is NaN
+        maps = np.where(bad[..., None], np.float32(OUTSIDE), maps)
+    border = cv2.BORDER_CONSTANT
+    if flag == cv2.INTER_CUBIC:  # OpenCV 5.0's cubic remap with a NaN border value gives NaN
+        # far inside the image too: the NaN border becomes a frame of the image instead, which
+        # the replicated border extends to any position outside
+        maps, border = maps + np.float32(CUBIC_FRAME), cv2.BORDER_REPLICATE
+    out = np.empty((image.shape[0], *maps.shape[:2]), np.float32)
     for b, band in enumerate(image):
         band = np.ascontiguousarray(band, dtype=np.float32)
-        s = cv2.remap(  # one two-channel map: no copy of each coordinate per band
-            band, maps, None, flag, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+        if flag == cv2.INTER_CUBIC:
+            band = cv2.copyMakeBorder(band, *[CUBIC_FRAME] * 4, cv2.BORDER_CONSTANT, value=np.nan)
+        cv2.remap(  # one two-channel map: no copy of each coordinate per band
+            band, maps, None, flag, dst=out[b], borderMode=border, borderValue=np.nan
         )
-        out[b] = s.reshape(-1)[:n]
-    out[:, ~finite_rows(flat)] = np.nan
-    return out.reshape((image.shape[0], *shape))
+    return out.reshape(image.shape[0], -1)[:, :n].reshape((image.shape[0], *shape))
 
 
 def orthorectify(

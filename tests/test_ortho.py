@@ -115,6 +115,55 @@ def test_sample_image_against_exact_bilinear() -> None:
     assert nearest[0, 0] == img[0, 5, 3] and np.isnan(nearest[:, 1:]).all()
 
 
+def test_sample_image_cubic_against_keys_kernel() -> None:
+    """Cubic samples against OpenCV's cubic convolution (Keys, a = -0.75) evaluated here:
+    finite wherever the 4 x 4 taps lie in the image (OpenCV 5.0's own NaN border gave NaN far
+    inside the image), NaN where a tap lies outside."""
+    rng = np.random.default_rng(1)
+    img = rng.random((2, 30, 40)).astype(np.float32)
+    uv = np.column_stack([rng.uniform(-4, 43, 3000), rng.uniform(-4, 33, 3000)])
+    out = sample_image(img, uv, "cubic")
+
+    def keys(t: np.ndarray) -> np.ndarray:
+        t, a = np.abs(t), -0.75
+        near = ((a + 2) * t - (a + 3)) * t * t + 1
+        far = ((a * t - 5 * a) * t + 8 * a) * t - 4 * a
+        return np.where(t <= 1, near, np.where(t < 2, far, 0.0))
+
+    c0, r0 = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+    inside = (c0 >= 1) & (c0 + 2 <= 39) & (r0 >= 1) & (r0 + 2 <= 29)
+    assert inside.sum() > 1500 and (~inside).sum() > 500
+    assert np.isfinite(out[:, inside]).all() and np.isnan(out[:, ~inside]).all()
+    for b in range(2):
+        expected = np.zeros(inside.sum())
+        for i in range(-1, 3):
+            for j in range(-1, 3):
+                w = keys(uv[inside, 0] - (c0[inside] + j)) * keys(uv[inside, 1] - (r0[inside] + i))
+                expected += w * img[b, r0[inside] + i, c0[inside] + j]
+        np.testing.assert_allclose(out[b, inside], expected, atol=3e-3)  # 5-bit positions
+
+
+@pytest.mark.parametrize("interp", ["nearest", "bilinear", "cubic"])
+def test_sample_image_on_a_grid_of_positions_samples_as_a_list_of_them(interp: str) -> None:
+    """A (rows, cols, 2) float32 grid of positions is cv2.remap's map as it is; the values are
+    those of the same positions as a list (laid out in rows of 4096), NaN positions and
+    positions outside the image giving NaN."""
+    rng = np.random.default_rng(5)
+    img = rng.random((3, 60, 80)).astype(np.float32)
+    uv = np.stack([rng.uniform(-3, 82, (37, 53)), rng.uniform(-3, 62, (37, 53))], -1)
+    uv = uv.astype(np.float32)
+    uv[5, 7] = np.nan
+    uv[6, 8, 1] = np.nan
+    grid = sample_image(img, uv, interp)
+    listed = sample_image(img, uv.reshape(-1, 2), interp).reshape(3, 37, 53)
+    assert grid.shape == (3, 37, 53)
+    np.testing.assert_array_equal(grid, listed)
+    assert np.isnan(grid[:, 5, 7]).all() and np.isnan(grid[:, 6, 8]).all()
+    outside = (uv[..., 0] < -1) | (uv[..., 0] > 81) | (uv[..., 1] < -1) | (uv[..., 1] > 61)
+    assert outside.any() and np.isnan(grid[:, outside]).all()
+    assert np.isfinite(grid[:, ~outside & np.isfinite(uv).all(-1)]).mean() > 0.8
+
+
 def _flat_terrain() -> Terrain:
     step = np.degrees(50.0 / 1737400.0)
     return Terrain(
