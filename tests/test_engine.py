@@ -554,3 +554,25 @@ def test_a_tile_leaves_no_reference_cycles(crater_dir: Path, views: tuple[str, .
         gc.set_debug(0)
         gc.garbage.clear()
         gc.enable()
+
+
+def test_sample_grid_gives_sample_views_values_in_place(
+    crater: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The tile's sampling on its grid of positions equals sampling the kept positions as a
+    list (bit for bit), NaN where not kept; also when the image window is over the budget
+    and the list is sampled in pieces."""
+    from orthomvp.engine import tile as tile_module
+    from orthomvp.engine.images import image_source
+
+    image, camera_path = crater["views"]["oblique"]
+    view = image_source(image, camera_path)
+    vis = compute_visibility(crater["terrain"], view.camera)
+    uv, keep = vis.uv, vis.codes == 1
+    assert keep.any() and not keep.all()
+    expected = np.full((view.bands, *keep.shape), np.nan, np.float32)
+    expected[:, keep] = tile_module.sample_view(view, uv[keep], "bilinear")
+    np.testing.assert_array_equal(tile_module.sample_grid(view, uv, keep, "bilinear"), expected)
+    monkeypatch.setattr(tile_module, "SAMPLE_BUDGET_PIXELS", 64)
+    pieces = tile_module.sample_grid(view, uv, keep, "bilinear")
+    np.testing.assert_array_equal(pieces, expected)

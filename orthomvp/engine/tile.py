@@ -21,7 +21,7 @@ from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
 from orthomvp.mosaic import compose, doubtful, nadir_angle
-from orthomvp.ortho import sample_image
+from orthomvp.ortho import OUTSIDE, sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.vectors import column_range, finite_rows
@@ -128,13 +128,19 @@ def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndar
     """The image pixels around positions ``uv`` (n, 2) and the positions relative to them,
     shifted in float32 as :func:`~orthomvp.ortho.sample_image` uses them (exact, so every
     window samples exactly as the whole image would)."""
-    low, high = column_range(uv)
+    window = _image_window(view, *column_range(uv))
+    shifted = uv.astype(np.float32) - np.array([window[2], window[0]], np.float32)
+    return view.read(window), shifted
+
+
+def _image_window(view: ImageSource, low: np.ndarray, high: np.ndarray) -> WindowT:
+    """The window (r0, r1, c0, c1) of the image pixels that positions from ``low`` to
+    ``high`` (u, v) sample, with :data:`IMAGE_MARGIN` pixels around."""
     lo, hi = np.floor(low).astype(int), np.floor(high).astype(int)
     c0, r0 = max(lo[0] - IMAGE_MARGIN, 0), max(lo[1] - IMAGE_MARGIN, 0)
     c1 = min(max(hi[0] + IMAGE_MARGIN + 2, c0 + 1), view.width)
     r1 = min(max(hi[1] + IMAGE_MARGIN + 2, r0 + 1), view.height)
-    shifted = uv.astype(np.float32) - np.array([c0, r0], np.float32)
-    return view.read((r0, r1, c0, c1)), shifted
+    return (r0, r1, c0, c1)
 
 
 def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
@@ -152,6 +158,26 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
         return out
     pixels, shifted = _read_window(view, uv)
     return sample_image(pixels, shifted, interp)
+
+
+def sample_grid(view: ImageSource, uv: np.ndarray, keep: np.ndarray, interp: str) -> np.ndarray:
+    """Values (bands, rows, cols) float32 of the image at the positions ``uv`` (rows, cols, 2)
+    where ``keep`` (rows, cols), NaN elsewhere: the same values as :func:`sample_view` of
+    ``uv[keep]``, with the grid itself as the map of ``cv2.remap`` (no gathering of the kept
+    positions, no scattering of their values)."""
+    u, v = uv[..., 0], uv[..., 1]
+    low = np.array([u.min(where=keep, initial=np.inf), v.min(where=keep, initial=np.inf)])
+    high = np.array([u.max(where=keep, initial=-np.inf), v.max(where=keep, initial=-np.inf)])
+    span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
+    if span[0] * span[1] > SAMPLE_BUDGET_PIXELS:  # in pieces
+        out = np.full((view.bands, *keep.shape), np.nan, np.float32)
+        out[:, keep] = sample_view(view, uv[keep], interp)
+        return out
+    window = _image_window(view, low, high)
+    shifted = uv.astype(np.float32)  # shifted in float32, as _read_window does (exact)
+    shifted -= np.array([window[2], window[0]], np.float32)
+    shifted[~keep] = OUTSIDE
+    return sample_image(view.read(window), shifted, interp)
 
 
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
@@ -197,13 +223,10 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
         keep &= emission < best
         if (result.data is not None or result.source is not None) and keep.any():
             with _timed(seconds, "sample"):
-                values = sample_view(view, uv[keep], plan.interp)
-            ok = np.isfinite(values).all(axis=0)
-            if not ok.all():
-                keep[keep] = ok
-                values = values[:, ok]
+                values = sample_grid(view, uv, keep, plan.interp)
+            keep &= np.isfinite(values).all(axis=0)
             if result.data is not None:
-                result.data[:, keep] = values
+                np.copyto(result.data, values, where=keep)
         label[keep] = k + 1
         best[keep] = emission[keep]
     if result.source is not None:
@@ -304,7 +327,7 @@ def _mosaic_tile(
         wanted = result.data is not None or result.source is not None or "stack" in kinds
         if wanted and need.any():
             with _timed(seconds, "sample"):
-                values[k][:, need] = sample_view(plan.views[k], uv[need], plan.interp)
+                values[k] = sample_grid(plan.views[k], uv, need, plan.interp)
     if "stack" in kinds:
         result.stack = (values[:, :, core[0], core[1]], codes[:, core[0], core[1]])
     if result.data is None and result.source is None:
