@@ -20,13 +20,14 @@ Python warnings are printed as one line each, ``orthomvp: warning: message``.
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import sys
 import threading
 import warnings
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from types import FrameType
 
 import click
@@ -163,8 +164,18 @@ def one_line_warnings() -> Iterator[None]:
 
 
 def main_entry() -> None:
-    """Console-script entry point."""
-    sys.exit(main())
+    """Console-script entry point. Once the command is done, its output flushed and the exit
+    handlers run, the process ends without Python's teardown of every module (``os._exit``):
+    unloading numpy, GDAL, OpenCV and Embree took 60 ms of a 0.45 s orthophoto. A command
+    that left a thread running ends the usual way, which waits for it."""
+    code = main()
+    if threading.active_count() > 1:
+        sys.exit(code)
+    for stream in (sys.stdout, sys.stderr):
+        with suppress(OSError, ValueError):  # a closed pipe, a closed stream
+            stream.flush()
+    atexit._run_exitfuncs()
+    os._exit(code)
 
 
 # the commands, in the order --help lists them
