@@ -144,6 +144,11 @@ def run_tiles(
             pass
 
 
+FIELDS = frozenset({"emission", "gsd", "miss"})
+""":func:`compute_visibility`'s optional outputs: emission angles, GSDs, and the misses with
+the epsilons they were classified with."""
+
+
 def compute_visibility(
     terrain: Terrain,
     camera: Camera,
@@ -158,6 +163,7 @@ def compute_visibility(
     strict: bool = True,
     dem: Terrain | None = None,
     fast: bool = True,
+    fields: frozenset[str] | None = None,
 ) -> Visibility:
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
@@ -187,6 +193,10 @@ def compute_visibility(
     DEM in the grid's CRS), compute each post's geometry from the grid's row and column terms
     (:func:`orthomvp.post_geometry.separable`); the codes are those of the general path
     (``fast=False``), the positions agree to the last bits of float64.
+
+    ``fields``: which of :data:`FIELDS` (``"emission"``, ``"gsd"``, ``"miss"`` with ``eps``)
+    to compute besides the codes and positions (None: all); the others come back as read-only
+    NaN arrays of the grid's shape.
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
@@ -205,12 +215,18 @@ def compute_visibility(
     )
     if caster is None and occlusion:
         caster = occluder_caster(terrain if dem is None else dem)
+    fields = FIELDS if fields is None else frozenset(fields)
+    if not fields <= FIELDS:
+        raise InputError(f"visibility fields must be among {sorted(FIELDS)}, not {sorted(fields)}")
+    nothing = np.broadcast_to(np.nan, (rows, cols))
+
+    def field(name: str) -> np.ndarray:
+        return np.full((rows, cols), np.nan) if name in fields else nothing
+
     codes = np.zeros((rows, cols), np.uint8)
     uv = np.full((rows, cols, 2), np.nan)
-    miss = np.full((rows, cols), np.nan)
-    emission = np.full((rows, cols), np.nan)
-    gsd = np.full((rows, cols), np.nan)
-    eps_out = np.full((rows, cols), np.nan)
+    miss, eps_out = field("miss"), field("miss")
+    emission, gsd = field("emission"), field("gsd")
     spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
     carry = None
     if dem is not None and occlusion and post_scale < 1:
@@ -225,7 +241,6 @@ def compute_visibility(
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
         g = separable(terrain, camera, rs, cs) if fast else general(terrain, camera, rs, cs)
-        t_gsd = g.facing_gsd / np.maximum(g.cos_e, 0.1)
         facing = g.cos_e > 0
         cast = g.inside & facing & occlusion
         t_codes = np.where(
@@ -235,16 +250,13 @@ def compute_visibility(
             known = np.where(cast, carry.at(terrain, rs, cs, g), 0).astype(np.uint8)
             t_codes[known != 0] = known[known != 0]
             cast &= known == 0
-        t_uv = np.where(g.inside[..., None], g.uv, np.nan)
-        t_miss = np.full(t_codes.shape, np.nan)
-        t_eps = np.full(t_codes.shape, np.nan)  # eps where a ray is cast
         if cast.any():  # cast the rays, from the camera's centre or each pixel's origin
             pc = g.points(cast)
             o = camera.center if g.origins is None else g.origins[cast]
             if _pinhole_ray(camera):
                 d = pc - o  # the pinhole's own ray through the post's pixel
             else:
-                o, d = camera.ray(t_uv[cast])  # the model's own ray through that pixel
+                o, d = camera.ray(g.uv[cast])  # the model's own ray through that pixel
             hits = caster.first_hit(o, d)
             # A first hit more than one post beyond the post means that the ray slipped past
             # the post's own vertex (a crest it grazes) with nothing in front of it: no hit.
@@ -256,17 +268,20 @@ def compute_visibility(
                 r, c = np.nonzero(cast)
                 pcol, prow = c[front] + cs.start, r[front] + rs.start
                 dist[front] = np.hypot(hc - pcol, hr - prow) * post_scale
-            t_miss[cast] = dist
-            t_eps[cast] = float(eps) if eps else default_eps(g.facing_gsd[cast] / spacing)
+            cast_eps = float(eps) if eps else default_eps(g.facing_gsd[cast] / spacing)
             # a ray that hits nothing has nothing in its way: the post is visible
-            t_codes[cast] = classify(dist, t_eps[cast])
+            t_codes[cast] = classify(dist, cast_eps)
+            if "miss" in fields:  # (NaN where no ray is cast)
+                miss[rs, cs][cast] = dist
+                eps_out[rs, cs][cast] = cast_eps
         codes[rs, cs] = t_codes
-        uv[rs, cs] = t_uv
-        miss[rs, cs] = t_miss
-        angle = np.degrees(np.arccos(np.clip(g.cos_e, -1, 1)))
-        emission[rs, cs] = np.where(g.inside, angle, np.nan)
-        gsd[rs, cs] = np.where(g.inside & facing, t_gsd, np.nan)
-        eps_out[rs, cs] = t_eps
+        np.copyto(uv[rs, cs], g.uv, where=g.inside[..., None])  # NaN outside the image
+        if "emission" in fields:
+            angle = np.degrees(np.arccos(np.clip(g.cos_e, -1, 1)))
+            emission[rs, cs] = np.where(g.inside, angle, np.nan)
+        if "gsd" in fields:
+            t_gsd = g.facing_gsd / np.maximum(g.cos_e, 0.1)
+            gsd[rs, cs] = np.where(g.inside & facing, t_gsd, np.nan)
 
     # posts outside the image keep NODATA and NaN: only the window that can hold the image
     r0, r1, c0, c1 = image_window(terrain, camera) if fast else (0, rows, 0, cols)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from orthomvp.codes import Code
+from orthomvp.errors import InputError
 from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import make_scene
@@ -69,3 +70,31 @@ def test_the_dem_grid_itself_is_cast_as_before(scene) -> None:  # noqa: ANN001
     b = compute_visibility(dem, camera, dem=dem)
     np.testing.assert_array_equal(a.codes, b.codes)
     np.testing.assert_array_equal(a.miss, b.miss)
+
+
+@pytest.mark.parametrize("fields", [(), ("emission",), ("gsd", "miss")])
+def test_visibility_computes_only_the_fields_asked_for(scene, fields: tuple) -> None:  # noqa: ANN001
+    """Codes and positions are the same whatever is asked for; the fields asked for equal a
+    full run's, bit for bit, and the others are read-only NaN."""
+    dem, camera = scene.terrain, scene.cameras["oblique"]
+    grid = dem.regrid((abs(dem.transform.a) / 3, abs(dem.transform.e) / 3))
+    scale = float(np.mean(grid.post_spacing()) / np.mean(dem.post_spacing()))
+    caster = RayCaster(occluder_mesh(dem))
+    full = compute_visibility(grid, camera, caster=caster, post_scale=scale, dem=dem)
+    some = compute_visibility(
+        grid, camera, caster=caster, post_scale=scale, dem=dem, fields=frozenset(fields)
+    )
+    np.testing.assert_array_equal(some.codes, full.codes)
+    np.testing.assert_array_equal(some.uv, full.uv)
+    names = {"emission": ["emission"], "gsd": ["gsd"], "miss": ["miss", "eps"]}
+    for field, attrs in names.items():
+        for attr in attrs:
+            got = getattr(some, attr)
+            assert got.shape == full.codes.shape
+            if field in fields:
+                np.testing.assert_array_equal(got, getattr(full, attr))
+                assert np.isfinite(got).any()
+            else:
+                assert np.isnan(got).all() and not got.flags.writeable
+    with pytest.raises(InputError, match="fields"):
+        compute_visibility(grid, camera, caster=caster, fields=frozenset({"normals"}))

@@ -213,14 +213,17 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     result.valid = int(np.isfinite(grid.values[inner]).sum())
     best = np.full(grid.values[inner].shape, np.inf)
     label = np.zeros(best.shape, np.int64)  # the 1-based view each post came from, 0 none
+    many = len(job.views) > 1  # then each post takes the view of least emission angle
+    fields = frozenset({"emission"} if many else ())
     for k in job.views:
         view = plan.views[k]
         with _timed(seconds, "visibility"):
-            vis = _visibility(plan, grid, k, caster, window, threads)
+            vis = _visibility(plan, grid, k, caster, window, threads, fields)
         codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
         _record_codes(result, k, codes)
         keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
-        keep &= emission < best
+        if many:
+            keep &= emission < best
         if (result.data is not None or result.source is not None) and keep.any():
             with _timed(seconds, "sample"):
                 values = sample_grid(view, uv, keep, plan.interp)
@@ -228,7 +231,8 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
             if result.data is not None:
                 np.copyto(result.data, values, where=keep)
         label[keep] = k + 1
-        best[keep] = emission[keep]
+        if many:
+            best[keep] = emission[keep]
     if result.source is not None:
         result.source[0] = label
     if result.data is not None or result.source is not None:
@@ -254,9 +258,16 @@ def _taken(label: np.ndarray, views: int) -> list[int]:
 
 
 def _visibility(
-    plan: Plan, grid: Terrain, k: int, caster: RayCaster | None, window: Terrain, threads: int
+    plan: Plan,
+    grid: Terrain,
+    k: int,
+    caster: RayCaster | None,
+    window: Terrain,
+    threads: int,
+    fields: frozenset[str],
 ) -> Visibility:
-    """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``)."""
+    """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``), with the
+    optional ``fields`` of :func:`~orthomvp.visibility.compute_visibility`."""
     return compute_visibility(
         grid,
         plan.views[k].camera,
@@ -268,6 +279,7 @@ def _visibility(
         spacing=plan.spacing,
         strict=False,
         dem=window,
+        fields=fields,
     )
 
 
@@ -305,9 +317,10 @@ def _mosaic_tile(
     gsd = np.full((n, *shape), np.inf) if use_gsd else none
     nadir = np.full((n, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((n, *shape), bool)
+    fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
     for k in job.views:
         with _timed(seconds, "visibility"):
-            vis = _visibility(plan, grid, k, caster, window, threads)
+            vis = _visibility(plan, grid, k, caster, window, threads, fields)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = finite_rows(uv)
         if not plan.occlusion:
