@@ -477,15 +477,16 @@ class Terrain:
         c0 = np.clip(np.floor(np.where(c_in, c, 0)), 0, cols - 2).astype(np.int64)
         r0 = np.clip(np.floor(np.where(r_in, r, 0)), 0, rows - 2).astype(np.int64)
         fx, fy = (c - c0)[None, :], (r - r0)[:, None]
-        flat = self.values.ravel()
-        at = r0[:, None] * cols + c0[None, :]
-        a, b = flat[at], flat[at + 1]
-        d, e = flat[at + cols], flat[at + cols + 1]
+        top, bottom = self.values[r0], self.values[r0 + 1]  # rows gathered once, then columns
+        a, b = np.take(top, c0, axis=1), np.take(top, c0 + 1, axis=1)
+        d, e = np.take(bottom, c0, axis=1), np.take(bottom, c0 + 1, axis=1)
         out = np.where(
             fx + fy <= 1,
             a + fx * (b - a) + fy * (d - a),
             e + (1 - fx) * (d - e) + (1 - fy) * (b - e),
         )
+        if r_in.all() and c_in.all():
+            return out
         return np.where(r_in[:, None] & c_in[None, :], out, np.nan)
 
     def output_grid(
