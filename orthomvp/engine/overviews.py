@@ -44,8 +44,8 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
 
 def halve(data: np.ndarray, resampling: str, nodata: float | None) -> np.ndarray:
     """The next overview level of ``data`` ((bands, rows, cols)): (bands, ceil(rows / 2),
-    ceil(cols / 2)). ``average``: float32 means of the valid posts of each 2 x 2 block, summed
-    in float64, NaN where none is valid
+    ceil(cols / 2)). ``average``: float32 means of the valid posts of each 2 x 2 block (summed
+    in float32, rows first), NaN where none is valid
     (``nodata`` marks the empty ones, with NaN); ``nearest``: the block's
     lower-right post (its last at an odd edge), of ``data``'s type."""
     rows, cols = data.shape[-2:]
@@ -56,11 +56,11 @@ def halve(data: np.ndarray, resampling: str, nodata: float | None) -> np.ndarray
     if resampling != AVERAGE:
         raise ValueError(f"resampling must be {AVERAGE!r} or {NEAREST!r}, not {resampling!r}")
     empty = empty_mask(data, nodata)
-    values = np.where(empty, 0.0, data)  # float64
+    values = np.where(empty, np.float32(0), data.astype(np.float32, copy=False))
     sums = _pairs(_pairs(values, -2), -1)
-    counts = _pairs(_pairs((~empty).astype(np.float32), -2), -1)
+    counts = _pairs(_pairs(np.logical_not(empty).view(np.uint8), -2), -1)  # 0 to 4
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (sums / counts).astype(np.float32)  # 0 / 0: NaN where no post is valid
+        return np.divide(sums, counts, dtype=np.float32)  # 0 / 0: NaN where no post is valid
 
 
 def window_level(window: tuple[int, int, int, int], shape: tuple[int, int], factor: int):
