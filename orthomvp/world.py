@@ -36,7 +36,18 @@ _SAMPLES = 64  # posts per side sampled for the body-frame test
 
 def body_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     """Boolean (n,): camera centres (n, 3) that lie above the tangent plane (outward normal =
-    local vertical) of at least one of up to 64 x 64 sampled DEM posts in body-fixed metres."""
+    local vertical) of at least one of up to 64 x 64 sampled DEM posts in body-fixed metres.
+
+    A post p's plane (radial normal) has c above it when c . p / |p| > |p|, never when |c| is
+    at most |p|: centres no farther from the body's centre than the nearest post can be
+    ruled out before any post is transformed (map coordinates are: 3.7e6 m against the
+    Earth's 6.36e6). A post at height h over the ellipsoid lies at least b + min(h, 0) from
+    the centre (b the semi-minor axis); with radius values, at its value."""
+    centres = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    lowest = float(np.nanmin(terrain.values))
+    nearest = lowest if terrain.radius_values else terrain.radii[1] + min(lowest, 0.0)
+    if (np.linalg.norm(centres, axis=1) <= nearest).all():
+        return np.zeros(len(centres), bool)
     body = terrain if terrain.world == WorldFrame.BODY else replace(terrain, world=WorldFrame.BODY)
     rows, cols = body.shape
     step_r, step_c = max(rows // _SAMPLES, 1), max(cols // _SAMPLES, 1)

@@ -136,3 +136,27 @@ def test_cli_world_auto_on_ngi_aerial(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main([*args, "-o", str(tmp_path / "body.tif"), "--world", "body"]) == 2  # overridden
     err = capsys.readouterr().err  # the cameras are not above the DEM in body-fixed metres
     assert "below its surface" in err and "do not sit above the DEM" in err
+
+
+def test_centres_nearer_the_body_centre_than_every_post_are_ruled_out_untransformed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The shortcut gives what transforming the posts gives: on a lunar DEM 50 km below the
+    sphere, centres at the posts' distance or nearer are not body-plausible (found without
+    transforming a post), and centres just above a post still are (found by transforming)."""
+    terrain, _ = ambiguous()
+    nearest = 1737400.0 - 50_000.0  # every post lies at this distance from the centre
+    lon, lat = terrain.pixel_to_lonlat(np.array(31.0), np.array(31.0))  # a post
+    up = np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    below = np.array([0.999 * nearest * up, 0.5 * nearest * up[::-1], [0.0, 0.0, 0.0]])
+    above = np.array([(nearest + 10.0) * up])
+    full = body_plausible(terrain, np.concatenate([below, above]))
+    assert full.tolist() == [False, False, False, True]
+
+    def no_transform(*args: object, **kwargs: object) -> None:
+        raise AssertionError("posts were transformed")
+
+    monkeypatch.setattr(Terrain, "to_world", no_transform)
+    assert not body_plausible(terrain, below).any()
+    with pytest.raises(AssertionError, match="transformed"):
+        body_plausible(terrain, above)
