@@ -505,13 +505,16 @@ def test_outputs_switch_to_bigtiff_when_they_may_pass_4_gib(tmp_path: Path, comp
 def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> None:
     """The default tile: 1024 posts, or the longer side split among the cores (rounded up to
     a multiple of 64, at least 256 posts); a plan without ``tile`` uses it."""
-    from orthomvp.engine.plan import auto_tile, check_tile
+    from orthomvp.engine.plan import SINGLE_VIEW_TILE, auto_tile, check_tile
 
     assert auto_tile((5000, 3000), 2) == 1024
     assert auto_tile((508, 327), 2) == 256  # 2 x 2 tiles
     assert auto_tile((1400, 600), 2) == 704  # a multiple of 64: overviews from the tiles
     assert auto_tile((3000, 600), 4) == 768
     assert auto_tile((100, 50), 2) == 256
+    # a single view's orthophoto: one tile below two of SINGLE_VIEW_TILE
+    assert auto_tile((291, 163), 2, smallest=SINGLE_VIEW_TILE) == 512
+    assert auto_tile((1164, 651), 2, smallest=SINGLE_VIEW_TILE) == 640
     assert check_tile(None) is None
     # a mosaic's tiles keep every view's samples under the heap's mmap threshold
     from orthomvp.engine.heap import MMAP_THRESHOLD
@@ -526,7 +529,9 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
     assert auto_tile((5000, 3000), 2, largest=768) == 768
     view = [(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")]
     plan = plan_ortho(crater_dir / "dem.tif", view, progress=False)
-    assert plan.tile == auto_tile(plan.grid.shape) and len(plan.tiles) == 1
+    assert (
+        plan.tile == auto_tile(plan.grid.shape, smallest=SINGLE_VIEW_TILE) and len(plan.tiles) == 1
+    )
 
 
 @pytest.mark.parametrize("views", [("oblique",), ("oblique", "nadir")])
