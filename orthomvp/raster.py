@@ -36,6 +36,7 @@ import numpy as np
 import rasterio
 from affine import Affine
 from rasterio._err import CPLE_BaseError
+from rasterio.enums import MaskFlags
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from orthomvp.errors import InputError, OrthoMVPError, OutputError
@@ -483,10 +484,35 @@ def read_image(path: str | Path) -> np.ndarray:
         return read_cube(path)
     with open_raster(path) as src:
         try:
-            data = src.read(masked=True)
+            return read_values(src, None, None, np.float32)
         except RasterioError as exc:
             raise InputError(f"{path}: corrupt raster data ({exc})") from exc
-    return np.ma.filled(data.astype(np.float32), np.nan)
+
+
+def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: type) -> np.ndarray:
+    """Bands ``indexes`` (as rasterio's ``read`` takes them) of the open dataset ``src`` in
+    ``window`` as ``dtype`` floats, NaN where GDAL's mask says there is no value: the values
+    of ``np.ma.filled(src.read(indexes, window=window, masked=True).astype(dtype), nan)``.
+    Where every band read is all valid or masked by its nodata value alone, the data are read
+    once and compared with the nodata value (a masked read reads them twice and imports
+    ``numpy.ma``). RasterioError as rasterio raises it."""
+    bands = [indexes] if isinstance(indexes, int) else indexes or list(src.indexes)
+    flags = {tuple(src.mask_flag_enums[b - 1]) for b in bands}
+    nodata = src.nodata
+    simple = flags <= {(MaskFlags.all_valid,), (MaskFlags.nodata,)}
+    if simple and (MaskFlags.nodata,) in flags:  # the value must be the band type's
+        kind = np.dtype(src.dtypes[bands[0] - 1])
+        same = np.array(nodata).astype(kind) if np.can_cast(kind, np.float64) else None
+        simple = same is not None and (same == nodata or (np.isnan(nodata) and np.isnan(same)))
+    if not simple:
+        data = src.read(indexes, window=window, masked=True)
+        return np.ma.filled(data.astype(dtype), np.nan)
+    data = src.read(indexes, window=window)
+    values = data.astype(dtype)
+    if (MaskFlags.nodata,) in flags:
+        masked = np.isnan(data) if np.isnan(nodata) else data == nodata
+        values[masked] = np.nan
+    return values
 
 
 def write_geotiff(

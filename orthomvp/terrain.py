@@ -30,7 +30,7 @@ from pyproj.exceptions import CRSError
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.memory import check_memory, count_text
-from orthomvp.raster import open_raster, write_geotiff
+from orthomvp.raster import open_raster, read_values, write_geotiff
 from orthomvp.vectors import row_norms
 
 Triple = tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float]
@@ -223,13 +223,12 @@ class Terrain:
             raise InputError(f"a DEM file name is a str or a Path, got {type(path).__name__}")
         with open_raster(path) as src:
             try:
-                band = src.read(1, masked=True)
+                values = read_values(src, 1, None, np.float64)
             except Exception as exc:  # rasterio raises several unrelated types on corrupt data
                 raise InputError(f"{path}: corrupt raster data ({exc})") from exc
             file_crs = src.crs
             transform = src.transform
         the_crs = dem_georeference(path, file_crs, transform, crs)
-        values = np.ma.filled(band.astype(np.float64), np.nan)
         warn_infinite(path, int(np.isinf(values).sum()))
         terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
         terrain.check_convention()

@@ -23,7 +23,7 @@ from rasterio.windows import Window
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
-from orthomvp.raster import open_raster
+from orthomvp.raster import open_raster, read_values
 from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
 
 PREVIEW = 256
@@ -67,10 +67,9 @@ class DemSource:
         r0, r1, c0, c1 = window
         with open_raster(self.path) as src:
             try:
-                band = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0), masked=True)
+                values = read_values(src, 1, Window(c0, r0, c1 - c0, r1 - r0), np.float64)
             except RasterioError as exc:
                 raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
-        values = np.ma.filled(band.astype(np.float64), np.nan)
         values[np.isinf(values)] = np.nan  # as Terrain.read: infinite heights are nodata
         return values
 
@@ -155,10 +154,9 @@ def scan_dem(
         lo, hi, parts, infinite = np.inf, -np.inf, [], 0
         for r0, r1 in _blocks(rows, cols):
             try:
-                band = src.read(1, window=Window(0, r0, cols, r1 - r0), masked=True)
+                block = read_values(src, 1, Window(0, r0, cols, r1 - r0), np.float64)
             except RasterioError as exc:
                 raise InputError(f"{path}: corrupt raster data ({exc})") from exc
-            block = np.ma.filled(band.astype(np.float64), np.nan)
             bad = np.isinf(block)
             if bad.any():
                 infinite += int(bad.sum())

@@ -9,13 +9,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from rasterio.enums import MaskFlags
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
-from orthomvp.raster import open_raster
+from orthomvp.raster import open_raster, read_values
 
 
 @dataclass(frozen=True)
@@ -36,15 +35,10 @@ class ImageSource:
         r0, r1, c0, c1 = window
         indexes = None if band is None else [band]
         with open_raster(self.path) as src:
-            # a masked read only where a band has a mask or nodata: else every pixel is valid
-            masked = any(MaskFlags.all_valid not in flags for flags in src.mask_flag_enums)
             try:
-                data = src.read(indexes, window=Window(c0, r0, c1 - c0, r1 - r0), masked=masked)
+                return read_values(src, indexes, Window(c0, r0, c1 - c0, r1 - r0), np.float32)
             except RasterioError as exc:
                 raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
-        if not masked:
-            return data.astype(np.float32)
-        return np.ma.filled(data.astype(np.float32), np.nan)
 
 
 def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
