@@ -195,11 +195,14 @@ def visible_median(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
         low = np.take_along_axis(s, np.broadcast_to(lows, n.shape)[..., None], -1)[..., 0]
         high = np.take_along_axis(s, np.broadcast_to(highs, n.shape)[..., None], -1)[..., 0]
     else:
-        layers = list(hidden)
+        layers = list(hidden)  # sorted in place, with one spare buffer: nothing is allocated
+        spare = np.empty_like(layers[0])
         for i in range(k):
             for j in range(i % 2, k - 1, 2):
                 a, b = layers[j], layers[j + 1]
-                layers[j], layers[j + 1] = np.minimum(a, b), np.maximum(a, b)
+                np.minimum(a, b, out=spare)
+                np.maximum(a, b, out=b)
+                layers[j], spare = spare, a
         low, high = layers[0], layers[0]
         for j in range(1, k):  # the middle layers: (n - 1) // 2 and n // 2, at most k // 2
             if j <= (k - 1) // 2:
@@ -234,9 +237,16 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Each view's disagreement (views, rows, cols) in 0..1 with the median of the views that
     see the post (mean over bands of :data:`DISAGREE` times the relative difference, capped)."""
     median = visible_median(values, visible)
-    with np.errstate(all="ignore"):
-        rel = np.abs(values - median) / (np.abs(values) + np.abs(median) + 1e-12)
-    return np.where(visible, np.minimum(DISAGREE * rel, 1.0).mean(axis=1), 1.0)
+    with np.errstate(all="ignore"):  # in place: |v - m| / (|v| + |m| + 1e-12), in that order
+        rel = np.subtract(values, median)
+        np.abs(rel, out=rel)
+        scale = np.abs(values)
+        scale += np.abs(median)
+        scale += 1e-12
+        rel /= scale
+        rel *= DISAGREE
+        np.minimum(rel, 1.0, out=rel)
+    return np.where(visible, rel.mean(axis=1), 1.0)
 
 
 def doubtful(miss: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -271,9 +281,12 @@ def labels(
     if seamlines:
         inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)
-        unseen = 1.0 - seen / inside
-        total = np.nan_to_num(cost, nan=0.0) + unseen + disagreement(values, visible)
-        q = np.rint(np.where(visible, total, 0.0) * QUANT).astype(np.int64)
+        total = np.nan_to_num(cost, nan=0.0)  # in place: cost + (1 - seen / inside) + disagreement
+        total += 1.0 - seen / inside
+        total += disagreement(values, visible)
+        total[~visible] = 0.0
+        total *= QUANT
+        q = np.rint(total, out=total).astype(np.int64)
         with np.errstate(invalid="ignore", divide="ignore"):
             cost = box_sum(q, SEAM_RADIUS) / seen
     cost = np.where(visible, cost, np.inf)

@@ -49,8 +49,9 @@ GHOST = (
 """GDAL's structural metadata of a COG, after its first line (which gives its size)."""
 
 
-class TiffLayoutError(ValueError):
-    """A file that :func:`read_ifd` cannot take (not a little-endian TIFF, or damaged)."""
+class TiffLayoutError(OSError):
+    """A file that :func:`read_ifd` cannot take (not a little-endian TIFF, or damaged: a work
+    file cut short by a full disk, which the writer then reports as a failed write)."""
 
 
 @dataclass
