@@ -31,7 +31,7 @@ from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.memory import check_memory, count_text
 from orthomvp.raster import open_raster, read_values, write_geotiff
-from orthomvp.vectors import row_norms
+from orthomvp.vectors import nan_median, row_norms
 
 Triple = tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float]
 """Three components of vectors (x, y, z), arrays that broadcast together or numbers."""
@@ -240,7 +240,7 @@ class Terrain:
         heights of the order of the radius (radii read without it)."""
         if self.world != WorldFrame.BODY:
             return
-        median = float(np.nanmedian(self.values))
+        median = nan_median(self.values)
         radius = self.radii[0]
         if self.radius_values and abs(median - radius) > 0.5 * radius:
             raise InputError(
@@ -436,7 +436,7 @@ class Terrain:
         """Ground distance between neighbouring posts at the grid centre (along c, along r), m."""
         rows, cols = self.shape
         c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-        h = np.nanmedian(self.values)
+        h = nan_median(self.values)
         p = self.to_world(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]), np.full(3, h))
         return float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0]))
 

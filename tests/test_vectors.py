@@ -20,3 +20,17 @@ def test_rows_as_numpy() -> None:
         np.testing.assert_array_equal(hi, flat.max(axis=0))
     lo, hi = column_range(np.array([[1.0, np.nan], [0.0, 2.0]]))
     assert lo[0] == 0.0 and np.isnan(lo[1]) and np.isnan(hi[1])
+
+
+def test_nan_median_is_numpys_nanmedian() -> None:
+    from orthomvp.vectors import nan_median
+
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 3, 10, 11, 1000, 1001):
+        a = rng.normal(size=n) * 1e3
+        a[rng.random(n) < 0.3] = np.nan
+        a[0] = np.inf if n > 5 else a[0]
+        expected = np.nanmedian(a) if np.isfinite(a).any() or np.isinf(a).any() else np.nan
+        got = nan_median(a.reshape(-1, 1) if n % 2 else a)
+        assert (np.isnan(got) and np.isnan(expected)) or got == expected
+    assert np.isnan(nan_median(np.full((3, 4), np.nan)))

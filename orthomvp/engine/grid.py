@@ -25,6 +25,7 @@ from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.raster import open_raster, read_values
 from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
+from orthomvp.vectors import nan_median
 
 PREVIEW = 256
 """Posts a side (at most) of the decimated DEM that :func:`scan_dem` keeps."""
@@ -119,7 +120,7 @@ class DemSource:
         at the median height: what :meth:`Terrain.post_spacing` gives for the whole DEM."""
         rows, cols = self.shape
         c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-        h = np.full(3, np.nanmedian(self.preview.values))
+        h = np.full(3, nan_median(self.preview.values))
         p = self.to_world(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]), h)
         return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
 

@@ -28,6 +28,7 @@ from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mosaic import Correction, MosaicOptions
 from orthomvp.ortho import INTERPOLATION
+from orthomvp.vectors import nan_median
 from orthomvp.world import check_cameras_above, detect_world
 
 Box = tuple[float, float, float, float]
@@ -389,7 +390,7 @@ def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
     rows, cols = grid.shape
     c0, r0 = (cols - 1) / 2, (rows - 1) / 2
     c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
-    p = dem.to_world(c, r, np.full(3, np.nanmedian(dem.preview.values)))
+    p = dem.to_world(c, r, np.full(3, nan_median(dem.preview.values)))
     return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
 
 
