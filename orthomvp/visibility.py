@@ -276,9 +276,9 @@ def compute_visibility(
                 eps_out[rs, cs][cast] = cast_eps
         codes[rs, cs] = t_codes
         np.copyto(uv[rs, cs], g.uv, where=g.inside[..., None])  # NaN outside the image
-        if "emission" in fields:
-            angle = np.degrees(np.arccos(np.clip(g.cos_e, -1, 1)))
-            emission[rs, cs] = np.where(g.inside, angle, np.nan)
+        if "emission" in fields:  # (arccos only inside the image: it is slow)
+            cos_in = np.clip(g.cos_e[g.inside], -1, 1)
+            emission[rs, cs][g.inside] = np.degrees(np.arccos(cos_in))
         if "gsd" in fields:
             t_gsd = g.facing_gsd / np.maximum(g.cos_e, 0.1)
             gsd[rs, cs] = np.where(g.inside & facing, t_gsd, np.nan)
