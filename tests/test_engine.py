@@ -435,6 +435,7 @@ def test_memory_is_bounded_by_the_tile(tmp_path: Path, monkeypatch) -> None:  # 
     quarter the posts does, and far less than the ~390 B/post of an untiled run. Planning
     alone (traced allocations, DEM scanned in blocks of 64 Ki posts) is as flat."""
     monkeypatch.setattr(engine_grid, "SCAN_POSTS", 1 << 16)
+    monkeypatch.setattr(engine_grid, "HELD_POSTS", 0)  # (a bounded 2 MiB otherwise)
     grown, planning = [], []
     for n in (512, 1024):
         folder = tmp_path / str(n)
@@ -581,3 +582,23 @@ def test_sample_grid_gives_sample_views_values_in_place(
     monkeypatch.setattr(tile_module, "SAMPLE_BUDGET_PIXELS", 64)
     pieces = tile_module.sample_grid(view, uv, keep, "bilinear")
     np.testing.assert_array_equal(pieces, expected)
+
+
+def test_a_small_dem_is_held_and_read_from_memory(
+    crater: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A DEM of at most HELD_POSTS posts is kept by the scan, and its windows equal the
+    file's; a larger one is read from the file; the outputs are the same either way."""
+    from orthomvp.engine import grid as grid_module
+
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], tile=24, progress=False)
+    assert plan.dem.held is not None
+    monkeypatch.setattr(grid_module, "HELD_POSTS", 100)
+    unheld = plan_ortho(crater["dem"], [view], tile=24, progress=False)
+    assert unheld.dem.held is None
+    for window in ((0, 64, 0, 64), (3, 40, 10, 33), (60, 64, 0, 5)):
+        np.testing.assert_array_equal(plan.dem.read(window), unheld.dem.read(window))
+    a, b = run(plan, tmp_path, "held"), run(unheld, tmp_path, "file")
+    np.testing.assert_array_equal(a["ortho"], b["ortho"])
+    np.testing.assert_array_equal(a["visibility"], b["visibility"])

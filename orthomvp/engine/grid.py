@@ -10,7 +10,7 @@ for the DEM wherever a whole-grid view is needed (frame detection, longitude wra
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,13 +43,22 @@ WindowT = tuple[int, int, int, int]
 """(row0, row1, col0, col1), half-open, in posts."""
 
 
+HELD_POSTS = 1 << 18
+"""A DEM of at most this many posts (2 MiB of float64) is kept whole by :func:`scan_dem`, which
+reads it anyway, and tiles take their windows from it instead of reading the file again (the
+24 m orthophoto of ngi-aerial reads its 508 x 327 DEM once); a bounded cost, beyond which DEMs
+are read in windows."""
+
+
 @dataclass(frozen=True)
 class DemSource:
-    """A DEM file and its conventions, without its values.
+    """A DEM file and its conventions, and for a small DEM its values.
 
     ``preview`` is the DEM decimated by ``stride`` (post ``(i, j)`` of the preview is post
     ``(i * stride, j * stride)`` of the DEM); ``h_min``, ``h_max`` are its lowest and highest
-    values over every post (metres of height, or of radius with ``radius_values``).
+    values over every post (metres of height, or of radius with ``radius_values``); ``held``
+    every value (as :meth:`read` gives them) of a DEM of at most :data:`HELD_POSTS` posts,
+    else None.
     """
 
     path: Path
@@ -62,10 +71,13 @@ class DemSource:
     h_max: float
     preview: Terrain
     stride: int
+    held: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def read(self, window: WindowT) -> np.ndarray:
         """The DEM values in ``window`` as float64 (rows, cols), NaN at nodata."""
         r0, r1, c0, c1 = window
+        if self.held is not None:
+            return self.held[r0:r1, c0:c1].copy()
         with open_raster(self.path) as src:
             try:
                 values = read_values(src, 1, Window(c0, r0, c1 - c0, r1 - r0), np.float64)
@@ -153,6 +165,7 @@ def scan_dem(
         if progress:
             progress.set_total(rows)
         lo, hi, parts, infinite = np.inf, -np.inf, [], 0
+        held = np.empty((rows, cols)) if rows * cols <= HELD_POSTS else None
         for r0, r1 in _blocks(rows, cols):
             try:
                 block = read_values(src, 1, Window(0, r0, cols, r1 - r0), np.float64)
@@ -165,6 +178,8 @@ def scan_dem(
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
             parts.append(block[(-r0) % stride :: stride, ::stride].copy())  # not a view
+            if held is not None:
+                held[r0:r1] = block
             if progress:
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
@@ -190,6 +205,7 @@ def scan_dem(
         float(hi),
         preview,
         stride,
+        held,
     )
 
 
