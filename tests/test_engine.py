@@ -602,3 +602,42 @@ def test_a_small_dem_is_held_and_read_from_memory(
     a, b = run(plan, tmp_path, "held"), run(unheld, tmp_path, "file")
     np.testing.assert_array_equal(a["ortho"], b["ortho"])
     np.testing.assert_array_equal(a["visibility"], b["visibility"])
+
+
+def test_prefetched_image_windows_sample_as_reads(
+    crater: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tile with a spare thread reads each view's image window (from the plan) in the
+    background; it holds the window that sampling needs (no other read), and the outputs
+    are the same as with one thread, which reads the windows as it samples them."""
+    from concurrent.futures import Future
+
+    from orthomvp.engine import tile as tile_module
+    from orthomvp.engine.images import ImageSource
+
+    view = crater["views"]["oblique"]
+    plan = plan_ortho(crater["dem"], [view], progress=False)
+    assert len(plan.tiles) == 1 and plan.tiles[0].image_windows
+    job = plan.tiles[0]
+    with tile_module._prefetch(plan, job, 1) as none:
+        assert none == {}
+    with tile_module._prefetch(plan, job, 2) as reads:
+        ((window, future),) = reads.values()
+        assert isinstance(future, Future) and window == job.image_windows[0]
+        pixels = future.result()
+        r0, r1, c0, c1 = window
+        np.testing.assert_array_equal(pixels, plan.views[0].read(window))
+    readers, reading = [], ImageSource.read
+
+    def counted(self: ImageSource, window: tuple, *args: object) -> np.ndarray:
+        readers.append(window)
+        return reading(self, window, *args)
+
+    monkeypatch.setattr(ImageSource, "read", counted)
+    one = run_plan(plan, Outputs(ortho=tmp_path / "one.tif"), threads=1, progress=False)
+    alone, readers[:] = list(readers), []
+    two = run_plan(plan, Outputs(ortho=tmp_path / "two.tif"), threads=2, progress=False)
+    # the plan's window, read once, against the window that sampling needs
+    assert readers == [job.image_windows[0]] and len(alone) == 1 and alone != readers
+    assert one.filled == two.filled > 0
+    np.testing.assert_array_equal(read(tmp_path / "one.tif"), read(tmp_path / "two.tif"))

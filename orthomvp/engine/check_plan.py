@@ -171,7 +171,9 @@ def plan_check(
         progress=progress,
     )
     jobs = [
-        job if len(job.views) > 1 else replace(job, views=(), dem=None, image_pixels=())
+        job
+        if len(job.views) > 1
+        else replace(job, views=(), dem=None, image_pixels=(), image_windows=())
         for job in jobs
     ]
     base = Plan(

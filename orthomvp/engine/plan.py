@@ -82,13 +82,16 @@ class HaloWarning(UserWarning):
 class TileJob:
     """One output tile: ``window`` on the output grid; ``views``, the indices of the images
     that may see it; ``dem``, the DEM window it reads (None when no image sees it);
-    ``image_pixels``, per view, the pixels of the image window expected to be read."""
+    ``image_pixels``, per view, the pixels of the image window expected to be read, and
+    ``image_windows`` that window (r0, r1, c0, c1) in the image (the bounds of where the tile
+    can appear, with :data:`IMAGE_MARGIN` pixels around, clipped to the image)."""
 
     index: int
     window: WindowT
     views: tuple[int, ...]
     dem: WindowT | None
     image_pixels: tuple[int, ...]
+    image_windows: tuple[WindowT, ...] = ()
 
     @property
     def dem_posts(self) -> int:
@@ -224,6 +227,17 @@ def _pixels(box: Box, view: ImageSource) -> int:
     return int(max(c1 - c0, 0) * max(r1 - r0, 0))
 
 
+def _box_window(box: Box, view: ImageSource) -> WindowT:
+    """The whole pixels (r0, r1, c0, c1) that positions within ``box`` sample, with
+    :data:`IMAGE_MARGIN` pixels around, clipped to the image (as the tile reads them)."""
+    u0, u1, v0, v1 = (float(np.clip(b, -1, 1 << 31)) for b in box)
+    c0 = min(max(int(np.floor(u0)) - IMAGE_MARGIN, 0), view.width)
+    r0 = min(max(int(np.floor(v0)) - IMAGE_MARGIN, 0), view.height)
+    c1 = min(max(int(np.floor(u1)) + IMAGE_MARGIN + 2, c0), view.width)
+    r1 = min(max(int(np.floor(v1)) + IMAGE_MARGIN + 2, r0), view.height)
+    return (r0, r1, c0, c1)
+
+
 def grow(window: WindowT, margin: int, shape: tuple[int, int]) -> WindowT:
     """``window`` grown by ``margin`` posts on every side, within a grid of ``shape``."""
     r0, r1, c0, c1 = window
@@ -266,19 +280,21 @@ def _job(
     need = footprint(dem, to_dem, window, grid.on_dem)
     if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
         return TileJob(index, tile, (), None, ()), boxes, halos
-    seen, pixels = [], []
+    seen, pixels, windows = [], [], []
     for k, view in enumerate(views):
         boxes[k] = image_box(dem, to_dem, window, view.camera)
         if not _sees(boxes[k], view):
             continue
         seen.append(k)
         pixels.append(_pixels(boxes[k], view))
+        windows.append(_box_window(boxes[k], view))
         if occlusion:
             halos[k] = tile_halo(dem, to_dem, window, view.camera)
             need = _union(need, halos[k].window)
     if not seen:
         return TileJob(index, tile, (), None, ()), boxes, halos
-    return TileJob(index, tile, tuple(seen), need, tuple(pixels)), boxes, halos
+    job = TileJob(index, tile, tuple(seen), need, tuple(pixels), tuple(windows))
+    return job, boxes, halos
 
 
 def plan_ortho(

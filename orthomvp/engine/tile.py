@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -160,11 +161,43 @@ def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
     return sample_image(pixels, shifted, interp)
 
 
-def sample_grid(view: ImageSource, uv: np.ndarray, keep: np.ndarray, interp: str) -> np.ndarray:
+Prefetched = tuple[WindowT, "Future[np.ndarray]"]
+"""An image window (r0, r1, c0, c1) being read in the background, and its pixels to come."""
+
+
+@contextmanager
+def _prefetch(plan: Plan, job: TileJob, threads: int) -> Iterator[dict[int, Prefetched]]:
+    """With a spare thread (``threads`` > 1: fewer tiles than workers), each view's image
+    window of the tile (:attr:`TileJob.image_windows`, within the sampling budget) read in
+    the background while the tile meshes and classifies its posts; none otherwise."""
+    if threads < 2 or not job.image_windows:
+        yield {}
+        return
+    with ThreadPoolExecutor(1) as pool:
+        reads = {}
+        for k, window in zip(job.views, job.image_windows, strict=True):
+            r0, r1, c0, c1 = window
+            if 0 < (r1 - r0) * (c1 - c0) <= SAMPLE_BUDGET_PIXELS:
+                reads[k] = (window, pool.submit(plan.views[k].read, window))
+        try:
+            yield reads
+        finally:
+            for _, future in reads.values():
+                future.cancel()
+
+
+def sample_grid(
+    view: ImageSource,
+    uv: np.ndarray,
+    keep: np.ndarray,
+    interp: str,
+    prefetched: Prefetched | None = None,
+) -> np.ndarray:
     """Values (bands, rows, cols) float32 of the image at the positions ``uv`` (rows, cols, 2)
     where ``keep`` (rows, cols), NaN elsewhere: the same values as :func:`sample_view` of
     ``uv[keep]``, with the grid itself as the map of ``cv2.remap`` (no gathering of the kept
-    positions, no scattering of their values)."""
+    positions, no scattering of their values). The pixels come from the ``prefetched`` window
+    when it holds the window needed."""
     u, v = uv[..., 0], uv[..., 1]
     low = np.array([u.min(where=keep, initial=np.inf), v.min(where=keep, initial=np.inf)])
     high = np.array([u.max(where=keep, initial=-np.inf), v.max(where=keep, initial=-np.inf)])
@@ -174,10 +207,18 @@ def sample_grid(view: ImageSource, uv: np.ndarray, keep: np.ndarray, interp: str
         out[:, keep] = sample_view(view, uv[keep], interp)
         return out
     window = _image_window(view, low, high)
+    r0, r1, c0, c1 = window
+    pixels = None
+    if prefetched is not None:
+        (p0, p1, q0, q1), future = prefetched
+        if p0 <= r0 and r1 <= p1 and q0 <= c0 and c1 <= q1:
+            pixels = future.result()[:, r0 - p0 : r1 - p0, c0 - q0 : c1 - q0]
+    if pixels is None:
+        pixels = view.read(window)
     shifted = uv.astype(np.float32)  # shifted in float32, as _read_window does (exact)
-    shifted -= np.array([window[2], window[0]], np.float32)
+    shifted -= np.array([c0, r0], np.float32)
     shifted[~keep] = OUTSIDE
-    return sample_image(view.read(window), shifted, interp)
+    return sample_image(pixels, shifted, interp)
 
 
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
@@ -215,24 +256,25 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     label = np.zeros(best.shape, np.int64)  # the 1-based view each post came from, 0 none
     many = len(job.views) > 1  # then each post takes the view of least emission angle
     fields = frozenset({"emission"} if many else ())
-    for k in job.views:
-        view = plan.views[k]
-        with _timed(seconds, "visibility"):
-            vis = _visibility(plan, grid, k, caster, window, threads, fields)
-        codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
-        _record_codes(result, k, codes)
-        keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
-        if many:
-            keep &= emission < best
-        if (result.data is not None or result.source is not None) and keep.any():
-            with _timed(seconds, "sample"):
-                values = sample_grid(view, uv, keep, plan.interp)
-            keep &= np.isfinite(values).all(axis=0)
-            if result.data is not None:
-                np.copyto(result.data, values, where=keep)
-        label[keep] = k + 1
-        if many:
-            best[keep] = emission[keep]
+    with _prefetch(plan, job, threads) as prefetched:
+        for k in job.views:
+            view = plan.views[k]
+            with _timed(seconds, "visibility"):
+                vis = _visibility(plan, grid, k, caster, window, threads, fields)
+            codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
+            _record_codes(result, k, codes)
+            keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
+            if many:
+                keep &= emission < best
+            if (result.data is not None or result.source is not None) and keep.any():
+                with _timed(seconds, "sample"):
+                    values = sample_grid(view, uv, keep, plan.interp, prefetched.get(k))
+                keep &= np.isfinite(values).all(axis=0)
+                if result.data is not None:
+                    np.copyto(result.data, values, where=keep)
+            label[keep] = k + 1
+            if many:
+                best[keep] = emission[keep]
     if result.source is not None:
         result.source[0] = label
     if result.data is not None or result.source is not None:
