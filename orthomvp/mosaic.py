@@ -203,14 +203,17 @@ def visible_median(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
                 np.minimum(a, b, out=spare)
                 np.maximum(a, b, out=b)
                 layers[j], spare = spare, a
-        low, high = layers[0], layers[0]
-        for j in range(1, k):  # the middle layers: (n - 1) // 2 and n // 2, at most k // 2
+        low, high = layers[0].copy(), layers[0]  # the middle layers, at most k // 2:
+        for j in range(1, k):  # (n - 1) // 2 into low, n // 2 into high (the first layer's)
             if j <= (k - 1) // 2:
-                low = np.where(lows == j, layers[j], low)
+                np.copyto(low, layers[j], where=np.broadcast_to(lows == j, low.shape))
             if j <= k // 2:
-                high = np.where(highs == j, layers[j], high)
+                np.copyto(high, layers[j], where=np.broadcast_to(highs == j, high.shape))
     with np.errstate(invalid="ignore"):
-        return np.where(n > 0, (low + high) / 2, np.nan).astype(values.dtype)
+        middle = (low + high).astype(values.dtype, copy=False)
+        middle /= 2
+    middle[np.broadcast_to(n == 0, middle.shape)] = np.nan
+    return middle
 
 
 def priority_cost(
@@ -281,7 +284,9 @@ def labels(
     if seamlines:
         inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)
-        total = np.nan_to_num(cost, nan=0.0)  # in place: cost + (1 - seen / inside) + disagreement
+        # in place: cost + (1 - seen / inside) + disagreement where visible (where the cost
+        # is finite), 0 elsewhere
+        total = np.array(cost, dtype=np.float64)
         total += 1.0 - seen / inside
         total += disagreement(values, visible)
         total[~visible] = 0.0
