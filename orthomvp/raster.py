@@ -493,26 +493,30 @@ def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: t
     """Bands ``indexes`` (as rasterio's ``read`` takes them) of the open dataset ``src`` in
     ``window`` as ``dtype`` floats, NaN where GDAL's mask says there is no value: the values
     of ``np.ma.filled(src.read(indexes, window=window, masked=True).astype(dtype), nan)``.
-    Where every band read is all valid or masked by its nodata value alone, the data are read
-    once and compared with the nodata value (a masked read reads them twice and imports
-    ``numpy.ma``). RasterioError as rasterio raises it."""
+
+    Where that mask is plain, the data are read once and compared with the nodata value (a
+    masked read reads them twice and imports ``numpy.ma``): every band read is all valid, or
+    every band read is masked by its nodata value alone, the same value for all of them and
+    one GDAL compares exactly (any value of an integer band, NaN of a float band; GDAL matches
+    other float nodata values within a few ulps, which goes through the masked read). The
+    masked read otherwise. RasterioError as rasterio raises it."""
     bands = [indexes] if isinstance(indexes, int) else indexes or list(src.indexes)
     flags = {tuple(src.mask_flag_enums[b - 1]) for b in bands}
-    nodata = src.nodata
-    simple = flags <= {(MaskFlags.all_valid,), (MaskFlags.nodata,)}
-    if simple and (MaskFlags.nodata,) in flags:  # the value must be the band type's
-        kind = np.dtype(src.dtypes[bands[0] - 1])
-        same = np.array(nodata).astype(kind) if np.can_cast(kind, np.float64) else None
-        simple = same is not None and (same == nodata or (np.isnan(nodata) and np.isnan(same)))
-    if not simple:
-        data = src.read(indexes, window=window, masked=True)
-        return np.ma.filled(data.astype(dtype), np.nan)
-    data = src.read(indexes, window=window)
-    values = data.astype(dtype)
-    if (MaskFlags.nodata,) in flags:
-        masked = np.isnan(data) if np.isnan(nodata) else data == nodata
-        values[masked] = np.nan
-    return values
+    nodatas = {src.nodatavals[b - 1] for b in bands}
+    kinds = {np.dtype(src.dtypes[b - 1]) for b in bands}
+    nodata = next(iter(nodatas)) if len(nodatas) == 1 else None
+    if flags == {(MaskFlags.all_valid,)}:
+        return src.read(indexes, window=window).astype(dtype)
+    if flags == {(MaskFlags.nodata,)} and nodata is not None and len(kinds) == 1:
+        (kind,) = kinds
+        exact = np.isnan(nodata) if kind.kind == "f" else float(nodata).is_integer()
+        if exact:
+            data = src.read(indexes, window=window)
+            values = data.astype(dtype)
+            values[np.isnan(data) if np.isnan(nodata) else data == nodata] = np.nan
+            return values
+    data = src.read(indexes, window=window, masked=True)
+    return np.ma.filled(data.astype(dtype), np.nan)
 
 
 def write_geotiff(

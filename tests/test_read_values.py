@@ -65,3 +65,35 @@ def test_read_values_honours_an_internal_mask(tmp_path: Path) -> None:
         got = read_values(src, None, None, np.float32)
         np.testing.assert_array_equal(got, masked_read(src, None, None, np.float32))
     assert np.isnan(got[:, 5:10, 5:15]).all() and np.isfinite(got[:, :5]).all()
+
+
+def test_read_values_with_a_nodata_value_per_band(tmp_path: Path) -> None:
+    """Bands with different nodata values, or only some with one (a VRT can say so), and a
+    float band whose nodata GDAL matches within ulps: the masked read's values."""
+    src_path = tmp_path / "bands.tif"
+    data = np.array([[[0, 1, 255], [7, 0, 9]], [[255, 0, 3], [0, 255, 5]]], np.uint8)
+    profile = dict(driver="GTiff", height=2, width=3, count=2, dtype="uint8")
+    with rasterio.open(src_path, "w", transform=Affine(1, 0, 0, 0, -1, 2), **profile) as dst:
+        dst.write(data)
+    for nodatas in ((0, 255), (None, 255), (255, None)):
+        vrt = tmp_path / f"bands-{nodatas[0]}-{nodatas[1]}.vrt"
+        bands = "".join(
+            f'<VRTRasterBand dataType="Byte" band="{b}">'
+            + (f"<NoDataValue>{nd}</NoDataValue>" if nd is not None else "")
+            + f"<SimpleSource><SourceFilename>{src_path}</SourceFilename>"
+            f"<SourceBand>{b}</SourceBand></SimpleSource></VRTRasterBand>"
+            for b, nd in enumerate(nodatas, start=1)
+        )
+        vrt.write_text(f'<VRTDataset rasterXSize="3" rasterYSize="2">{bands}</VRTDataset>')
+        with rasterio.open(vrt) as src:
+            for indexes in (None, 1, 2, [2, 1]):
+                got = read_values(src, indexes, None, np.float32)
+                np.testing.assert_array_equal(got, masked_read(src, indexes, None, np.float32))
+    near = tmp_path / "near.tif"
+    values = np.array([[[-9999.0, np.nextafter(np.float32(-9999), np.float32(0)), 5.0]]], "f4")
+    profile = dict(driver="GTiff", height=1, width=3, count=1, dtype="float32", nodata=-9999.0)
+    with rasterio.open(near, "w", transform=Affine(1, 0, 0, 0, -1, 1), **profile) as dst:
+        dst.write(values)
+    with rasterio.open(near) as src:
+        got = read_values(src, None, None, np.float32)
+        np.testing.assert_array_equal(got, masked_read(src, None, None, np.float32))
