@@ -284,9 +284,10 @@ def labels(
     if seamlines:
         inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)
-        # in place: cost + (1 - seen / inside) + disagreement where visible (where the cost
-        # is finite), 0 elsewhere
+        # in place: cost (NaN as 0) + (1 - seen / inside) + disagreement where visible, 0
+        # elsewhere
         total = np.array(cost, dtype=np.float64)
+        total[np.isnan(total)] = 0.0
         total += 1.0 - seen / inside
         total += disagreement(values, visible)
         total[~visible] = 0.0

@@ -431,3 +431,23 @@ def test_cli_reports_the_posts_taken_from_each_image(
     filled = int(np.isfinite(data).all(axis=0).sum())
     assert len(taken) == len(views) and all(n > 0 for n in taken), line
     assert sum(taken) == filled and filled + none == data[0].size, line
+
+
+def test_seam_labels_take_a_nan_cost_as_zero() -> None:
+    """A visible view whose priority cost is NaN (its emission angle unknown, e.g. a post
+    whose normal has no neighbour) counts it as 0, as before the seam cost was computed in
+    place: no cast of NaN to an integer, no cost spread over its neighbours."""
+    import warnings
+
+    from orthomvp.mosaic import labels
+
+    rng = np.random.default_rng(2)
+    visible = rng.random((3, 30, 40)) < 0.7
+    values = rng.random((3, 2, 30, 40)).astype(np.float32)
+    cost = rng.random((3, 30, 40))
+    cost[0, 10, 10] = np.nan
+    visible[0, 10, 10] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = labels(cost, visible, values, True)
+    np.testing.assert_array_equal(got, labels(np.nan_to_num(cost), visible, values, True))
