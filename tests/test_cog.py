@@ -212,6 +212,22 @@ def test_assemble_writes_a_bigtiff_when_a_classic_one_cannot_hold_it(
         np.testing.assert_array_equal(ours, theirs)
 
 
+def test_assemble_refuses_a_damaged_file_with_one_error(tmp_path: Path) -> None:
+    """A work file cut short anywhere (a full disk) is a TiffLayoutError, an OSError, which
+    the writer reports as a failed write of the output: never another exception."""
+    rng = np.random.default_rng(9)
+    base, _, levels = gdal_cog_and_levels(tmp_path, rng.normal(size=(1, 90, 70)).astype("f4"))
+    raw = base.read_bytes()
+    cut = tmp_path / "cut.tif"
+    for end in sorted({*range(0, 64), *range(0, len(raw), max(len(raw) // 97, 1))}):
+        cut.write_bytes(raw[:end])
+        try:
+            assemble(cut, levels, tmp_path / "out.tif")
+        except TiffLayoutError:
+            pass
+    assert issubclass(TiffLayoutError, OSError)
+
+
 def test_assemble_refuses_what_is_not_a_tiled_little_endian_tiff(tmp_path: Path) -> None:
     text = tmp_path / "a.tif"
     text.write_bytes(b"not a tiff at all")
@@ -283,14 +299,52 @@ def test_engine_cog_overviews_are_block_means_of_the_level_before(
 
 
 def test_engine_cog_overviews_of_integer_orthophotos(crater_dir: Path, tmp_path: Path) -> None:
-    """uint8 orthophotos: the levels are the rounded block means of the level before, and
-    nodata (0) is left out of them."""
-    plan = crater_plan(crater_dir, 64)
-    path = tmp_path / "u8.tif"
-    run_plan(plan, Outputs(ortho=path, dtype="uint8", blocksize=32), progress=False)
-    levels = read_levels(path)
+    """uint8 orthophotos: the levels are the rounded block means of the level before (as
+    written, rounded), nodata (0) left out, whatever the tiles (64 posts: levels from the
+    tiles; 50: from the files)."""
+    files = []
+    for tile in (64, 50):
+        path = tmp_path / f"u8-{tile}.tif"
+        outputs = Outputs(ortho=path, dtype="uint8", blocksize=32)
+        run_plan(crater_plan(crater_dir, tile), outputs, progress=False)
+        files.append(read_levels(path))
+    for a, b in zip(*files, strict=True):
+        np.testing.assert_array_equal(a, b)
+    levels = files[0]
     assert levels[0].dtype == np.uint8 and (levels[0] == 0).any()
     for before, after in zip(levels, levels[1:], strict=False):
         means = block_means(np.where(before == 0, np.nan, before.astype(np.float64)))
         expected = np.where(np.isnan(means), 0, np.clip(np.rint(means), 1, 255))
         np.testing.assert_array_equal(after, expected)
+
+
+def test_integer_levels_are_made_from_the_rounded_level_before(tmp_path: Path) -> None:
+    """A uint8 output whose level-1 means tie at .5: level 2 comes from level 1 as written
+    (rounded), whether the tiles make it (tiles of 4) or the file does (tiles of 2)."""
+    from types import SimpleNamespace
+
+    from pyproj import CRS
+
+    from orthomvp.engine.grid import OutputGrid
+    from orthomvp.engine.writer import Layer, output_files
+
+    # level 1 of the 4 x 4 posts: [[2.5, 2.5], [2.5, 3.5]] -> rounded [[2, 2], [2, 4]] -> 2.5 -> 2
+    data = np.array([[2, 3, 2, 3], [2, 3, 2, 3], [2, 3, 3, 4], [2, 3, 3, 4]], np.uint8)
+    big = np.tile(data, (16, 16))  # 64 x 64 posts, blocks of 16: levels of factors 2 and 4
+    grid = OutputGrid(Affine(1, 0, 0, 0, -1, 32), big.shape, CRS.from_epsg(32633), True)
+    written = []
+    for tile in (4, 2):
+        path = tmp_path / f"u8-{tile}.tif"
+        layer = Layer(path, 1, "uint8", 0, Resampling.average, lambda r: r.data)
+        outputs = Outputs(ortho=path, dtype="uint8", blocksize=16)
+        with output_files(grid, [layer], outputs) as writer:
+            for r in range(0, 64, tile):
+                for c in range(0, 64, tile):
+                    part = big[r : r + tile, c : c + tile][None]
+                    writer.write(SimpleNamespace(window=(r, r + tile, c, c + tile), data=part))
+        written.append(read_levels(path))
+    for a, b in zip(*written, strict=True):
+        np.testing.assert_array_equal(a, b)
+    level1, level2 = written[0][1][0], written[0][2][0]
+    assert level1[:2, :2].tolist() == [[2, 2], [2, 4]]  # 2.5 rounds to even, 3.5 to 4
+    assert level2[0, 0] == 2  # the mean of the rounded level 1 (2.5), not of its means (2.75)

@@ -23,6 +23,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -66,38 +67,47 @@ class Ifd:
     counts: np.ndarray
 
 
+def _read(handle: BinaryIO, size: int, path: Path) -> bytes:
+    """``size`` bytes from ``handle``; TiffLayoutError when the file ends first."""
+    data = handle.read(size)
+    if len(data) != size:
+        raise TiffLayoutError(f"{path} is cut short")
+    return data
+
+
 def read_ifd(path: Path) -> Ifd:
-    """The first IFD of the tiled TIFF at ``path`` (classic or BigTIFF, little-endian)."""
+    """The first IFD of the tiled TIFF at ``path`` (classic or BigTIFF, little-endian), with
+    tiles as many as it has offsets and byte counts; TiffLayoutError for anything else or a
+    damaged file."""
     with open(path, "rb") as handle:
         head = handle.read(16)
         if head[:2] != b"II" or len(head) < 8:
             raise TiffLayoutError(f"{path} is not a little-endian TIFF")
         version = struct.unpack_from("<H", head, 2)[0]
-        if version == 42:
-            big, (first,) = False, struct.unpack_from("<I", head, 4)
-        elif version == 43:
+        if version == 43 and len(head) == 16:
             big, (first,) = True, struct.unpack_from("<Q", head, 8)
+        elif version == 42:
+            big, (first,) = False, struct.unpack_from("<I", head, 4)
         else:
             raise TiffLayoutError(f"{path} is not a TIFF (version {version})")
         count_fmt, entry_fmt, entry_size, inline = (
             ("<Q", "<HHQ8s", 20, 8) if big else ("<H", "<HHI4s", 12, 4)
         )
         handle.seek(first)
-        raw = handle.read(struct.calcsize(count_fmt))
-        (n,) = struct.unpack(count_fmt, raw)
-        table = handle.read(n * entry_size)
-        if len(table) < n * entry_size:
-            raise TiffLayoutError(f"{path}: its first image directory is cut short")
+        (n,) = struct.unpack(count_fmt, _read(handle, struct.calcsize(count_fmt), path))
+        table = _read(handle, n * entry_size, path)
         fields = {}
         for i in range(n):
             tag, kind, count, value = struct.unpack_from(entry_fmt, table, i * entry_size)
-            size = SIZES.get(kind, 1) * count
+            if kind not in SIZES:  # (IFD offsets, which would need moving, among them)
+                raise TiffLayoutError(f"{path}: tag {tag} has a field type ({kind}) not copied")
+            size = SIZES[kind] * count
             if size <= inline:
                 data = value[:size]
             else:
                 (where,) = struct.unpack("<Q" if big else "<I", value)
                 handle.seek(where)
-                data = handle.read(size)
+                data = _read(handle, size, path)
             fields[tag] = (kind, count, data)
     arrays = []
     for tag in (TILE_OFFSETS, TILE_BYTE_COUNTS):
@@ -105,15 +115,22 @@ def read_ifd(path: Path) -> Ifd:
             raise TiffLayoutError(f"{path} is not a tiled TIFF")
         kind, _, data = fields.pop(tag)
         arrays.append(np.frombuffer(data, INTEGERS[kind]).astype(np.uint64))
+    if arrays[0].size != arrays[1].size:
+        raise TiffLayoutError(f"{path}: its tile offsets and byte counts differ in number")
     return Ifd(path, fields, *arrays)
 
 
+class _NeedsBigTiff(Exception):
+    """A field that only a BigTIFF holds."""
+
+
 def _encode(kind: int, count: int, data: bytes, big: bool) -> tuple[int, int, bytes]:
-    """A field as the output file takes it: LONG8 values become LONG in a classic TIFF."""
+    """A field as the output file takes it: LONG8 values become LONG in a classic TIFF
+    (:class:`_NeedsBigTiff` when one does not fit)."""
     if kind in (16, 17) and not big:
         values = np.frombuffer(data, "<u8" if kind == 16 else "<i8")
         if values.size and (values.max() > 0xFFFFFFFF or values.min() < 0):
-            raise TiffLayoutError("a LONG8 value does not fit in a classic TIFF")
+            raise _NeedsBigTiff
         return LONG, count, values.astype("<u4").tobytes()
     return kind, count, data
 
@@ -204,7 +221,10 @@ def assemble(base: Path, overviews: Sequence[Path], out: Path) -> None:
     for big in (False, True):
         header = 16 if big else 8
         start = header + len(ghost)
-        layout = _Layout(ifds, big, start + start % 2)
+        try:
+            layout = _Layout(ifds, big, start + start % 2)
+        except _NeedsBigTiff:
+            continue
         if big or layout.end <= CLASSIC_LIMIT:
             break
     first = layout.ifd_at[0]
@@ -236,6 +256,6 @@ def _copy_tiles(ifd: Ifd, dst: object) -> None:
                 raise TiffLayoutError(f"{ifd.path}: a tile is cut short")
             dst.write(struct.pack("<I", count))  # type: ignore[attr-defined]
             dst.write(data)  # type: ignore[attr-defined]
-            dst.write(data[-4:])  # type: ignore[attr-defined]
+            dst.write(data[-4:].rjust(4, b"\0"))  # type: ignore[attr-defined]  (as GDAL pads)
     finally:
         os.close(fd)

@@ -226,10 +226,14 @@ class _Output:
         self.levels: list[Any] = []
         with writing(layer.path, size):
             self.dataset = rasterio.open(work, "w", **self.profile)
-            for band, name in enumerate(layer.names, start=1):
-                self.dataset.set_band_description(band, name)
-            for factor, path in zip(self.factors, levels, strict=True):
-                self.levels.append(rasterio.open(path, "w", **self._level_profile(factor)))
+            try:
+                for band, name in enumerate(layer.names, start=1):
+                    self.dataset.set_band_description(band, name)
+                for factor, path in zip(self.factors, levels, strict=True):
+                    self.levels.append(rasterio.open(path, "w", **self._level_profile(factor)))
+            except BaseException:
+                self.close()
+                raise
 
     def _level_profile(self, factor: int) -> dict[str, Any]:
         """The profile of overview level ``factor``: the output's, on 1 / ``factor`` the posts."""
@@ -247,23 +251,25 @@ class _Output:
         data = data[None] if data.ndim == 2 else data
         with writing(self.layer.path, self.size):
             self.dataset.write(data, window=Window(c0, r0, c1 - c0, r1 - r0))
-            values, nodata = data, self.layer.nodata
+            values = data
             for i, factor in enumerate(self.factors):
                 window = window_level(result.window, self.shape, factor)
                 if window is None:
                     break
-                values = halve(values, self.resampling.name, nodata)
-                nodata = np.nan if self.resampling.name == AVERAGE else nodata
-                self._write_level(i, values, window)
+                halved = halve(values, self.resampling.name, self.layer.nodata)
+                values = self._write_level(i, halved, window)
 
-    def _write_level(self, i: int, values: np.ndarray, window: tuple[int, ...]) -> None:
-        """``values`` (as :func:`halve` gives them) into ``window`` of level ``i``."""
+    def _write_level(self, i: int, values: np.ndarray, window: tuple[int, ...]) -> np.ndarray:
+        """``values`` (as :func:`halve` gives them) into ``window`` of level ``i``; returns
+        what was written (of the output's type), from which the next level is made, as it is
+        from the file when no tile holds that level's blocks whole."""
         r0, r1, c0, c1 = window
         if self.resampling.name == AVERAGE:
             nodata = np.nan if self.layer.nodata is None else self.layer.nodata
             values = to_dtype(values, self.dtype, nodata)
         self.levels[i].write(values, window=Window(c0, r0, c1 - c0, r1 - r0))
         self.made[i] += (r1 - r0) * (c1 - c0)
+        return values
 
     def close(self) -> None:
         """Close the datasets after a failure, quietly (their temporary files go anyway)."""
