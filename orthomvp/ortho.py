@@ -47,8 +47,8 @@ from orthomvp.visibility import (
     occluder_caster,
 )
 
-MAP_COLUMNS = 32767
-"""The most columns a map of ``cv2.remap`` may have."""
+MAP_SIDE = 32766
+"""The most rows or columns a map of ``cv2.remap`` may have (OpenCV wants fewer than 32767)."""
 CUBIC_FRAME = 3
 """Pixels of NaN around an image sampled by cubic interpolation (whose taps reach 2 pixels)."""
 OUTSIDE = -1e6
@@ -111,7 +111,7 @@ def sample_image(
         )
     shape = uv.shape[:-1]
     n = int(np.prod(shape))
-    if uv.ndim == 3 and uv.dtype == np.float32 and 0 < shape[1] <= MAP_COLUMNS:
+    if uv.ndim == 3 and uv.dtype == np.float32 and 0 < max(shape) <= MAP_SIDE:
         maps = np.ascontiguousarray(uv)  # a grid of positions is the map as it is
     else:  # cv2.remap takes at most 32767 columns per map: lay the points out as rows of 4096
         width = 4096

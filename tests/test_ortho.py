@@ -115,6 +115,18 @@ def test_sample_image_against_exact_bilinear() -> None:
     assert nearest[0, 0] == img[0, 5, 3] and np.isnan(nearest[:, 1:]).all()
 
 
+def test_sample_image_on_a_grid_longer_than_a_remap_map() -> None:
+    """A grid of positions with a side beyond what cv2.remap's map takes is laid out in rows
+    instead, with the same values."""
+    rng = np.random.default_rng(3)
+    img = rng.random((1, 20, 30)).astype(np.float32)
+    uv = np.stack([rng.uniform(0, 29, (40000, 1)), rng.uniform(0, 19, (40000, 1))], -1)
+    uv = uv.astype(np.float32)
+    got = sample_image(img, uv, "bilinear")
+    assert got.shape == (1, 40000, 1)
+    np.testing.assert_array_equal(got[:, :, 0], sample_image(img, uv[:, 0], "bilinear"))
+
+
 def test_sample_image_cubic_against_keys_kernel() -> None:
     """Cubic samples against OpenCV's cubic convolution (Keys, a = -0.75) evaluated here:
     finite wherever the 4 x 4 taps lie in the image (OpenCV 5.0's own NaN border gave NaN far

@@ -171,10 +171,10 @@ def main_entry() -> None:
     code = main()
     if threading.active_count() > 1:
         sys.exit(code)
+    atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with suppress(OSError, ValueError):  # a closed pipe, a closed stream
             stream.flush()
-    atexit._run_exitfuncs()
     os._exit(code)
 
 
