@@ -171,9 +171,7 @@ def plan_check(
         progress=progress,
     )
     jobs = [
-        job
-        if len(job.views) > 1
-        else replace(job, views=(), dem=None, image_pixels=(), image_windows=())
+        job if len(job.views) > 1 else replace(job, views=(), dem=None, image_windows=())
         for job in jobs
     ]
     base = Plan(

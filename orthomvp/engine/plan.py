@@ -82,16 +82,19 @@ class HaloWarning(UserWarning):
 class TileJob:
     """One output tile: ``window`` on the output grid; ``views``, the indices of the images
     that may see it; ``dem``, the DEM window it reads (None when no image sees it);
-    ``image_pixels``, per view, the pixels of the image window expected to be read, and
-    ``image_windows`` that window (r0, r1, c0, c1) in the image (the bounds of where the tile
-    can appear, with :data:`IMAGE_MARGIN` pixels around, clipped to the image)."""
+    ``image_windows``, per view, the image window (r0, r1, c0, c1) expected to be read (the
+    bounds of where the tile can appear, see :func:`pixel_window`)."""
 
     index: int
     window: WindowT
     views: tuple[int, ...]
     dem: WindowT | None
-    image_pixels: tuple[int, ...]
-    image_windows: tuple[WindowT, ...] = ()
+    image_windows: tuple[WindowT, ...]
+
+    @property
+    def image_pixels(self) -> tuple[int, ...]:
+        """Per view, the pixels of :attr:`image_windows`."""
+        return tuple((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in self.image_windows)
 
     @property
     def dem_posts(self) -> int:
@@ -220,21 +223,15 @@ def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> s
     )
 
 
-def _pixels(box: Box, view: ImageSource) -> int:
-    """Image pixels of the window of ``box`` (clipped to the image)."""
-    c0, c1 = max(box[0] - IMAGE_MARGIN, 0), min(box[1] + IMAGE_MARGIN + 1, view.width)
-    r0, r1 = max(box[2] - IMAGE_MARGIN, 0), min(box[3] + IMAGE_MARGIN + 1, view.height)
-    return int(max(c1 - c0, 0) * max(r1 - r0, 0))
-
-
-def _box_window(box: Box, view: ImageSource) -> WindowT:
-    """The whole pixels (r0, r1, c0, c1) that positions within ``box`` sample, with
-    :data:`IMAGE_MARGIN` pixels around, clipped to the image (as the tile reads them)."""
-    u0, u1, v0, v1 = (float(np.clip(b, -1, 1 << 31)) for b in box)
-    c0 = min(max(int(np.floor(u0)) - IMAGE_MARGIN, 0), view.width)
-    r0 = min(max(int(np.floor(v0)) - IMAGE_MARGIN, 0), view.height)
-    c1 = min(max(int(np.floor(u1)) + IMAGE_MARGIN + 2, c0), view.width)
-    r1 = min(max(int(np.floor(v1)) + IMAGE_MARGIN + 2, r0), view.height)
+def pixel_window(view: ImageSource, low: Sequence[float], high: Sequence[float]) -> WindowT:
+    """The window (r0, r1, c0, c1) of the image pixels that positions from ``low`` to ``high``
+    (u, v) sample, with :data:`IMAGE_MARGIN` pixels around, clipped to the image (infinite
+    bounds at its edges)."""
+    (u0, v0), (u1, v1) = ([int(np.floor(np.clip(x, -1, 1 << 31))) for x in b] for b in (low, high))
+    c0 = min(max(u0 - IMAGE_MARGIN, 0), view.width)
+    r0 = min(max(v0 - IMAGE_MARGIN, 0), view.height)
+    c1 = min(max(u1 + IMAGE_MARGIN + 2, c0 + 1), view.width)
+    r1 = min(max(v1 + IMAGE_MARGIN + 2, r0 + 1), view.height)
     return (r0, r1, c0, c1)
 
 
@@ -280,21 +277,20 @@ def _job(
     need = footprint(dem, to_dem, window, grid.on_dem)
     if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
         return TileJob(index, tile, (), None, ()), boxes, halos
-    seen, pixels, windows = [], [], []
+    seen, windows = [], []
     for k, view in enumerate(views):
         boxes[k] = image_box(dem, to_dem, window, view.camera)
         if not _sees(boxes[k], view):
             continue
         seen.append(k)
-        pixels.append(_pixels(boxes[k], view))
-        windows.append(_box_window(boxes[k], view))
+        u0, u1, v0, v1 = boxes[k]
+        windows.append(pixel_window(view, (u0, v0), (u1, v1)))
         if occlusion:
             halos[k] = tile_halo(dem, to_dem, window, view.camera)
             need = _union(need, halos[k].window)
     if not seen:
         return TileJob(index, tile, (), None, ()), boxes, halos
-    job = TileJob(index, tile, tuple(seen), need, tuple(pixels), tuple(windows))
-    return job, boxes, halos
+    return TileJob(index, tile, tuple(seen), need, tuple(windows)), boxes, halos
 
 
 def plan_ortho(

@@ -20,7 +20,7 @@ from orthomvp.codes import Code
 from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
-from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob
+from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob, pixel_window
 from orthomvp.mosaic import compose, doubtful, nadir_angle
 from orthomvp.ortho import OUTSIDE, sample_image
 from orthomvp.raycast import RayCaster
@@ -129,19 +129,9 @@ def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndar
     """The image pixels around positions ``uv`` (n, 2) and the positions relative to them,
     shifted in float32 as :func:`~orthomvp.ortho.sample_image` uses them (exact, so every
     window samples exactly as the whole image would)."""
-    window = _image_window(view, *column_range(uv))
+    window = pixel_window(view, *column_range(uv))
     shifted = uv.astype(np.float32) - np.array([window[2], window[0]], np.float32)
     return view.read(window), shifted
-
-
-def _image_window(view: ImageSource, low: np.ndarray, high: np.ndarray) -> WindowT:
-    """The window (r0, r1, c0, c1) of the image pixels that positions from ``low`` to
-    ``high`` (u, v) sample, with :data:`IMAGE_MARGIN` pixels around."""
-    lo, hi = np.floor(low).astype(int), np.floor(high).astype(int)
-    c0, r0 = max(lo[0] - IMAGE_MARGIN, 0), max(lo[1] - IMAGE_MARGIN, 0)
-    c1 = min(max(hi[0] + IMAGE_MARGIN + 2, c0 + 1), view.width)
-    r1 = min(max(hi[1] + IMAGE_MARGIN + 2, r0 + 1), view.height)
-    return (r0, r1, c0, c1)
 
 
 def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
@@ -206,7 +196,7 @@ def sample_grid(
         out = np.full((view.bands, *keep.shape), np.nan, np.float32)
         out[:, keep] = sample_view(view, uv[keep], interp)
         return out
-    window = _image_window(view, low, high)
+    window = pixel_window(view, low, high)
     r0, r1, c0, c1 = window
     pixels = None
     if prefetched is not None:
