@@ -26,6 +26,7 @@ from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
 from orthomvp.memory import check_memory, count_text
 from orthomvp.mosaic import (
+    FUSED_POSTS,
     Correction,
     MosaicOptions,
     clamp_blend,
@@ -249,7 +250,8 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    comp = compose(values, codes, emission, gsd, nadir, options, correction, doubt)
+    fused = codes[0].size >= FUSED_POSTS
+    comp = compose(values, codes, emission, gsd, nadir, options, correction, doubt, fused=fused)
     return Mosaic(
         comp.data,
         comp.source.astype(np.uint8 if n < 255 else np.uint16),

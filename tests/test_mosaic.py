@@ -451,3 +451,82 @@ def test_seam_labels_take_a_nan_cost_as_zero() -> None:
         warnings.simplefilter("error")
         got = labels(cost, visible, values, True)
     np.testing.assert_array_equal(got, labels(np.nan_to_num(cost), visible, values, True))
+
+
+def random_stack(views: int, seed: int, shape: tuple[int, int] = (40, 56)) -> tuple:
+    """compose's inputs with ties and holes: blobs of each code (smoothed noise), values
+    quantised to 1/8 (equal medians, equal costs), NaN samples, a NaN angle, doubtful posts."""
+    rng = np.random.default_rng(seed)
+    blobs = np.stack([box_sum(rng.integers(0, 4, shape), 2) for _ in range(views)])
+    codes = np.choose(blobs % 7 // 2, [Code.VISIBLE, Code.OCCLUDED, Code.FACING_AWAY, Code.NODATA])
+    codes = codes.astype(np.uint8)
+    codes[:, :, :3] = Code.VISIBLE  # a strip every view sees
+    values = (np.round(rng.random((views, 3, *shape)) * 8) / 8).astype(np.float32)
+    values[rng.random(values.shape) < 0.01] = np.nan
+    emission = np.round(rng.random((views, *shape)) * 4) * 20.0
+    emission[0, 5, 5] = np.nan
+    gsd = 0.5 + np.round(rng.random((views, *shape)) * 4) / 4
+    nadir = rng.random((views, *shape)) * 60
+    doubt = rng.random((views, *shape)) < 0.05
+    return values, codes, emission, gsd, nadir, doubt
+
+
+FUSED_CASES = [
+    MosaicOptions(),
+    MosaicOptions(blend=0),
+    MosaicOptions(blend=3, fill="any-view"),
+    MosaicOptions(seamlines=False, fill="naive"),
+    MosaicOptions(priority="gsd", blend=6),
+    MosaicOptions(priority="nadir", seamlines=False, blend=0),
+    MosaicOptions(priority="order", blend=5, fill="naive"),
+]
+
+
+@pytest.mark.parametrize("views", [1, 2, 3, 4, 9])
+@pytest.mark.parametrize("options", FUSED_CASES, ids=repr)
+def test_fused_compose_is_numpys_bit_for_bit(views: int, options: MosaicOptions) -> None:
+    """The numba kernels give numpy's composition bit for bit: data, labels, flags and
+    weights, with ties, NaN samples and angles, doubtful posts and a balance correction."""
+    from orthomvp.mosaic import Correction, compose
+
+    args = random_stack(views, seed=views)
+    rng = np.random.default_rng(views)
+    correction = Correction(1 + rng.random((views, 3)) / 4, rng.random((views, 3)) / 8)
+    for corr in (None, correction):
+        ref = compose(*args[:5], options, corr, args[5])
+        got = compose(*args[:5], options, corr, args[5], fused=True)
+        for name in ("data", "source", "flags", "weights"):
+            a, b = getattr(ref, name), getattr(got, name)
+            assert a.dtype == b.dtype, name
+            np.testing.assert_array_equal(a, b, err_msg=name, strict=True)
+        partial = ((ref.weights > 0) & (ref.weights < 1)).any()  # blended somewhere
+        assert (ref.source > 0).any() and partial == (views > 1 and options.blend // 2 > 0)
+
+
+def test_plan_fuses_large_mosaics_and_the_outputs_stay(
+    crater_dir: Path, views: list, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A mosaic whose tiles with views hold FUSED_POSTS posts composes with the kernels, one
+    post fewer with numpy; the engine's outputs and the in-memory mosaic are the same."""
+    import orthomvp.engine.plan as plan_module
+    import orthomvp.ortho as ortho_module
+
+    dem = crater_dir / "dem.tif"
+    plan = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions())
+    posts = sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in (j.window for j in plan.tiles))
+    for threshold, fused in ((posts, True), (posts + 1, False)):
+        monkeypatch.setattr(plan_module, "FUSED_POSTS", threshold)
+        again = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions())
+        assert again.fused is fused
+    assert not plan.fused and plan.grid.shape[0] * plan.grid.shape[1] == posts
+    numpy_run = engine_mosaic(dem, views, tmp_path, "numpy", tile=16)
+    terrain, loaded = Terrain.read(dem), [load_view(*v) for v in views]
+    numpy_memory = mosaic(terrain, loaded)
+    monkeypatch.setattr(plan_module, "FUSED_POSTS", 1)
+    monkeypatch.setattr(ortho_module, "FUSED_POSTS", 1)
+    fused_run = engine_mosaic(dem, views, tmp_path, "fused", tile=16)
+    for kind in ("ortho", "source", "visibility"):
+        np.testing.assert_array_equal(fused_run[kind], numpy_run[kind], strict=True)
+    fused_memory = mosaic(terrain, loaded)
+    np.testing.assert_array_equal(fused_memory.data, numpy_memory.data, strict=True)
+    np.testing.assert_array_equal(fused_memory.weights, numpy_memory.weights, strict=True)

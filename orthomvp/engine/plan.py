@@ -12,6 +12,7 @@ import os
 import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -26,7 +27,7 @@ from orthomvp.engine.heap import MMAP_THRESHOLD
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.mosaic import Correction, MosaicOptions
+from orthomvp.mosaic import FUSED_POSTS, Correction, MosaicOptions
 from orthomvp.ortho import INTERPOLATION
 from orthomvp.vectors import nan_median
 from orthomvp.world import check_cameras_above, detect_world
@@ -140,6 +141,15 @@ class Plan:
         """Posts computed around every tile for the mosaic's seams and blending
         (:attr:`orthomvp.mosaic.MosaicOptions.margin`; 0 without a mosaic)."""
         return self.mosaic.margin if self.mosaic is not None else 0
+
+    @cached_property
+    def fused(self) -> bool:
+        """Whether tiles compose with the numba kernels: a mosaic whose tiles with views hold
+        :data:`orthomvp.mosaic.FUSED_POSTS` posts or more."""
+        if self.mosaic is None:
+            return False
+        windows = (job.window for job in self.tiles if job.views)
+        return sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in windows) >= FUSED_POSTS
 
     def extent(self, job: TileJob) -> WindowT:
         """The posts a tile computes: its window grown by :attr:`margin`, within the grid."""

@@ -378,7 +378,10 @@ def _mosaic_tile(
     if result.data is None and result.source is None:
         return result
     with _timed(seconds, "compose"):
-        comp = compose(values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt)
+        comp = compose(
+            values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt,
+            fused=plan.fused,
+        )  # fmt: skip
     result.taken = _taken(comp.source[core], n)
     if result.data is not None:
         result.data = comp.data[:, core[0], core[1]]
