@@ -81,11 +81,11 @@ it (:func:`trusted`)."""
 """Cost between consecutive views under priority "order" (more than all other costs)."""
 
 
-FUSED_POSTS = 4_000_000
-"""Posts of a mosaic from which it composes with the numba kernels (:func:`compose`'s
-``fused``): they save about 0.2 us of a core a post of four views, and loading them costs
-about 0.3 s a process, so they pay from a few million posts (3 m posts of four aerial frames:
-10.6 M)."""
+FUSED_POSTS = 2_000_000
+"""Posts of a mosaic from which it runs the numba kernels: :func:`compose`'s (``fused``) and
+the visibility test's geometry (:func:`orthomvp.visibility.compute_visibility`'s ``fused``).
+Loading them costs about 0.3 s a process; four ngi-aerial frames whole process: 2.7 M posts
+(6 m) 1.9-2.1 s with them against 2.0-2.2 s without, 0.66 M (12 m) 1.3 against 1.05 s."""
 
 
 class BlendWarning(UserWarning):
@@ -396,17 +396,6 @@ def compose(
         flags[got] = flag
         label = np.where(got, fill, label)
     return Composite(data, (label + 1).astype(np.int64), flags, weights)
-
-
-def load_kernels() -> None:
-    """Load the numba kernels of :func:`compose` (``fused``) from numba's cache (or compile
-    them): one composition of a tiny window with seamlines and blending, whose arrays have the
-    types and layouts of a tile's (the engine runs this in a background thread while the first
-    tiles mesh and cast)."""
-    values = np.zeros((2, 1, 3, 3), np.float32)
-    codes = np.full((2, 3, 3), Code.VISIBLE, np.uint8)
-    angles = np.zeros((2, 3, 3))
-    compose(values, codes, angles, angles, angles, MosaicOptions(blend=2), fused=True)
 
 
 def pair_stats(values: np.ndarray, codes: np.ndarray) -> np.ndarray:

@@ -229,9 +229,12 @@ def mosaic(
     doubt = np.zeros(shape, bool)
     visibilities = []
     whole = (slice(None), slice(None))
+    fused = codes[0].size >= FUSED_POSTS  # (the numba kernels pay for their load)
     for k, (image, camera) in enumerate(views):
         camera = check_image(image, camera)
-        vis = compute_visibility(terrain, camera, eps=eps, caster=caster, progress=progress)
+        vis = compute_visibility(
+            terrain, camera, eps=eps, caster=caster, progress=progress, fused=fused
+        )
         visibilities.append(vis)
         codes[k], emission[k], gsd[k] = vis.codes, vis.emission, vis.gsd
         doubt[k] = doubtful(vis.miss, vis.eps)
@@ -250,7 +253,6 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    fused = codes[0].size >= FUSED_POSTS
     comp = compose(values, codes, emission, gsd, nadir, options, correction, doubt, fused=fused)
     return Mosaic(
         comp.data,

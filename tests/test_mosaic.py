@@ -530,3 +530,41 @@ def test_plan_fuses_large_mosaics_and_the_outputs_stay(
     fused_memory = mosaic(terrain, loaded)
     np.testing.assert_array_equal(fused_memory.data, numpy_memory.data, strict=True)
     np.testing.assert_array_equal(fused_memory.weights, numpy_memory.weights, strict=True)
+
+
+def test_fused_engine_mosaic_of_the_city_is_numpys(
+    city_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """In the map frame (the city), where the visibility kernel also runs: the engine's
+    mosaic of four views on a grid twice finer than the DEM (codes carried from the DEM's
+    posts) is the same bit for bit with the kernels as without."""
+    import json
+
+    import orthomvp.engine.plan as plan_module
+    import orthomvp.post_geometry_kernel as kernel
+
+    calls = []
+    classify_tile = kernel.classify_tile
+    monkeypatch.setattr(
+        kernel, "classify_tile", lambda *a, **k: calls.append(1) or classify_tile(*a, **k)
+    )
+    summary = json.loads((city_dir / "scene.json").read_text())
+    views = [(city_dir / v["image"], city_dir / v["camera"]) for v in summary["views"].values()]
+    dem = city_dir / summary["dem"]
+    with rasterio.open(dem) as src:
+        res = abs(src.transform.a) / 2
+    outputs = {}
+    for threshold in (10**12, 1):
+        monkeypatch.setattr(plan_module, "FUSED_POSTS", threshold)
+        plan = plan_ortho(dem, views, res=(res, res), tile=48, progress=False,
+                          mosaic=MosaicOptions(blend=4))  # fmt: skip
+        assert plan.fused is (threshold == 1)
+        kinds = ("ortho", "source", "visibility")
+        out = Outputs(**{k: tmp_path / f"{threshold}-{k}.tif" for k in kinds})
+        run_plan(plan, out, threads=2, progress=False)
+        outputs[threshold] = [read(getattr(out, k)) for k in kinds]
+    assert calls  # the kernel ran (the map frame)
+    for a, b in zip(outputs[1], outputs[10**12], strict=True):
+        np.testing.assert_array_equal(a, b, strict=True)
+    codes = outputs[1][2]
+    assert (codes == Code.OCCLUDED).sum() > 1000 and np.isfinite(outputs[1][0]).mean() > 0.9

@@ -12,7 +12,6 @@ import concurrent.futures as cf
 import contextlib
 import importlib
 import os
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -29,7 +28,7 @@ from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
-from orthomvp.mosaic import Correction, load_kernels
+from orthomvp.mosaic import Correction
 
 
 class WorkerError(OrthoMVPError):
@@ -331,9 +330,6 @@ def run_plan(
     kinds = frozenset(outputs.paths())
     peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
     start = time.perf_counter()
-    if plan.fused and kinds - {"visibility"} and not processes and client is None:
-        # the kernels load in the background while the survey and the first tiles run
-        threading.Thread(target=load_kernels, name="load-kernels", daemon=True).start()
     if plan.mosaic is not None and kinds - {"visibility"}:
         if plan.mosaic.balance is not None or plan.mosaic.blend:
 

@@ -312,6 +312,7 @@ def _visibility(
         strict=False,
         dem=window,
         fields=fields,
+        fused=plan.fused,
     )
 
 
@@ -354,7 +355,7 @@ def _mosaic_tile(
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields)
         code, uv = vis.codes[inner], vis.uv[inner]
-        inside = finite_rows(uv)
+        inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
         _record_codes(result, k, code[core])
