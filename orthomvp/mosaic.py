@@ -296,12 +296,11 @@ def labels(
     kernels of :mod:`orthomvp.mosaic_kernel` (the same labels)."""
     if fused:
         from orthomvp import mosaic_kernel as kernel
+
+        return kernel.labels(cost, visible, values, SEAM_RADIUS if seamlines else None)
     if seamlines:
         inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)
-        if fused:
-            q = kernel.seam_quanta(values, visible, cost, seen, inside)
-            return kernel.least(box_sum(q, SEAM_RADIUS), visible, seen)
         # in place: cost (NaN as 0) + (1 - seen / inside) + disagreement where visible, 0
         # elsewhere
         total = np.array(cost, dtype=np.float64)
@@ -313,8 +312,6 @@ def labels(
         q = np.rint(total, out=total).astype(np.int64)
         with np.errstate(invalid="ignore", divide="ignore"):
             cost = box_sum(q, SEAM_RADIUS) / seen
-    elif fused:
-        return kernel.least(cost, visible)
     cost = np.where(visible, cost, np.inf)
     best = np.argmin(cost, axis=0)
     return np.where(visible.any(axis=0), best, -1)
@@ -361,8 +358,7 @@ def compose(
     if fused:
         from orthomvp.mosaic_kernel import blend
 
-        votes = box_sum(onehot, options.blend // 2) if options.blend // 2 else onehot
-        weights, data = blend(votes.astype(np.int64, copy=False), visible, values, label)
+        weights, data = blend(label, visible, values, options.blend // 2)
     else:
         if options.blend // 2:
             votes = box_sum(onehot, options.blend // 2) * visible

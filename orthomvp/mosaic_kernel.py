@@ -1,12 +1,12 @@
-"""The per-post steps of :func:`orthomvp.mosaic.compose` as numba kernels: the seam cost of
-every view at a post (median of the visible views, disagreement, quantised total), the label
-(least averaged cost) and the blend (weights and weighted values). The box sums between them
-stay OpenCV's (:func:`orthomvp.mosaic.box_sum`).
+"""The labels and the blend of :func:`orthomvp.mosaic.compose` as numba kernels: the seam cost
+of every view at a post (median of the visible views, disagreement, quantised total), its box
+sums, the label (least averaged cost), the blend votes (box sums of the labels) and the
+weighted values, without the numpy path's temporaries.
 
 The kernels give the numpy path's values bit for bit, which stays as their reference: the
 same float32 and float64 operations in the same order (median and disagreement in float32,
-costs in float64, no fused multiply-add). Each runs on one thread without the GIL (the engine's
-tiles run in parallel).
+costs in float64, no fused multiply-add), and box sums of integers, exact in any order. Each
+runs on one thread without the GIL (the engine's tiles run in parallel).
 
 numba is imported here (and in :mod:`orthomvp.jit`) only, and this module only when a mosaic
 large enough to pay for it composes (:data:`orthomvp.mosaic.FUSED_POSTS`); loading the
@@ -18,51 +18,97 @@ from __future__ import annotations
 import numpy as np
 
 from orthomvp.jit import cached_jit
+from orthomvp.mosaic import DISAGREE, QUANT
 
-_QUANT = 1024.0
-_DISAGREE = np.float32(4.0)
+_QUANT = float(QUANT)
+_DISAGREE = np.float32(DISAGREE)
 _TINY = np.float32(1e-12)
 _ONE = np.float32(1.0)
 _TWO = np.float32(2.0)
 
 
-def _seam_quanta(
+def _box(a: np.ndarray, radius: int, out: np.ndarray, tmp: np.ndarray) -> None:
+    """Into ``out`` (rows, cols) int64: the sums of ``a`` (rows, cols; integers or booleans)
+    over the (2 ``radius`` + 1)^2 box around each post, zero beyond the array (as
+    :func:`orthomvp.mosaic.box_sum`); ``tmp`` (rows, cols) int64 is scratch. ``out`` may be
+    ``a`` itself."""
+    rows, cols = a.shape
+    for c in range(cols):  # the column sums of the first row's box
+        tmp[0, c] = 0
+    for i in range(min(radius + 1, rows)):
+        for c in range(cols):
+            tmp[0, c] += a[i, c]
+    for r in range(1, rows):  # then slide down, a row in and a row out
+        enter, leave = r + radius, r - radius - 1
+        for c in range(cols):
+            s = tmp[r - 1, c]
+            if enter < rows:
+                s += a[enter, c]
+            if leave >= 0:
+                s -= a[leave, c]
+            tmp[r, c] = s
+    for r in range(rows):  # and along each row
+        s = 0
+        for c in range(min(radius + 1, cols)):
+            s += tmp[r, c]
+        out[r, 0] = s
+        for c in range(1, cols):
+            enter, leave = c + radius, c - radius - 1
+            if enter < cols:
+                s += tmp[r, enter]
+            if leave >= 0:
+                s -= tmp[r, leave]
+            out[r, c] = s
+
+
+def _count(n: int, i: int, radius: int) -> int:
+    """Posts of an axis of ``n`` posts within ``radius`` of post ``i``."""
+    return min(i + radius, n - 1) - max(i - radius, 0) + 1
+
+
+def _seam_labels(
     values: np.ndarray,
     visible: np.ndarray,
     cost: np.ndarray,
+    radius: int,
+    label: np.ndarray,
     seen: np.ndarray,
-    inside: np.ndarray,
     quanta: np.ndarray,
+    tmp: np.ndarray,
 ) -> None:
-    """Into ``quanta`` (views, rows, cols) int64: the quantised seam cost of each view at each
-    post where it is ``visible`` (0 elsewhere): its priority ``cost`` (NaN as 0), plus the
-    share of the ``inside`` posts around that it does not see (``seen``), plus its
-    disagreement with the median of the visible views' ``values``."""
+    """Into ``label`` (rows, cols) int64: the visible view of least seam cost at each post (the
+    first on ties, -1 where none is visible), as :func:`orthomvp.mosaic.labels` with seamlines:
+    each view's priority ``cost`` (NaN as 0), plus the share of the posts within ``radius``
+    that it does not see, plus its disagreement with the median of the visible views'
+    ``values``, quantised, summed over the visible posts within ``radius`` and divided by
+    their number. ``seen`` and ``quanta`` (views, rows, cols) and ``tmp`` (rows, cols), int64,
+    are scratch."""
     n, bands, rows, cols = values.shape
-    sorted_ = np.empty(n, np.float32)
+    for k in range(n):
+        _box(visible[k], radius, seen[k], tmp)
+    ordered = np.empty(n, np.float32)
     median = np.empty(bands, np.float32)
     for r in range(rows):
+        across = _count(rows, r, radius)
         for c in range(cols):
+            inside = across * _count(cols, c, radius)
             m = 0
             for k in range(n):
                 if visible[k, r, c]:
                     m += 1
-            if m == 0:
-                for k in range(n):
-                    quanta[k, r, c] = 0
-                continue
             for b in range(bands):
                 j = 0
                 for k in range(n):  # insertion sort of the visible views' values
                     if visible[k, r, c]:
                         x = values[k, b, r, c]
                         i = j
-                        while i > 0 and sorted_[i - 1] > x:
-                            sorted_[i] = sorted_[i - 1]
+                        while i > 0 and ordered[i - 1] > x:
+                            ordered[i] = ordered[i - 1]
                             i -= 1
-                        sorted_[i] = x
+                        ordered[i] = x
                         j += 1
-                median[b] = (sorted_[(m - 1) // 2] + sorted_[m // 2]) / _TWO
+                if m > 0:
+                    median[b] = (ordered[(m - 1) // 2] + ordered[m // 2]) / _TWO
             for k in range(n):
                 if not visible[k, r, c]:
                     quanta[k, r, c] = 0
@@ -76,9 +122,12 @@ def _seam_quanta(
                 t = cost[k, r, c]
                 if np.isnan(t):
                     t = 0.0
-                t = t + (1.0 - seen[k, r, c] / inside[r, c])
+                t = t + (1.0 - seen[k, r, c] / inside)
                 t = t + np.float64(d)
                 quanta[k, r, c] = np.int64(np.rint(t * _QUANT))
+    for k in range(n):
+        _box(quanta[k], radius, quanta[k], tmp)
+    _least(quanta, seen, visible, label)
 
 
 def _least(cost: np.ndarray, seen: np.ndarray, visible: np.ndarray, label: np.ndarray) -> None:
@@ -103,18 +152,27 @@ def _least(cost: np.ndarray, seen: np.ndarray, visible: np.ndarray, label: np.nd
 
 
 def _blend(
-    votes: np.ndarray,
+    label: np.ndarray,
     visible: np.ndarray,
     values: np.ndarray,
-    label: np.ndarray,
+    radius: int,
     weights: np.ndarray,
     data: np.ndarray,
+    votes: np.ndarray,
+    tmp: np.ndarray,
 ) -> None:
-    """Into ``weights`` (views, rows, cols) float32: each visible view's ``votes`` over their
-    sum at the post (the label's one-hot where that sum is 0); into ``data`` (bands, rows,
-    cols) float32: the weighted sum of the visible views' ``values``, NaN where ``label`` is
-    -1."""
+    """Into ``weights`` (views, rows, cols) float32: each visible view's posts labelled with it
+    within ``radius`` (a box; 0: the post alone) over their sum at the post (the label's
+    one-hot where that sum is 0); into ``data`` (bands, rows, cols) float32: the weighted sum
+    of the visible views' ``values``, NaN where ``label`` is -1. ``votes`` (views, rows,
+    cols) and ``tmp`` (rows, cols), int64, are scratch."""
     n, bands, rows, cols = values.shape
+    for k in range(n):
+        for r in range(rows):
+            for c in range(cols):
+                votes[k, r, c] = 1 if label[r, c] == k else 0
+        if radius > 0:
+            _box(votes[k], radius, votes[k], tmp)
     for r in range(rows):
         for c in range(cols):
             total = 0
@@ -134,37 +192,40 @@ def _blend(
             for b in range(bands):
                 acc = np.float32(0.0)
                 for k in range(n):
+                    if weights[k, r, c] == 0:
+                        continue  # (+-0 added to the sum, never -0, changes nothing)
                     x = values[k, b, r, c] if visible[k, r, c] else np.float32(0.0)
                     acc += weights[k, r, c] * x
                 data[b, r, c] = acc
 
 
-_seam_quanta = cached_jit(_seam_quanta, fastmath=False, error_model="numpy")
+_box = cached_jit(_box, fastmath=False, error_model="numpy")
+_count = cached_jit(_count, fastmath=False, error_model="numpy", inline="always")
 _least = cached_jit(_least, fastmath=False, error_model="numpy")
+_seam_labels = cached_jit(_seam_labels, fastmath=False, error_model="numpy")
 _blend = cached_jit(_blend, fastmath=False, error_model="numpy")
 
 
-def seam_quanta(
-    values: np.ndarray, visible: np.ndarray, cost: np.ndarray, seen: np.ndarray, inside: np.ndarray
+def labels(
+    cost: np.ndarray, visible: np.ndarray, values: np.ndarray, radius: int | None
 ) -> np.ndarray:
-    """:func:`_seam_quanta`'s result (views, rows, cols) int64."""
-    out = np.empty(visible.shape, np.int64)
-    _seam_quanta(values, visible, cost, seen, inside, out)
-    return out
-
-
-def least(cost: np.ndarray, visible: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
-    """:func:`_least`'s labels (rows, cols) int64."""
+    """The 0-based view of each post (rows, cols) int64, -1 where none is ``visible``: least
+    priority ``cost``, or least seam cost over ``radius`` (None: no seamlines)."""
     out = np.empty(visible.shape[1:], np.int64)
-    _least(cost, np.empty((0, 0, 0), np.int64) if seen is None else seen, visible, out)
+    if radius is None:
+        _least(cost, np.empty((0, 0, 0), np.int64), visible, out)
+    else:  # (scratch from numpy, whose large arrays take huge pages: fewer page faults)
+        seen, quanta = np.empty(visible.shape, np.int64), np.empty(visible.shape, np.int64)
+        _seam_labels(values, visible, cost, radius, out, seen, quanta, np.empty_like(out))
     return out
 
 
 def blend(
-    votes: np.ndarray, visible: np.ndarray, values: np.ndarray, label: np.ndarray
+    label: np.ndarray, visible: np.ndarray, values: np.ndarray, radius: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_blend`'s weights (views, rows, cols) and data (bands, rows, cols), float32."""
     weights = np.empty(visible.shape, np.float32)
     data = np.empty((values.shape[1], *visible.shape[1:]), np.float32)
-    _blend(votes, visible, values, label, weights, data)
+    votes = np.empty(visible.shape, np.int64)
+    _blend(label, visible, values, radius, weights, data, votes, np.empty_like(label))
     return weights, data

@@ -568,3 +568,21 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
         np.testing.assert_array_equal(a, b, strict=True)
     codes = outputs[1][2]
     assert (codes == Code.OCCLUDED).sum() > 1000 and np.isfinite(outputs[1][0]).mean() > 0.9
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (3, 2), (2, 9), (9, 9), (40, 56)])
+def test_kernel_box_sums_are_box_sum(shape: tuple[int, int]) -> None:
+    """The kernels' box sums (integers and booleans, in place too) equal :func:`box_sum`,
+    with radii from 0 to beyond the array."""
+    from orthomvp.mosaic_kernel import _box
+
+    rng = np.random.default_rng(len(shape) + shape[0])
+    a = rng.integers(-50, 3000, shape)
+    for radius in range(7):
+        for values in (a, a > 1000):
+            out, tmp = np.empty(shape, np.int64), np.empty(shape, np.int64)
+            _box(values, radius, out, tmp)
+            np.testing.assert_array_equal(out, box_sum(values, radius))
+        inplace = a.copy()
+        _box(inplace, radius, inplace, np.empty(shape, np.int64))
+        np.testing.assert_array_equal(inplace, box_sum(a, radius))
