@@ -175,10 +175,17 @@ def _blend(
             _box(votes[k], radius, votes[k], tmp)
     for r in range(rows):
         for c in range(cols):
-            total = 0
+            total, voter = 0, -1
             for k in range(n):
-                if visible[k, r, c]:
+                if visible[k, r, c] and votes[k, r, c] > 0:
+                    voter = k if total == 0 else -2  # the one view with votes, or -2
                     total += votes[k, r, c]
+            if voter >= 0:  # one view's votes: its weight v / v = 1, the others' 0
+                for k in range(n):
+                    weights[k, r, c] = _ONE if k == voter else np.float32(0.0)
+                for b in range(bands):
+                    data[b, r, c] = values[voter, b, r, c]
+                continue
             for k in range(n):
                 if total > 0:
                     v = votes[k, r, c] if visible[k, r, c] else 0
