@@ -14,6 +14,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from orthomvp.codes import Code
@@ -188,9 +189,12 @@ def sample_grid(
     ``uv[keep]``, with the grid itself as the map of ``cv2.remap`` (no gathering of the kept
     positions, no scattering of their values). The pixels come from the ``prefetched`` window
     when it holds the window needed."""
-    u, v = uv[..., 0], uv[..., 1]
-    low = np.array([u.min(where=keep, initial=np.inf), v.min(where=keep, initial=np.inf)])
-    high = np.array([u.max(where=keep, initial=-np.inf), v.max(where=keep, initial=-np.inf)])
+    if not keep.any():
+        return np.full((view.bands, *keep.shape), np.nan, np.float32)
+    shifted = uv.astype(np.float32)  # the positions as sampled (float32; shifts are exact)
+    mask = np.ascontiguousarray(keep).view(np.uint8)
+    (u0, u1, _, _), (v0, v1, _, _) = (cv2.minMaxLoc(a, mask) for a in cv2.split(shifted))
+    low, high = np.array([u0, v0]), np.array([u1, v1])
     span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
     if span[0] * span[1] > SAMPLE_BUDGET_PIXELS:  # in pieces
         out = np.full((view.bands, *keep.shape), np.nan, np.float32)
@@ -205,9 +209,10 @@ def sample_grid(
             pixels = future.result()[:, r0 - p0 : r1 - p0, c0 - q0 : c1 - q0]
     if pixels is None:
         pixels = view.read(window)
-    shifted = uv.astype(np.float32)  # shifted in float32, as _read_window does (exact)
-    shifted -= np.array([c0, r0], np.float32)
-    shifted[~keep] = OUTSIDE
+    # (u, v) as one complex64 a post: numpy's arithmetic over a last axis of 2 is slow
+    maps = shifted.view(np.complex64)[..., 0]
+    maps -= np.complex64(complex(c0, r0))  # each part in float32, as _read_window does
+    np.copyto(maps, np.complex64(complex(OUTSIDE, OUTSIDE)), where=~keep)
     return sample_image(pixels, shifted, interp)
 
 
