@@ -297,7 +297,8 @@ def labels(
     if fused:
         from orthomvp import mosaic_kernel as kernel
 
-        return kernel.labels(cost, visible, values, SEAM_RADIUS if seamlines else None)
+        radius = SEAM_RADIUS if seamlines else None
+        return kernel.labels(cost, visible, values, radius, QUANT, DISAGREE)
     if seamlines:
         inside = box_sum(np.ones(visible.shape[1:], np.uint8), SEAM_RADIUS)
         seen = box_sum(visible, SEAM_RADIUS)

@@ -18,10 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from orthomvp.jit import cached_jit
-from orthomvp.mosaic import DISAGREE, QUANT
 
-_QUANT = float(QUANT)
-_DISAGREE = np.float32(DISAGREE)
 _TINY = np.float32(1e-12)
 _ONE = np.float32(1.0)
 _TWO = np.float32(2.0)
@@ -71,6 +68,8 @@ def _seam_labels(
     visible: np.ndarray,
     cost: np.ndarray,
     radius: int,
+    quant: float,
+    disagree: np.float32,
     label: np.ndarray,
     seen: np.ndarray,
     quanta: np.ndarray,
@@ -80,9 +79,9 @@ def _seam_labels(
     first on ties, -1 where none is visible), as :func:`orthomvp.mosaic.labels` with seamlines:
     each view's priority ``cost`` (NaN as 0), plus the share of the posts within ``radius``
     that it does not see, plus its disagreement with the median of the visible views'
-    ``values``, quantised, summed over the visible posts within ``radius`` and divided by
-    their number. ``seen`` and ``quanta`` (views, rows, cols) and ``tmp`` (rows, cols), int64,
-    are scratch."""
+    ``values`` (times ``disagree``, at most 1), in steps of 1 / ``quant``, summed over the
+    visible posts within ``radius`` and divided by their number. ``seen`` and ``quanta``
+    (views, rows, cols) and ``tmp`` (rows, cols), int64, are scratch."""
     n, bands, rows, cols = values.shape
     for k in range(n):
         _box(visible[k], radius, seen[k], tmp)
@@ -116,7 +115,7 @@ def _seam_labels(
                 d = np.float32(0.0)
                 for b in range(bands):
                     x, mid = values[k, b, r, c], median[b]
-                    rel = abs(x - mid) / (abs(x) + abs(mid) + _TINY) * _DISAGREE
+                    rel = abs(x - mid) / (abs(x) + abs(mid) + _TINY) * disagree
                     d += rel if rel < _ONE else _ONE
                 d = d / np.float32(bands)
                 t = cost[k, r, c]
@@ -124,7 +123,7 @@ def _seam_labels(
                     t = 0.0
                 t = t + (1.0 - seen[k, r, c] / inside)
                 t = t + np.float64(d)
-                quanta[k, r, c] = np.int64(np.rint(t * _QUANT))
+                quanta[k, r, c] = np.int64(np.rint(t * quant))
     for k in range(n):
         _box(quanta[k], radius, quanta[k], tmp)
     _least(quanta, seen, visible, label)
@@ -214,16 +213,26 @@ _blend = cached_jit(_blend, fastmath=False, error_model="numpy")
 
 
 def labels(
-    cost: np.ndarray, visible: np.ndarray, values: np.ndarray, radius: int | None
+    cost: np.ndarray,
+    visible: np.ndarray,
+    values: np.ndarray,
+    radius: int | None,
+    quant: int = 0,
+    disagree: float = 0.0,
 ) -> np.ndarray:
     """The 0-based view of each post (rows, cols) int64, -1 where none is ``visible``: least
-    priority ``cost``, or least seam cost over ``radius`` (None: no seamlines)."""
+    priority ``cost``, or least seam cost over ``radius`` (None: no seamlines) with the
+    disagreement's scale ``disagree`` and ``quant`` steps per unit of cost
+    (:data:`orthomvp.mosaic.DISAGREE`, :data:`orthomvp.mosaic.QUANT`)."""
     out = np.empty(visible.shape[1:], np.int64)
     if radius is None:
         _least(cost, np.empty((0, 0, 0), np.int64), visible, out)
     else:  # (scratch from numpy, whose large arrays take huge pages: fewer page faults)
         seen, quanta = np.empty(visible.shape, np.int64), np.empty(visible.shape, np.int64)
-        _seam_labels(values, visible, cost, radius, out, seen, quanta, np.empty_like(out))
+        scale, step = np.float32(disagree), float(quant)
+        _seam_labels(
+            values, visible, cost, radius, step, scale, out, seen, quanta, np.empty_like(out)
+        )
     return out
 
 

@@ -345,7 +345,7 @@ def test_csm_cameras_through_the_command_line(name: str, tmp_path: Path) -> None
     west, north = lon.min() - 10 * step, lat.max() + 10 * step
     n_c = int((lon.max() + 10 * step - west) / step) + 1
     n_r = int((north - (lat.min() - 10 * step)) / step) + 1
-    transform = Affine.translation(west, north) * Affine.scale(step, -step)
+    transform = Affine.translation(west, north) @ Affine.scale(step, -step)
     dem = tmp_path / "dem.tif"
     profile = dict(driver="GTiff", width=n_c, height=n_r, count=1, dtype="float32")
     with rasterio.open(
@@ -363,7 +363,7 @@ def test_csm_cameras_through_the_command_line(name: str, tmp_path: Path) -> None
             continue  # the image's outer half pixel: no neighbours to interpolate from
         ground = np.array(point["heights"][0]["ground"])
         g2i = point["heights"][0]["g2i"]
-        c, r = ~transform * (
+        c, r = ~transform @ (
             np.degrees(np.arctan2(ground[1], ground[0])),
             np.degrees(np.arcsin(ground[2] / np.linalg.norm(ground))),
         )

@@ -66,7 +66,7 @@ def test_separable_tile_field_by_field(city_dir: Path, flip: bool) -> None:
     if flip:
         t = dem.transform
         dem = replace(
-            dem, values=dem.values[::-1].copy(), transform=t * Affine(1, 0, 0, 0, -1, rows)
+            dem, values=dem.values[::-1].copy(), transform=t @ Affine(1, 0, 0, 0, -1, rows)
         )
     cam = next(iter(scene.views.values())).camera
     tile = (slice(3, rows - 2), slice(0, cols))
@@ -175,7 +175,7 @@ def test_fused_kernel_tile_field_by_field(city_dir: Path, flip: bool) -> None:
     if flip:
         t = dem.transform
         dem = replace(
-            dem, values=dem.values[::-1].copy(), transform=t * Affine(1, 0, 0, 0, -1, rows)
+            dem, values=dem.values[::-1].copy(), transform=t @ Affine(1, 0, 0, 0, -1, rows)
         )
     for cam in (v.camera for v in scene.views.values()):
         tile = (slice(3, rows - 2), slice(0, cols))

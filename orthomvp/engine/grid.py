@@ -34,10 +34,14 @@ SCAN_POSTS = 1 << 22
 """Posts (at most) read at a time by :func:`scan_dem`: 32 MiB of float64 (about 100 MiB with
 the masked read's copies)."""
 
-GDAL_CACHE = 256 << 20
+GDAL_CACHE = 64 << 20
 """Bytes of GDAL's block cache while the engine scans the DEM and writes its outputs. GDAL's
 default, 5% of the machine's memory, would keep every block of a DEM read in one long pass
-(or of an output written in windows that do not align with its blocks) for the whole pass."""
+(or of an output written in windows that do not align with its blocks) for the whole pass.
+GDAL compresses an output's blocks when they leave the cache, so a cache that holds a whole
+output (256 MB did: 170 MB for a 3 m mosaic of four ngi-aerial frames with its overviews)
+leaves all of its compression for the end, after the last tile: 0.35 s against 0.15 s
+there with 64 MB, where it overlaps the tiles."""
 
 WindowT = tuple[int, int, int, int]
 """(row0, row1, col0, col1), half-open, in posts."""

@@ -37,8 +37,8 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
     grid, post_scale = plan.grid, plan.post_scale
     if step > 1:
         t = plan.grid.transform
-        left, top = t * (0, 0)
-        right, bottom = t * (cols, rows)
+        left, top = t @ (0, 0)
+        right, bottom = t @ (cols, rows)
         res = (abs(t.a) * step, abs(t.e) * step)
         box = (min(left, right), min(top, bottom), max(left, right), max(top, bottom))
         grid = output_grid(plan.dem, res, box, plan.grid.crs)
