@@ -151,6 +151,54 @@ def _classify(
 _classify = cached_jit(_classify, fastmath=False, error_model="numpy")
 
 
+def _interpolate_grid(
+    v: np.ndarray,
+    c0: np.ndarray,
+    fx: np.ndarray,
+    c_in: np.ndarray,
+    r0: np.ndarray,
+    fy: np.ndarray,
+    r_in: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Into ``out`` (rows, cols) float64: :meth:`orthomvp.terrain.Terrain.interpolate_grid` of
+    the heights ``v`` from each column's cell ``c0``, fraction ``fx`` and whether it is inside,
+    and each row's (``r0``, ``fy``, ``r_in``), with the same operations in the same order
+    (differences of two heights in their own type)."""
+    for i in range(len(r0)):
+        a_row, b_row, y = r0[i], r0[i] + 1, fy[i]
+        for j in range(len(c0)):
+            if not (r_in[i] and c_in[j]):
+                out[i, j] = np.nan
+                continue
+            k, x = c0[j], fx[j]
+            a, b = v[a_row, k], v[a_row, k + 1]
+            d, e = v[b_row, k], v[b_row, k + 1]
+            if x + y <= 1:
+                out[i, j] = a + x * (b - a) + y * (d - a)
+            else:
+                out[i, j] = e + (1 - x) * (d - e) + (1 - y) * (b - e)
+
+
+_interpolate_grid = cached_jit(_interpolate_grid, fastmath=False, error_model="numpy")
+
+
+def interpolate_grid(terrain: Terrain, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:meth:`orthomvp.terrain.Terrain.interpolate_grid` (the same values, bit for bit) as a
+    kernel: the heights of ``terrain`` at every pair of fractional columns ``c`` (n,) and rows
+    ``r`` (m,), (m, n) float64."""
+    rows, cols = terrain.shape
+    c = np.asarray(c, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    c_in = (c >= 0) & (c <= cols - 1)
+    r_in = (r >= 0) & (r <= rows - 1)
+    c0 = np.clip(np.floor(np.where(c_in, c, 0)), 0, cols - 2).astype(np.int64)
+    r0 = np.clip(np.floor(np.where(r_in, r, 0)), 0, rows - 2).astype(np.int64)
+    out = np.empty((len(r), len(c)))
+    _interpolate_grid(terrain.values, c0, c - c0, c_in, r0, r - r0, r_in, out)
+    return out
+
+
 def classify_tile(
     terrain: Terrain,
     camera: PinholeCamera,

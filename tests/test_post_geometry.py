@@ -190,3 +190,22 @@ def test_fused_kernel_tile_field_by_field(city_dir: Path, flip: bool) -> None:
         np.testing.assert_array_equal(codes, np.where(a.inside, np.where(facing, 1, 3), 0))
         np.testing.assert_array_equal(cast, a.inside & facing)
         assert a.inside.sum() > 1000 and (~a.ok).sum() >= 10
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_fused_grid_heights_equal_interpolate_grid(dtype: type) -> None:
+    """The kernel's grid heights equal :meth:`Terrain.interpolate_grid` bit for bit: float32
+    and float64 DEMs, a hole, positions beyond every edge and on the last post."""
+    from orthomvp.post_geometry_kernel import interpolate_grid
+    from orthomvp.terrain import Terrain
+
+    rng = np.random.default_rng(3)
+    values = (rng.random((60, 70)) * 1000).astype(dtype)
+    values[30:32, 40:43] = np.nan
+    dem = Terrain(values=values, transform=Affine(24, 0, 0, 0, -24, 0), crs="EPSG:32735")
+    c = np.concatenate([np.linspace(-3, 72, 301), [69.0]])
+    r = np.concatenate([np.linspace(-2, 61, 257), [59.0]])
+    want = dem.interpolate_grid(c, r)
+    got = interpolate_grid(dem, c, r)
+    np.testing.assert_array_equal(got, want, strict=True)
+    assert np.isnan(want).any() and np.isfinite(want).mean() > 0.8

@@ -101,10 +101,11 @@ def _has_cell(valid: np.ndarray) -> bool:
 
 
 def _grid_tile(
-    plan: Plan, job: TileJob, window: Terrain, posts: WindowT
+    plan: Plan, job: TileJob, window: Terrain, posts: WindowT, fused: bool = False
 ) -> tuple[Terrain, tuple[slice, slice]]:
     """The grid window ``posts`` with one post around (within the grid) as a Terrain with
-    heights taken from the DEM ``window``, and the slices of ``posts`` in it."""
+    heights taken from the DEM ``window`` (``fused``: by the numba kernel), and the slices of
+    ``posts`` in it."""
     r0, r1, c0, c1 = posts
     rows, cols = plan.grid.shape
     ext = (max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols))
@@ -117,7 +118,12 @@ def _grid_tile(
         to_dem = grid_to_dem(plan.grid, plan.dem)
         dc, _ = to_dem(np.arange(ext[2], ext[3], dtype=np.float64), 0.0)
         _, dr = to_dem(0.0, np.arange(ext[0], ext[1], dtype=np.float64))
-        values = window.interpolate_grid(dc - w2, dr - w0)
+        if fused:
+            from orthomvp.post_geometry_kernel import interpolate_grid
+
+            values = interpolate_grid(window, dc - w2, dr - w0)
+        else:
+            values = window.interpolate_grid(dc - w2, dr - w0)
     else:
         r, c = np.mgrid[ext[0] : ext[1], ext[2] : ext[3]].astype(np.float64)
         dc, dr = grid_to_dem(plan.grid, plan.dem)(c, r)
@@ -333,7 +339,7 @@ def _mosaic_tile(
     margin (:meth:`Plan.extent`), composed (:func:`orthomvp.mosaic.compose`), cut to the tile."""
     assert plan.mosaic is not None
     ext = plan.extent(job)
-    grid, inner = _grid_tile(plan, job, window, ext)
+    grid, inner = _grid_tile(plan, job, window, ext, plan.fused)
     if grid is None:
         return result
     seconds, n = result.seconds, len(plan.views)
