@@ -229,7 +229,6 @@ def compute_visibility(
         return np.full((rows, cols), np.nan) if name in fields else nothing
 
     codes = np.zeros((rows, cols), np.uint8)
-    uv = np.full((rows, cols, 2), np.nan)
     miss, eps_out = field("miss"), field("miss")
     emission, gsd = field("emission"), field("gsd")
     spacing = spacing or np.mean(terrain.post_spacing()) / post_scale  # one DEM post, metres
@@ -301,6 +300,12 @@ def compute_visibility(
 
     # posts outside the image keep NODATA and NaN: only the window that can hold the image
     r0, r1, c0, c1 = image_window(terrain, camera) if fast else (0, rows, 0, cols)
+    if fused:  # the kernel writes every pixel in the window: NaN only around it
+        uv = np.empty((rows, cols, 2))
+        for rs, cs in _around((r0, r1, c0, c1), (rows, cols)):
+            uv[rs, cs] = np.nan
+    else:
+        uv = np.full((rows, cols, 2), np.nan)
 
     def in_window(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -408,6 +413,19 @@ def _dem_pixels(
         p = grid.to_world(c, r, values)
     dc, dr, _ = dem.from_world(p)
     return dc, dr
+
+
+def _around(window: tuple[int, int, int, int], shape: tuple[int, int]) -> list:
+    """The (row slice, column slice) blocks of a grid of ``shape`` around ``window`` (r0, r1,
+    c0, c1): the rows above and below it, and beside it the columns left and right."""
+    r0, r1, c0, c1 = window
+    rows, cols = shape
+    return [
+        (slice(0, r0), slice(0, cols)),
+        (slice(r1, rows), slice(0, cols)),
+        (slice(r0, r1), slice(0, c0)),
+        (slice(r0, r1), slice(c1, cols)),
+    ]
 
 
 def _crop(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> Terrain:

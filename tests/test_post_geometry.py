@@ -150,6 +150,17 @@ def test_fused_kernel_equals_numpy_on_the_city(city_dir: Path) -> None:
             assert_identical(a, b)
         assert separable_applies(terrain, cam) and (a.codes == 2).sum() > 1000
         assert np.isnan(b.miss[b.codes == 1]).mean() > 0.5
+    # a crop of the image: its window is a part of the grid, NaN and NODATA around it
+    w, h = cam.width, cam.height
+    part = cam.crop(2 * w // 5, 2 * h // 5, w // 5, h // 5)
+    r0, r1, c0, c1 = image_window(dem, part)
+    outside = np.ones(dem.shape, bool)
+    outside[r0:r1, c0:c1] = False
+    assert 0 < (r1 - r0) * (c1 - c0) < dem.shape[0] * dem.shape[1] / 2
+    a = compute_visibility(dem, part, caster=caster, strict=False)
+    b = compute_visibility(dem, part, caster=caster, strict=False, fused=True)
+    assert_identical(a, b)
+    assert np.isnan(b.uv[outside]).all() and (b.codes[outside] == 0).all()
     tile, visibility.TILE = visibility.TILE, 7
     try:
         a = compute_visibility(holes, cam, caster=caster)
