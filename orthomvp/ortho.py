@@ -95,12 +95,17 @@ class Mosaic:
 
 
 def sample_image(
-    image: np.ndarray, uv: np.ndarray, interp: Interp | str = Interp.BILINEAR
+    image: np.ndarray,
+    uv: np.ndarray,
+    interp: Interp | str = Interp.BILINEAR,
+    *,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sample ``image`` (bands, rows, cols) at pixel positions ``uv`` (..., 2) -> (bands, ...).
 
     ``interp`` is an :class:`~orthomvp.codes.Interp` or its name. NaN positions, positions
-    outside the image and NaN image pixels give NaN.
+    outside the image and NaN image pixels give NaN. ``out``: a float32 array (bands, ...) to
+    write the samples into (and return), C-contiguous.
     """
     flag = INTERPOLATION[Interp(interp)]
     image = as_image(image)
@@ -127,15 +132,25 @@ def sample_image(
         # far inside the image too: the NaN border becomes a frame of the image instead, which
         # the replicated border extends to any position outside
         maps, border = maps + np.float32(CUBIC_FRAME), cv2.BORDER_REPLICATE
-    out = np.empty((image.shape[0], *maps.shape[:2]), np.float32)
+    bands = image.shape[0]
+    if out is not None and (out.shape != (bands, *shape) or out.dtype != np.float32):
+        raise InputError(f"samples go into float32 {(bands, *shape)}, not {out.dtype} {out.shape}")
+    into = out if out is not None and maps.shape[:2] == shape else None  # the grid map's
+    samples = np.empty((bands, *maps.shape[:2]), np.float32) if into is None else into
     for b, band in enumerate(image):
         band = np.ascontiguousarray(band, dtype=np.float32)
         if flag == cv2.INTER_CUBIC:
             band = cv2.copyMakeBorder(band, *[CUBIC_FRAME] * 4, cv2.BORDER_CONSTANT, value=np.nan)
         cv2.remap(  # one two-channel map: no copy of each coordinate per band
-            band, maps, None, flag, dst=out[b], borderMode=border, borderValue=np.nan
+            band, maps, None, flag, dst=samples[b], borderMode=border, borderValue=np.nan
         )
-    return out.reshape(image.shape[0], -1)[:, :n].reshape((image.shape[0], *shape))
+    if into is not None:
+        return into
+    samples = samples.reshape(bands, -1)[:, :n].reshape((bands, *shape))
+    if out is None:
+        return samples
+    out[...] = samples
+    return out
 
 
 def orthorectify(

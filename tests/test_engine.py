@@ -579,9 +579,17 @@ def test_sample_grid_gives_sample_views_values_in_place(
     expected = np.full((view.bands, *keep.shape), np.nan, np.float32)
     expected[:, keep] = tile_module.sample_view(view, uv[keep], "bilinear")
     np.testing.assert_array_equal(tile_module.sample_grid(view, uv, keep, "bilinear"), expected)
+    out = np.zeros(expected.shape, np.float32)  # into a given array, NaN where not kept
+    assert tile_module.sample_grid(view, uv, keep, "bilinear", out=out) is out
+    np.testing.assert_array_equal(out, expected)
+    none = tile_module.sample_grid(view, uv, np.zeros_like(keep), "bilinear", out=out)
+    assert none is out and np.isnan(out).all()
     monkeypatch.setattr(tile_module, "SAMPLE_BUDGET_PIXELS", 64)
     pieces = tile_module.sample_grid(view, uv, keep, "bilinear")
     np.testing.assert_array_equal(pieces, expected)
+    out[...] = 0
+    tile_module.sample_grid(view, uv, keep, "bilinear", out=out)
+    np.testing.assert_array_equal(out, expected)
 
 
 def test_a_small_dem_is_held_and_read_from_memory(

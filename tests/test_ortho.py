@@ -174,6 +174,13 @@ def test_sample_image_on_a_grid_of_positions_samples_as_a_list_of_them(interp: s
     outside = (uv[..., 0] < -1) | (uv[..., 0] > 81) | (uv[..., 1] < -1) | (uv[..., 1] > 61)
     assert outside.any() and np.isnan(grid[:, outside]).all()
     assert np.isfinite(grid[:, ~outside & np.isfinite(uv).all(-1)]).mean() > 0.8
+    # into a given array: the grid's (its map's own) and the list's (laid out in rows)
+    for positions, want in ((uv, grid), (uv.reshape(-1, 2), listed.reshape(3, -1))):
+        out = np.zeros(want.shape, np.float32)
+        assert sample_image(img, positions, interp, out=out) is out
+        np.testing.assert_array_equal(out, want)
+    with pytest.raises(InputError, match="samples go into float32"):
+        sample_image(img, uv, interp, out=np.zeros((3, 37, 52), np.float32))
 
 
 def _flat_terrain() -> Terrain:

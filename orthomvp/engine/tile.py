@@ -189,21 +189,27 @@ def sample_grid(
     keep: np.ndarray,
     interp: str,
     prefetched: Prefetched | None = None,
+    *,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Values (bands, rows, cols) float32 of the image at the positions ``uv`` (rows, cols, 2)
     where ``keep`` (rows, cols), NaN elsewhere: the same values as :func:`sample_view` of
     ``uv[keep]``, with the grid itself as the map of ``cv2.remap`` (no gathering of the kept
     positions, no scattering of their values). The pixels come from the ``prefetched`` window
-    when it holds the window needed."""
+    when it holds the window needed. ``out``: a C-contiguous float32 array (bands, rows, cols)
+    to write the values into (and return)."""
+    if out is None:
+        out = np.empty((view.bands, *keep.shape), np.float32)
     if not keep.any():
-        return np.full((view.bands, *keep.shape), np.nan, np.float32)
+        out.fill(np.nan)
+        return out
     shifted = uv.astype(np.float32)  # the positions as sampled (float32; shifts are exact)
     mask = np.ascontiguousarray(keep).view(np.uint8)
     (u0, u1, _, _), (v0, v1, _, _) = (cv2.minMaxLoc(a, mask) for a in cv2.split(shifted))
     low, high = np.array([u0, v0]), np.array([u1, v1])
     span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
     if span[0] * span[1] > SAMPLE_BUDGET_PIXELS:  # in pieces
-        out = np.full((view.bands, *keep.shape), np.nan, np.float32)
+        out.fill(np.nan)
         out[:, keep] = sample_view(view, uv[keep], interp)
         return out
     window = pixel_window(view, low, high)
@@ -219,7 +225,7 @@ def sample_grid(
     maps = shifted.view(np.complex64)[..., 0]
     maps -= np.complex64(complex(c0, r0))  # each part in float32, as _read_window does
     np.copyto(maps, np.complex64(complex(OUTSIDE, OUTSIDE)), where=~keep)
-    return sample_image(pixels, shifted, interp)
+    return sample_image(pixels, shifted, interp, out=out)
 
 
 def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) -> TileResult:
@@ -351,7 +357,9 @@ def _mosaic_tile(
         with _timed(seconds, "mesh"):
             caster = occluder_caster(window, threads=threads)
     result.valid = int(np.isfinite(grid.values[inner][core]).sum())
-    values = np.full((n, plan.bands, *shape), np.nan, np.float32)
+    values = np.empty((n, plan.bands, *shape), np.float32)  # samples, NaN where none
+    for k in set(range(n)) - set(job.views):
+        values[k].fill(np.nan)
     codes = np.zeros((n, *shape), np.uint8)
     fill, priority = plan.mosaic.fill, plan.mosaic.priority
     emission = np.full((n, *shape), np.inf)
@@ -384,7 +392,9 @@ def _mosaic_tile(
         wanted = result.data is not None or result.source is not None or "stack" in kinds
         if wanted and need.any():
             with _timed(seconds, "sample"):
-                values[k] = sample_grid(plan.views[k], uv, need, plan.interp)
+                sample_grid(plan.views[k], uv, need, plan.interp, out=values[k])
+        else:
+            values[k].fill(np.nan)
     if "stack" in kinds:
         result.stack = (values[:, :, core[0], core[1]], codes[:, core[0], core[1]])
     if result.data is None and result.source is None:
