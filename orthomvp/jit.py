@@ -1,7 +1,8 @@
-"""numba compilation of the fused MVP kernel (:mod:`orthomvp.mvp.kernel`): lazily on first
-call, releasing the GIL, cached on disk where numba can write (beside the package, else
+"""numba compilation of the fused kernels (:mod:`orthomvp.mvp.kernel`,
+:mod:`orthomvp.post_geometry_kernel`, :mod:`orthomvp.mosaic_kernel`): lazily on first call,
+releasing the GIL, cached on disk where numba can write (beside the package, else
 ``~/.cache/numba`` or ``NUMBA_CACHE_DIR``). Import this module only where a kernel runs: it
-imports numba (about 0.2 s)."""
+imports numba (about 0.15 s; the first kernel then loads in about 0.3 s)."""
 
 from __future__ import annotations
 

@@ -68,6 +68,7 @@ DISAGREE = 4.0
 at 1): an eighth apart costs as much as the whole priority range."""
 
 ORDER_STEP = 8
+"""Cost between consecutive views under priority "order" (more than all other costs)."""
 
 DOUBT = 0.5
 """A view's first hit farther than epsilon minus this many posts from the post makes it
@@ -78,7 +79,6 @@ NETWORK_LAYERS = 8
 TRUST_RADIUS = 1
 """A view is at its occlusion boundary where a post within this box radius is not visible in
 it (:func:`trusted`)."""
-"""Cost between consecutive views under priority "order" (more than all other costs)."""
 
 
 FUSED_POSTS = 2_000_000
@@ -216,7 +216,7 @@ def visible_median(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
                 np.copyto(low, layers[j], where=np.broadcast_to(lows == j, low.shape))
             if j <= k // 2:
                 np.copyto(high, layers[j], where=np.broadcast_to(highs == j, high.shape))
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):  # (two huge values: an infinite sum)
         middle = (low + high).astype(values.dtype, copy=False)
         middle /= 2
     middle[np.broadcast_to(n == 0, middle.shape)] = np.nan
@@ -255,7 +255,7 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
         scale += 1e-12
         rel /= scale
         rel *= DISAGREE
-        np.minimum(rel, 1.0, out=rel)
+        np.fmin(rel, 1.0, out=rel)  # NaN (from infinite values) as 1
     return np.where(visible, rel.mean(axis=1), 1.0)
 
 

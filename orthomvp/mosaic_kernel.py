@@ -8,10 +8,10 @@ same float32 and float64 operations in the same order (median and disagreement i
 costs in float64, no fused multiply-add), and box sums of integers, exact in any order. Each
 runs on one thread without the GIL (the engine's tiles run in parallel).
 
-numba is imported here (and in :mod:`orthomvp.jit`) only, and this module only when a mosaic
+This module imports numba (through :mod:`orthomvp.jit`): it is imported only when a mosaic
 large enough to pay for it composes (:data:`orthomvp.mosaic.FUSED_POSTS`); loading the
-compiled kernels from numba's cache takes about 0.3 s a process, compiling them the first time
-a few seconds."""
+compiled kernels from numba's cache takes about 0.45 s a process with numba's import,
+compiling them the first time a few seconds."""
 
 from __future__ import annotations
 
@@ -116,7 +116,7 @@ def _seam_labels(
                 for b in range(bands):
                     x, mid = values[k, b, r, c], median[b]
                     rel = abs(x - mid) / (abs(x) + abs(mid) + _TINY) * disagree
-                    d += rel if rel < _ONE else _ONE
+                    d += rel if rel < _ONE else _ONE  # (NaN as 1, as numpy's fmin)
                 d = d / np.float32(bands)
                 t = cost[k, r, c]
                 if np.isnan(t):
@@ -182,8 +182,8 @@ def _blend(
             if voter >= 0:  # one view's votes: its weight v / v = 1, the others' 0
                 for k in range(n):
                     weights[k, r, c] = _ONE if k == voter else np.float32(0.0)
-                for b in range(bands):
-                    data[b, r, c] = values[voter, b, r, c]
+                for b in range(bands):  # (0 + value, as the weighted sum: -0 becomes +0)
+                    data[b, r, c] = np.float32(0.0) + values[voter, b, r, c]
                 continue
             for k in range(n):
                 if total > 0:
@@ -223,14 +223,19 @@ def labels(
     """The 0-based view of each post (rows, cols) int64, -1 where none is ``visible``: least
     priority ``cost``, or least seam cost over ``radius`` (None: no seamlines) with the
     disagreement's scale ``disagree`` and ``quant`` steps per unit of cost
-    (:data:`orthomvp.mosaic.DISAGREE`, :data:`orthomvp.mosaic.QUANT`)."""
+    (:data:`orthomvp.mosaic.DISAGREE`, :data:`orthomvp.mosaic.QUANT`). The labels of
+    :func:`orthomvp.mosaic.labels` for what :func:`~orthomvp.mosaic.compose` gives it: finite
+    costs and values where visible."""
     out = np.empty(visible.shape[1:], np.int64)
     if radius is None:
         _least(cost, np.empty((0, 0, 0), np.int64), visible, out)
-    else:  # int32 scratch (half the memory traffic of int64): a post's quanta are at most
-        # (8 (views - 1) + 2) quant, under 2.1 M for 255 views, and their box sums 81 times that
-        seen, quanta = np.empty(visible.shape, np.int32), np.empty(visible.shape, np.int32)
-        tmp = np.empty(out.shape, np.int32)
+    else:  # int32 scratch (half the memory traffic of int64) where the box sums of the
+        # quanta surely fit: a post's are at most (its cost + 2) quant
+        top = np.fmax.reduce(np.abs(cost), axis=None, initial=0.0)
+        small = np.isfinite(top) and (2 * radius + 1) ** 2 * quant * (top + 3) < 2**31
+        dtype = np.int32 if small else np.int64
+        seen, quanta = np.empty(visible.shape, dtype), np.empty(visible.shape, dtype)
+        tmp = np.empty(out.shape, dtype)
         scale, step = np.float32(disagree), float(quant)
         _seam_labels(values, visible, cost, radius, step, scale, out, seen, quanta, tmp)
     return out

@@ -133,8 +133,13 @@ def sample_image(
         # the replicated border extends to any position outside
         maps, border = maps + np.float32(CUBIC_FRAME), cv2.BORDER_REPLICATE
     bands = image.shape[0]
-    if out is not None and (out.shape != (bands, *shape) or out.dtype != np.float32):
-        raise InputError(f"samples go into float32 {(bands, *shape)}, not {out.dtype} {out.shape}")
+    if out is not None and (
+        out.shape != (bands, *shape) or out.dtype != np.float32 or not out.flags.c_contiguous
+    ):
+        raise InputError(
+            f"samples go into a C-contiguous float32 array {(bands, *shape)}, not "
+            f"{out.dtype} {out.shape}{'' if out.flags.c_contiguous else ' (not contiguous)'}"
+        )
     into = out if out is not None and maps.shape[:2] == shape else None  # the grid map's
     samples = np.empty((bands, *maps.shape[:2]), np.float32) if into is None else into
     for b, band in enumerate(image):

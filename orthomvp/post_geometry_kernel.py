@@ -7,8 +7,8 @@ float64 operations in the same order (central differences, the cross product wit
 terms, the projection's three terms summed in order), no fused multiply-add. It runs on one
 thread without the GIL (the engine's tiles run in parallel).
 
-numba is imported here (and in :mod:`orthomvp.jit`) only, and this module only when a plan
-large enough to pay for it runs (:attr:`orthomvp.engine.plan.Plan.fused`)."""
+This module imports numba (through :mod:`orthomvp.jit`): it is imported only when a plan large
+enough to pay for it runs (:attr:`orthomvp.engine.plan.Plan.fused`)."""
 
 from __future__ import annotations
 
@@ -163,8 +163,7 @@ def _interpolate_grid(
 ) -> None:
     """Into ``out`` (rows, cols) float64: :meth:`orthomvp.terrain.Terrain.interpolate_grid` of
     the heights ``v`` from each column's cell ``c0``, fraction ``fx`` and whether it is inside,
-    and each row's (``r0``, ``fy``, ``r_in``), with the same operations in the same order
-    (differences of two heights in their own type)."""
+    and each row's (``r0``, ``fy``, ``r_in``), with the same operations in the same order."""
     for i in range(len(r0)):
         a_row, b_row, y = r0[i], r0[i] + 1, fy[i]
         for j in range(len(c0)):

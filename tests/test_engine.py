@@ -584,6 +584,9 @@ def test_sample_grid_gives_sample_views_values_in_place(
     np.testing.assert_array_equal(out, expected)
     none = tile_module.sample_grid(view, uv, np.zeros_like(keep), "bilinear", out=out)
     assert none is out and np.isnan(out).all()
+    fortran = np.asfortranarray(uv)  # any memory layout of the positions
+    got = tile_module.sample_grid(view, fortran, keep, "bilinear")
+    np.testing.assert_array_equal(got, expected)
     monkeypatch.setattr(tile_module, "SAMPLE_BUDGET_PIXELS", 64)
     pieces = tile_module.sample_grid(view, uv, keep, "bilinear")
     np.testing.assert_array_equal(pieces, expected)

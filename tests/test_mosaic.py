@@ -586,3 +586,38 @@ def test_kernel_box_sums_are_box_sum(shape: tuple[int, int]) -> None:
         inplace = a.copy()
         _box(inplace, radius, inplace, np.empty(shape, np.int64))
         np.testing.assert_array_equal(inplace, box_sum(a, radius))
+
+
+def test_fused_compose_at_the_edges_of_its_inputs() -> None:
+    """The kernels still give numpy's composition where values are -0.0 (+0.0 out, as a
+    weighted sum gives it), where finite float32 values overflow the disagreement (NaN as the
+    largest disagreement, 1, in both), and where costs are so large that the box sums of
+    their quanta need 64 bits (priority "order" over some 3,000 views gives such costs)."""
+    from orthomvp.mosaic import compose, labels
+
+    values = np.ones((2, 1, 3, 3), np.float32)
+    values[0, 0, 1, 1] = -0.0
+    codes = np.full((2, 3, 3), Code.VISIBLE, np.uint8)
+    angles = np.stack([np.zeros((3, 3)), np.full((3, 3), 30.0)])
+    for blend in (0, 4):
+        options = MosaicOptions(seamlines=False, blend=blend)
+        ref = compose(values, codes, angles, angles, angles, options)
+        got = compose(values, codes, angles, angles, angles, options, fused=True)
+        assert not np.signbit(ref.data).any() and not np.signbit(got.data).any()
+        np.testing.assert_array_equal(got.data, ref.data)
+    values = np.full((3, 1, 9, 9), 100.0, np.float32)
+    values[:, 0, 4, 4] = [3e38, -3e38, -1e38]  # finite, but their differences are not
+    codes = np.full((3, 9, 9), Code.VISIBLE, np.uint8)
+    angles = np.stack([np.full((9, 9), a) for a in (30.0, 10.0, 20.0)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no overflow warning
+        ref = compose(values, codes, angles, angles, angles, MosaicOptions(blend=0))
+    got = compose(values, codes, angles, angles, angles, MosaicOptions(blend=0), fused=True)
+    np.testing.assert_array_equal(got.source, ref.source)
+    np.testing.assert_array_equal(got.weights, ref.weights)
+    cost = np.full((2, 9, 9), 1e7)  # 81 x 1e7 x 1024 > 2^31
+    cost[1] = 0.5
+    visible, flat = np.ones((2, 9, 9), bool), np.ones((2, 1, 9, 9), np.float32)
+    ref = labels(cost, visible, flat, True)
+    np.testing.assert_array_equal(labels(cost, visible, flat, True, fused=True), ref)
+    assert (ref == 1).all()

@@ -179,8 +179,10 @@ def test_sample_image_on_a_grid_of_positions_samples_as_a_list_of_them(interp: s
         out = np.zeros(want.shape, np.float32)
         assert sample_image(img, positions, interp, out=out) is out
         np.testing.assert_array_equal(out, want)
-    with pytest.raises(InputError, match="samples go into float32"):
+    with pytest.raises(InputError, match="samples go into a C-contiguous float32"):
         sample_image(img, uv, interp, out=np.zeros((3, 37, 52), np.float32))
+    with pytest.raises(InputError, match="not contiguous"):
+        sample_image(img, uv, interp, out=np.zeros((3, 53, 37), np.float32).transpose(0, 2, 1))
 
 
 def _flat_terrain() -> Terrain:

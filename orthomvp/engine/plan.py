@@ -144,7 +144,8 @@ class Plan:
 
     @cached_property
     def fused(self) -> bool:
-        """Whether tiles compose with the numba kernels: a mosaic whose tiles with views hold
+        """Whether tiles run the numba kernels (their grid heights, the visibility test's
+        geometry and the composition): a mosaic whose tiles with views hold
         :data:`orthomvp.mosaic.FUSED_POSTS` posts or more."""
         if self.mosaic is None:
             return False

@@ -203,7 +203,7 @@ def sample_grid(
     if not keep.any():
         out.fill(np.nan)
         return out
-    shifted = uv.astype(np.float32)  # the positions as sampled (float32; shifts are exact)
+    shifted = uv.astype(np.float32, order="C")  # the positions as sampled (float32; exact)
     mask = np.ascontiguousarray(keep).view(np.uint8)
     (u0, u1, _, _), (v0, v1, _, _) = (cv2.minMaxLoc(a, mask) for a in cv2.split(shifted))
     low, high = np.array([u0, v0]), np.array([u1, v1])
