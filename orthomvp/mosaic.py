@@ -355,12 +355,12 @@ def compose(
     cost = np.ascontiguousarray(priority_cost(options.priority, emission, gsd, nadir, visible))
     label = labels(cost, visible, values, options.seamlines, fused=fused)
     n, bands, rows, cols = values.shape
-    onehot = label[None] == np.arange(n)[:, None, None]
     if fused:
         from orthomvp.mosaic_kernel import blend
 
         weights, data = blend(label, visible, values, options.blend // 2)
     else:
+        onehot = label[None] == np.arange(n)[:, None, None]
         if options.blend // 2:
             votes = box_sum(onehot, options.blend // 2) * visible
             votes = np.where(visible.any(axis=0), votes, 0)
