@@ -186,15 +186,9 @@ def interpolate_grid(terrain: Terrain, c: np.ndarray, r: np.ndarray) -> np.ndarr
     """:meth:`orthomvp.terrain.Terrain.interpolate_grid` (the same values, bit for bit) as a
     kernel: the heights of ``terrain`` at every pair of fractional columns ``c`` (n,) and rows
     ``r`` (m,), (m, n) float64."""
-    rows, cols = terrain.shape
-    c = np.asarray(c, dtype=np.float64)
-    r = np.asarray(r, dtype=np.float64)
-    c_in = (c >= 0) & (c <= cols - 1)
-    r_in = (r >= 0) & (r <= rows - 1)
-    c0 = np.clip(np.floor(np.where(c_in, c, 0)), 0, cols - 2).astype(np.int64)
-    r0 = np.clip(np.floor(np.where(r_in, r, 0)), 0, rows - 2).astype(np.int64)
-    out = np.empty((len(r), len(c)))
-    _interpolate_grid(terrain.values, c0, c - c0, c_in, r0, r - r0, r_in, out)
+    cells = terrain.grid_cells(c, r)
+    out = np.empty((len(cells[3]), len(cells[0])))
+    _interpolate_grid(terrain.values, *cells, out)
     return out
 
 

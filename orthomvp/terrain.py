@@ -464,10 +464,10 @@ class Terrain:
         )
         return np.where(inside, out, np.nan)
 
-    def interpolate_grid(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """:meth:`interpolate` at every pair of the fractional column positions ``c`` (n,)
-        and row positions ``r`` (m,): (m, n), the same values bit for bit, with the cell
-        search done once per column and once per row (a grid axis-aligned with this one)."""
+    def grid_cells(self, c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The cells of :meth:`interpolate_grid`'s fractional columns ``c`` (n,) and rows
+        ``r`` (m,): each column's first column, fraction within its cell and whether it is on
+        the grid, then each row's: (c0, fx, c_in, r0, fy, r_in)."""
         rows, cols = self.shape
         c = np.asarray(c, dtype=np.float64)
         r = np.asarray(r, dtype=np.float64)
@@ -475,7 +475,14 @@ class Terrain:
         r_in = (r >= 0) & (r <= rows - 1)
         c0 = np.clip(np.floor(np.where(c_in, c, 0)), 0, cols - 2).astype(np.int64)
         r0 = np.clip(np.floor(np.where(r_in, r, 0)), 0, rows - 2).astype(np.int64)
-        fx, fy = (c - c0)[None, :], (r - r0)[:, None]
+        return c0, c - c0, c_in, r0, r - r0, r_in
+
+    def interpolate_grid(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """:meth:`interpolate` at every pair of the fractional column positions ``c`` (n,)
+        and row positions ``r`` (m,): (m, n), the same values bit for bit, with the cell
+        search done once per column and once per row (a grid axis-aligned with this one)."""
+        c0, fx, c_in, r0, fy, r_in = self.grid_cells(c, r)
+        fx, fy = fx[None, :], fy[:, None]
         top, bottom = self.values[r0], self.values[r0 + 1]  # rows gathered once, then columns
         a, b = np.take(top, c0, axis=1), np.take(top, c0 + 1, axis=1)
         d, e = np.take(bottom, c0, axis=1), np.take(bottom, c0 + 1, axis=1)

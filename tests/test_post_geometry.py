@@ -26,20 +26,26 @@ def assert_same(a, b) -> None:  # noqa: ANN001 - two Visibility results
     np.testing.assert_array_equal(a.gsd, b.gsd)
 
 
-def test_separable_equals_general_on_the_city(city_dir: Path) -> None:
-    """Every view of the city (map frame, walls), on its own grid, with holes, and, with the
-    codes carried from the DEM, on a grid three times finer."""
+@pytest.fixture(scope="module")
+def city_grids(city_dir: Path) -> tuple:
+    """The city's DEM, a ray caster on it, the DEM with holes, a grid three times finer, and
+    the scene's cameras."""
     scene = load_scene(city_dir)
     dem = scene.terrain
-    caster = occluder_caster(dem)
     spacing = abs(dem.transform.a)
-    fine = dem.regrid(res=(spacing / 3, spacing / 3))
     values = dem.values.copy()
     values[20:23, 30:41] = np.nan
     values[5, 5] = np.nan
-    holes = dem.with_values(values)
-    for view in scene.views.values():
-        cam = view.camera
+    fine = dem.regrid(res=(spacing / 3, spacing / 3))
+    cameras = [view.camera for view in scene.views.values()]
+    return dem, occluder_caster(dem), dem.with_values(values), fine, cameras
+
+
+def test_separable_equals_general_on_the_city(city_grids: tuple) -> None:
+    """Every view of the city (map frame, walls), on its own grid, with holes, and, with the
+    codes carried from the DEM, on a grid three times finer."""
+    dem, caster, holes, fine, cameras = city_grids
+    for cam in cameras:
         a = compute_visibility(dem, cam, caster=caster, fast=False)
         b = compute_visibility(dem, cam, caster=caster)
         assert_same(a, b)
@@ -121,24 +127,15 @@ def assert_identical(a, b) -> None:  # noqa: ANN001 - two Visibility results
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
-def test_fused_kernel_equals_numpy_on_the_city(city_dir: Path) -> None:
+def test_fused_kernel_equals_numpy_on_the_city(city_grids: tuple) -> None:
     """The numba kernel (``fused``) gives the numpy path's codes, misses, epsilons, positions,
     emission angles and GSDs bit for bit: every view of the city on its grid, with holes,
     without occlusion, and on a grid three times finer with the codes carried from the DEM
     (most posts without a ray), split in tiles of 7 posts (every tile's border)."""
     import orthomvp.visibility as visibility
 
-    scene = load_scene(city_dir)
-    dem = scene.terrain
-    caster = occluder_caster(dem)
-    spacing = abs(dem.transform.a)
-    fine = dem.regrid(res=(spacing / 3, spacing / 3))
-    values = dem.values.copy()
-    values[20:23, 30:41] = np.nan
-    values[5, 5] = np.nan
-    holes = dem.with_values(values)
-    for view in scene.views.values():
-        cam = view.camera
+    dem, caster, holes, fine, cameras = city_grids
+    for cam in cameras:
         for terrain, kw in (
             (dem, {}),
             (holes, {}),
