@@ -537,7 +537,8 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
 ) -> None:
     """In the map frame (the city), where the visibility kernel also runs: the engine's
     mosaic of four views on a grid twice finer than the DEM (codes carried from the DEM's
-    posts) is the same bit for bit with the kernels as without."""
+    posts) is the same bit for bit with the kernels as without, in threads and in worker
+    processes."""
     import json
 
     import orthomvp.engine.plan as plan_module
@@ -564,8 +565,12 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
         run_plan(plan, out, threads=2, progress=False)
         outputs[threshold] = [read(getattr(out, k)) for k in kinds]
     assert calls  # the kernel ran (the map frame)
-    for a, b in zip(outputs[1], outputs[10**12], strict=True):
-        np.testing.assert_array_equal(a, b, strict=True)
+    out = Outputs(**{k: tmp_path / f"proc-{k}.tif" for k in kinds})
+    run_plan(plan, out, processes=2, progress=False)
+    outputs["processes"] = [read(getattr(out, k)) for k in kinds]
+    for fused in (outputs[1], outputs["processes"]):
+        for a, b in zip(fused, outputs[10**12], strict=True):
+            np.testing.assert_array_equal(a, b, strict=True)
     codes = outputs[1][2]
     assert (codes == Code.OCCLUDED).sum() > 1000 and np.isfinite(outputs[1][0]).mean() > 0.9
 
