@@ -626,3 +626,61 @@ def test_fused_compose_at_the_edges_of_its_inputs() -> None:
     ref = labels(cost, visible, flat, True)
     np.testing.assert_array_equal(labels(cost, visible, flat, True, fused=True), ref)
     assert (ref == 1).all()
+
+
+@pytest.fixture(scope="module")
+def partial_views(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> list:
+    """The crater's views, the nadir one cropped to its image's top-left quarter (its camera
+    cropped alike): tiles outside that quarter's footprint do not have it."""
+    from orthomvp.camera import read_camera
+
+    out = tmp_path_factory.mktemp("partial")
+    views = []
+    for name in VIEWS:
+        image = crater_dir / f"{name}.tif"
+        with rasterio.open(image) as src:
+            width, height = src.width, src.height
+            camera = read_camera(crater_dir / f"{name}.tsai").with_image_size(width, height)
+            if name == "nadir":
+                window = rasterio.windows.Window(0, 0, width // 2, height // 2)
+                profile = src.profile | {"width": width // 2, "height": height // 2}
+                profile.pop("transform", None)
+                image = out / "nadir-quarter.tif"
+                with rasterio.open(image, "w", **profile) as dst:
+                    dst.write(src.read(window=window))
+                camera = camera.crop(0, 0, width // 2, height // 2)
+        views.append((image, camera))
+    return views
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{}, {"priority": "order", "balance": "gain", "fill": "naive"}, {"priority": "gsd"}],
+    ids=lambda o: ",".join(map(str, o.values())) or "default",
+)
+def test_tiles_compose_only_their_views(
+    crater_dir: Path, partial_views: list, tmp_path: Path, options: dict
+) -> None:
+    """A tile composes only the views that see it (its stacks hold those alone); the result is
+    the whole grid's, where every view takes part: sources, weights and the posts taken
+    refer to all views, and the balance corrects each view its own way."""
+    dem = crater_dir / "dem.tif"
+    plan = plan_ortho(dem, partial_views, tile=16, progress=False, mosaic=MosaicOptions(**options))
+    tile_views = {job.views for job in plan.tiles}
+    assert (0, 2) in tile_views and (0, 1, 2) in tile_views  # tiles without the nadir view
+    kinds = ("ortho", "source", "visibility")
+    results = {}
+    for tile in (16, 64):
+        plan = plan_ortho(
+            dem, partial_views, tile=tile, progress=False, mosaic=MosaicOptions(**options)
+        )
+        out = Outputs(**{k: tmp_path / f"{tile}-{k}.tif" for k in kinds})
+        report = run_plan(plan, out, threads=2, progress=False)
+        results[tile] = [read(getattr(out, k)) for k in kinds] + [report.taken]
+    assert len(plan.tiles) == 1 and plan.tiles[0].views == (0, 1, 2)
+    tiled, whole = results[16], results[64]
+    np.testing.assert_array_equal(tiled[1], whole[1])
+    np.testing.assert_allclose(tiled[0], whole[0], rtol=1e-6, equal_nan=True)
+    np.testing.assert_array_equal(tiled[2], whole[2])
+    assert tiled[3] == whole[3] and all(n > 0 for n in tiled[3])
+    assert (tiled[1][0] == 2).any()  # the nadir view gives posts

@@ -22,7 +22,7 @@ from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob, pixel_window
-from orthomvp.mosaic import compose, doubtful, nadir_angle
+from orthomvp.mosaic import Correction, compose, doubtful, nadir_angle
 from orthomvp.ortho import OUTSIDE, sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
@@ -357,20 +357,23 @@ def _mosaic_tile(
         with _timed(seconds, "mesh"):
             caster = occluder_caster(window, threads=threads)
     result.valid = int(np.isfinite(grid.values[inner][core]).sum())
-    values = np.empty((n, plan.bands, *shape), np.float32)  # samples, NaN where none
-    for k in set(range(n)) - set(job.views):
-        values[k].fill(np.nan)
-    codes = np.zeros((n, *shape), np.uint8)
+    # the stacks hold the tile's views only, in the plan's order: the others see none of the
+    # window, and compose gives what it gives with them (priority "order" depends only on the
+    # views' order: ORDER_STEP outweighs every other cost)
+    views = sorted(job.views)
+    m = len(views)
+    values = np.empty((m, plan.bands, *shape), np.float32)  # samples, NaN where none
+    codes = np.zeros((m, *shape), np.uint8)
     fill, priority = plan.mosaic.fill, plan.mosaic.priority
-    emission = np.full((n, *shape), np.inf)
+    emission = np.full((m, *shape), np.inf)
     # GSD and nadir angles only where the options use them (else read-only infinities)
     use_gsd, use_nadir = priority == "gsd", priority == "nadir" or fill == "naive"
-    none = np.broadcast_to(np.inf, (n, *shape))
-    gsd = np.full((n, *shape), np.inf) if use_gsd else none
-    nadir = np.full((n, *shape), np.inf) if use_nadir else none
-    doubt = np.zeros((n, *shape), bool)
+    none = np.broadcast_to(np.inf, (m, *shape))
+    gsd = np.full((m, *shape), np.inf) if use_gsd else none
+    nadir = np.full((m, *shape), np.inf) if use_nadir else none
+    doubt = np.zeros((m, *shape), bool)
     fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
-    for k in job.views:
+    for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields)
         code, uv = vis.codes[inner], vis.uv[inner]
@@ -378,12 +381,12 @@ def _mosaic_tile(
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
         _record_codes(result, k, code[core])
-        codes[k], emission[k] = code, vis.emission[inner]
+        codes[i], emission[i] = code, vis.emission[inner]
         if use_gsd:
-            gsd[k] = vis.gsd[inner]
-        doubt[k] = doubtful(vis.miss[inner], vis.eps[inner])
+            gsd[i] = vis.gsd[inner]
+        doubt[i] = doubtful(vis.miss[inner], vis.eps[inner])
         if use_nadir:
-            nadir[k] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
+            nadir[i] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
         if fill == "any-view":
             need |= code == Code.FACING_AWAY
@@ -392,13 +395,36 @@ def _mosaic_tile(
         wanted = result.data is not None or result.source is not None or "stack" in kinds
         if wanted and need.any():
             with _timed(seconds, "sample"):
-                sample_grid(plan.views[k], uv, need, plan.interp, out=values[k])
+                sample_grid(plan.views[k], uv, need, plan.interp, out=values[i])
         else:
-            values[k].fill(np.nan)
-    if "stack" in kinds:
-        result.stack = (values[:, :, core[0], core[1]], codes[:, core[0], core[1]])
+            values[i].fill(np.nan)
+    if "stack" in kinds:  # every view's, as the survey takes them
+        rows, cols = r1 - r0, c1 - c0
+        every = np.full((n, plan.bands, rows, cols), np.nan, np.float32)
+        every_codes = np.zeros((n, rows, cols), np.uint8)
+        every[views] = values[:, :, core[0], core[1]]
+        every_codes[views] = codes[:, core[0], core[1]]
+        result.stack = (every, every_codes)
     if result.data is None and result.source is None:
         return result
+    correction = plan.correction
+    if correction is not None:
+        correction = Correction(correction.gains[views], correction.offsets[views])
+    with _timed(seconds, "compose"):
+        comp = compose(
+            values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
+            fused=plan.fused,
+        )  # fmt: skip
+    source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
+    result.taken = _taken(source, n)
+    if result.data is not None:
+        result.data = comp.data[:, core[0], core[1]]
+    if result.source is not None:
+        weights = np.zeros((n, *source.shape))
+        weights[views] = np.rint(comp.weights[:, core[0], core[1]] * 255)
+        layers = [source[None], comp.flags[core][None], weights]
+        result.source = np.concatenate(layers).astype(source_dtype(plan))
+    return result
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt,
