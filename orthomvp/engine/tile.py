@@ -425,16 +425,3 @@ def _mosaic_tile(
         layers = [source[None], comp.flags[core][None], weights]
         result.source = np.concatenate(layers).astype(source_dtype(plan))
     return result
-    with _timed(seconds, "compose"):
-        comp = compose(
-            values, codes, emission, gsd, nadir, plan.mosaic, plan.correction, doubt,
-            fused=plan.fused,
-        )  # fmt: skip
-    result.taken = _taken(comp.source[core], n)
-    if result.data is not None:
-        result.data = comp.data[:, core[0], core[1]]
-    if result.source is not None:
-        weights = np.rint(comp.weights[:, core[0], core[1]] * 255)
-        layers = [comp.source[core][None], comp.flags[core][None], weights]
-        result.source = np.concatenate(layers).astype(source_dtype(plan))
-    return result
