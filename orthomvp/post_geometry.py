@@ -86,12 +86,34 @@ def image_window(terrain: Terrain, camera: PinholeCamera) -> tuple[int, int, int
     return max(r0, 0), min(max(r1, 0), rows), max(c0, 0), min(max(c1, 0), cols)
 
 
+def tile_block(terrain: Terrain, rs: slice, cs: slice) -> tuple[int, int, int, int]:
+    """The posts (r0, r1, c0, c1) of tile (``rs``, ``cs``) of ``terrain`` with one post
+    around, within the grid: those whose central differences give the tile's normals."""
+    rows, cols = terrain.shape
+    return (
+        max(rs.start - 1, 0),
+        min(rs.stop + 1, rows),
+        max(cs.start - 1, 0),
+        min(cs.stop + 1, cols),
+    )
+
+
+def block_axes(terrain: Terrain, block: tuple[int, int, int, int]) -> tuple[np.ndarray, ...]:
+    """The eastings (cols,) and northings (rows,) of the posts of ``block`` (r0, r1, c0, c1)
+    of ``terrain``: :meth:`~orthomvp.terrain.Terrain.pixel_to_crs`'s values, since a Terrain
+    is never rotated (S[0, 1] = S[1, 0] = 0, and adding their zero terms is exact)."""
+    r0, r1, c0, c1 = block
+    S = terrain.S
+    return (
+        S[0, 0] * np.arange(c0, c1, dtype=np.float64) + S[0, 2],
+        S[1, 1] * np.arange(r0, r1, dtype=np.float64) + S[1, 2],
+    )
+
+
 def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeometry:
     """The posts of tile (``rs``, ``cs``) of ``terrain`` seen by ``camera``, any camera and
     world frame; normals are central differences over the tile with one post around it."""
-    rows, cols = terrain.shape
-    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
-    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
+    r0, r1, c0, c1 = tile_block(terrain, rs, cs)
     r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
     n = grid_normals(block, terrain.up_vectors(block))
@@ -115,14 +137,9 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
 
 def separable(terrain: Terrain, camera: PinholeCamera, rs: slice, cs: slice) -> PostGeometry:
     """:func:`general` for a case :func:`separable_applies` to, from row and column terms."""
-    rows, cols = terrain.shape
-    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
-    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
-    c = np.arange(c0, c1, dtype=np.float64)[None, :]
-    r = np.arange(r0, r1, dtype=np.float64)[:, None]
-    S = terrain.S  # never rotated (Terrain refuses it): S[0, 1] = S[1, 0] = 0, and adding
-    # their zero terms is exact, so these are Terrain.pixel_to_crs's values
-    bx, by = S[0, 0] * c + S[0, 2], S[1, 1] * r + S[1, 2]  # the block's eastings, northings
+    r0, r1, c0, c1 = block = tile_block(terrain, rs, cs)
+    eastings, northings = block_axes(terrain, block)
+    bx, by = eastings[None, :], northings[:, None]  # the block's eastings, northings
     bz = terrain.values[r0:r1, c0:c1].astype(np.float64, copy=False)
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     # differences along columns (a) and rows (b), as terrain._difference: in the map frame the

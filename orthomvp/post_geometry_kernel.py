@@ -17,7 +17,7 @@ import numpy as np
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code
 from orthomvp.jit import cached_jit
-from orthomvp.post_geometry import PostGeometry
+from orthomvp.post_geometry import PostGeometry, block_axes, tile_block
 from orthomvp.terrain import Terrain
 
 _VISIBLE, _OCCLUDED = np.uint8(Code.VISIBLE), np.uint8(Code.OCCLUDED)
@@ -36,6 +36,23 @@ def _difference(v: np.ndarray, i: int) -> float:
 
 
 _difference = cached_jit(_difference, fastmath=False, error_model="numpy")
+
+
+def _height_difference(z: np.ndarray, r: int, c: int, dr: int, dc: int) -> float:
+    """:func:`_difference` of the heights ``z`` (2-D) at post (``r``, ``c``) along the rows
+    (``dr`` = 1) or the columns (``dc`` = 1), without a view of the row or column."""
+    n = z.shape[0] if dr else z.shape[1]
+    i = r if dr else c
+    if i == 0:
+        return np.float64(z[r + dr, c + dc]) - np.float64(z[r, c])
+    if i == n - 1:
+        return np.float64(z[r, c]) - np.float64(z[r - dr, c - dc])
+    return (np.float64(z[r + dr, c + dc]) - np.float64(z[r - dr, c - dc])) * 0.5
+
+
+_height_difference = cached_jit(
+    _height_difference, fastmath=False, error_model="numpy", inline="always"
+)
 
 
 def _classify(
@@ -72,7 +89,6 @@ def _classify(
     focal_px = 0.5 * (fu + fv) / pitch
     drows, dcols = dem_codes.shape
     carry = drows >= 2 and dcols >= 2
-    zrows, zcols = z.shape
     for r in range(rows):
         br = i0 + r
         y = by[br]
@@ -82,19 +98,8 @@ def _classify(
             x = bx[bc]
             zz = np.float64(z[br, bc])
             dbx = _difference(bx, bc)
-            # differences of the heights along the columns and the rows, as _difference
-            if bc == 0:
-                dzc = np.float64(z[br, 1]) - np.float64(z[br, 0])
-            elif bc == zcols - 1:
-                dzc = zz - np.float64(z[br, bc - 1])
-            else:
-                dzc = (np.float64(z[br, bc + 1]) - np.float64(z[br, bc - 1])) * 0.5
-            if br == 0:
-                dzr = np.float64(z[1, bc]) - np.float64(z[0, bc])
-            elif br == zrows - 1:
-                dzr = zz - np.float64(z[br - 1, bc])
-            else:
-                dzr = (np.float64(z[br + 1, bc]) - np.float64(z[br - 1, bc])) * 0.5
+            dzc = _height_difference(z, br, bc, 0, 1)  # along the columns
+            dzr = _height_difference(z, br, bc, 1, 0)  # along the rows
             # a = (dbx, 0, dzc), b = (0, dby, dzr): a x b with its zero terms, as unit_normals
             n0 = 0.0 * dzr - dzc * dby
             n1 = dzc * 0.0 - dbx * dzr
@@ -211,12 +216,8 @@ def classify_tile(
     them: the codes of the DEM's posts ``dem_codes`` (of ``dem``, in the grid's CRS, its first
     post ``dem_first`` (row, col) of the DEM) carried where the four around a post agree.
     Pixels and codes go into ``uv`` (rows, cols, 2) and ``codes`` (rows, cols) when given."""
-    rows, cols = terrain.shape
-    r0, r1 = max(rs.start - 1, 0), min(rs.stop + 1, rows)
-    c0, c1 = max(cs.start - 1, 0), min(cs.stop + 1, cols)
-    S = terrain.S
-    bx = S[0, 0] * np.arange(c0, c1, dtype=np.float64) + S[0, 2]
-    by = S[1, 1] * np.arange(r0, r1, dtype=np.float64) + S[1, 2]
+    r0, r1, c0, c1 = block = tile_block(terrain, rs, cs)
+    bx, by = block_axes(terrain, block)
     inner = np.array([rs.start - r0, cs.start - c0, rs.stop - rs.start, cs.stop - cs.start])
     m = camera.world_to_image_axes
     cam = np.array(
