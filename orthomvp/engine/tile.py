@@ -141,12 +141,18 @@ def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndar
     return view.read(window), shifted
 
 
+def _span(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Columns and rows of the image window that positions from ``low`` to ``high`` (u, v)
+    sample, before clipping to the image (:func:`~orthomvp.engine.plan.pixel_window`)."""
+    return np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
+
+
 def sample_view(view: ImageSource, uv: np.ndarray, interp: str) -> np.ndarray:
     """Values (bands, n) float32 of the image at positions ``uv`` (n, 2), reading only the
     window they fall in; in pieces (split along the longer side) while a window would exceed
     :data:`~orthomvp.engine.plan.SAMPLE_BUDGET_PIXELS`."""
     low, high = column_range(uv)
-    span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
+    span = _span(low, high)
     if len(uv) > 1 and span[0] * span[1] > SAMPLE_BUDGET_PIXELS:
         order = np.argsort(uv[:, int(np.argmax(span))], kind="stable")
         half = len(uv) // 2
@@ -207,7 +213,7 @@ def sample_grid(
     mask = np.ascontiguousarray(keep).view(np.uint8)
     (u0, u1, _, _), (v0, v1, _, _) = (cv2.minMaxLoc(a, mask) for a in cv2.split(shifted))
     low, high = np.array([u0, v0]), np.array([u1, v1])
-    span = np.floor(high) - np.floor(low) + 2 * IMAGE_MARGIN + 2
+    span = _span(low, high)
     if span[0] * span[1] > SAMPLE_BUDGET_PIXELS:  # in pieces
         out.fill(np.nan)
         out[:, keep] = sample_view(view, uv[keep], interp)
