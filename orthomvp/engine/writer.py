@@ -189,8 +189,9 @@ tile could make are made at the end."""
 
 class _Output:
     """One output being written: its dataset open for windowed writes, and for a COG one per
-    overview level (``factors``, in ``levels``). Every step that writes reports a failure as
-    one OutputError naming the output (see :func:`orthomvp.raster.writing`)."""
+    overview level (``levels``: the file of each level's factor). Every step that writes
+    reports a failure as one OutputError naming the output (see
+    :func:`orthomvp.raster.writing`)."""
 
     def __init__(
         self,
@@ -200,14 +201,14 @@ class _Output:
         final: Path,
         work: Path,
         size: int,
-        levels: list[Path],
+        levels: dict[int, Path],
     ):
         self.layer, self.final, self.work, self.outputs = layer, final, work, outputs
         self.size, self.shape = size, grid.shape
         self.dtype, self.resampling = layer.dtype, layer.resampling
-        self.factors = [2**k for k in range(1, len(levels) + 1)]
+        self.factors = list(levels)
         self.made = [0] * len(levels)
-        self.level_paths = levels
+        self.level_paths = list(levels.values())
         rows, cols = grid.shape
         self.profile = {
             "driver": "GTiff",
@@ -229,7 +230,7 @@ class _Output:
             try:
                 for band, name in enumerate(layer.names, start=1):
                     self.dataset.set_band_description(band, name)
-                for factor, path in zip(self.factors, levels, strict=True):
+                for factor, path in levels.items():
                     self.levels.append(rasterio.open(path, "w", **self._level_profile(factor)))
             except BaseException:
                 self.close()
@@ -353,13 +354,13 @@ def output_files(grid: OutputGrid, layers: list[Layer], outputs: Any) -> Iterato
         items = []
         factors = _overview_factors(grid.shape, outputs.blocksize)
         for layer, final, size in zip(layers, finals, sizes, strict=True):
-            work, levels = final, []
+            work, levels = final, {}
             if outputs.format == "cog":
                 work = stack.enter_context(scratch_path(layer.path, ".tiled"))
-                levels = [
-                    stack.enter_context(scratch_path(layer.path, f".ovr{factor}"))
+                levels = {
+                    factor: stack.enter_context(scratch_path(layer.path, f".ovr{factor}"))
                     for factor in factors
-                ]
+                }
             item = _Output(layer, grid, outputs, final, work, size, levels)
             stack.callback(item.close)
             items.append(item)
