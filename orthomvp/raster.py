@@ -472,6 +472,52 @@ def open_raster(path: str | Path) -> rasterio.DatasetReader:
         raise InputError(f"{path}: not a readable raster ({exc})") from exc
 
 
+HELD_OPEN = 16
+"""Datasets that :func:`held_raster` keeps open while no thread reads them (the most recently
+used)."""
+
+_held_lock = threading.Lock()
+_held: dict[tuple, list[rasterio.DatasetReader]] = {}  # free datasets by file, oldest first
+
+
+@contextlib.contextmanager
+def held_raster(path: Path) -> Iterator[rasterio.DatasetReader]:
+    """``path`` opened as :func:`open_raster` opens it, for this thread alone while in the
+    ``with`` block, then kept open for the next reader (the :data:`HELD_OPEN` most recently
+    used): GDAL keeps a dataset's decoded blocks in its block cache only while the dataset is
+    open, so tiles that read overlapping windows of a compressed image decode its blocks once
+    (a JPEG-compressed 1152 x 640 image: 10 ms a read opened afresh, 2 ms held). A thread that
+    finds the file's dataset in use opens another. A file that changed since (another inode,
+    size or modification time) is opened afresh."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        with open_raster(path) as src:  # (its InputError)
+            yield src
+        return
+    key = (os.fspath(path), st.st_ino, st.st_size, st.st_mtime_ns)
+    with _held_lock:
+        free = _held.pop(key, [])
+        src = free.pop() if free else None
+        if free:
+            _held[key] = free
+    if src is None:
+        src = open_raster(path)
+    try:
+        yield src
+    finally:
+        with _held_lock:
+            _held[key] = [*_held.pop(key, []), src]  # (last: the most recently used)
+            old = []
+            while sum(map(len, _held.values())) > HELD_OPEN:
+                oldest = next(iter(_held))
+                old.append(_held[oldest].pop(0))
+                if not _held[oldest]:
+                    del _held[oldest]
+        for dataset in old:
+            dataset.close()
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image as float32 ``(bands, rows, cols)``; nodata -> NaN.
 

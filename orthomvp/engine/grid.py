@@ -23,7 +23,7 @@ from rasterio.windows import Window
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
-from orthomvp.raster import open_raster, read_values
+from orthomvp.raster import held_raster, open_raster, read_values
 from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
 from orthomvp.vectors import nan_median
 
@@ -82,7 +82,7 @@ class DemSource:
         r0, r1, c0, c1 = window
         if self.held is not None:
             return self.held[r0:r1, c0:c1].copy()
-        with open_raster(self.path) as src:
+        with held_raster(self.path) as src:
             try:
                 values = read_values(src, 1, Window(c0, r0, c1 - c0, r1 - r0), np.float64)
             except RasterioError as exc:

@@ -14,7 +14,7 @@ from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
-from orthomvp.raster import open_raster, read_values
+from orthomvp.raster import held_raster, open_raster, read_values
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class ImageSource:
             return _read_cube_window(self.path, window, band)
         r0, r1, c0, c1 = window
         indexes = None if band is None else [band]
-        with open_raster(self.path) as src:
+        with held_raster(self.path) as src:
             try:
                 return read_values(src, indexes, Window(c0, r0, c1 - c0, r1 - r0), np.float32)
             except RasterioError as exc:
