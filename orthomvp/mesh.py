@@ -118,12 +118,18 @@ def terrain_mesh(
         used, faces, local = np.arange(len(pts)), tris, pts
         local -= origin  # pts is this function's own array
     else:
-        in_use = np.zeros(len(pts), bool)
-        in_use[tris.ravel()] = True
-        used = np.flatnonzero(in_use)
-        faces = (np.cumsum(in_use, dtype=np.int32) - 1)[tris]
+        used, faces = _in_use(tris, len(pts))
         local = pts[used] - origin
     return TerrainMesh(local, _wound_up(t, local, faces, origin), origin, used, t.shape)
+
+
+def _in_use(tris: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points (of ``n``) that triangles ``tris`` (m, 3) use, ascending, and the triangles
+    as indices into them (int32): what ``np.unique(tris, return_inverse=True)`` gives, in
+    linear time."""
+    in_use = np.zeros(n, bool)
+    in_use[tris.ravel()] = True
+    return np.flatnonzero(in_use), (np.cumsum(in_use, dtype=np.int32) - 1)[tris]
 
 
 def _wound_up(t: Terrain, local: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
@@ -231,11 +237,10 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
             else:  # only a cell with a hole has split sides here: it closes them
                 tris.append(np.stack([s0, s1, mid], -1)[split])
     tris = np.concatenate(tris)
-    tris = tris[np.isfinite(fine.ravel()[tris]).all(axis=1)]
+    tris = tris[np.isfinite(fine).ravel()[tris].all(axis=1)]
     if len(tris) == 0:
         raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
-    used, faces = np.unique(tris, return_inverse=True)
-    faces = faces.reshape(tris.shape)
+    used, faces = _in_use(tris, fine.size)
     fr, fc = np.divmod(used, width)
     pts = terrain.to_world(fc / 2.0, fr / 2.0, fine.ravel()[used])
     if origin is None:  # the meshed point nearest the grid centre
