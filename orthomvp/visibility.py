@@ -15,6 +15,7 @@ angle: a fixed angle is stricter towards the poles and ignores the resolution. S
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -132,10 +133,16 @@ def run_tiles(
     threads: int | None = None,
 ) -> None:
     """Call ``work`` on every tile of a grid of ``shape`` in a thread pool (numpy, OpenCV and
-    Embree release the GIL), with a progress bar over tiles when asked."""
+    Embree release the GIL), with a progress bar over tiles when asked; in the calling thread
+    when there is one thread or one tile (the engine's tiles: a pool per call cost more than
+    its work on the small ones)."""
     tiles = grid_tiles(shape, tile)
-    with ThreadPoolExecutor(threads or os.cpu_count() or 1) as pool:
-        done = pool.map(work, tiles)
+    workers = min(threads or os.cpu_count() or 1, len(tiles))
+    with contextlib.ExitStack() as stack:
+        if workers > 1:
+            done = stack.enter_context(ThreadPoolExecutor(workers)).map(work, tiles)
+        else:
+            done = map(work, tiles)
         if progress:
             from tqdm import tqdm
 
