@@ -96,9 +96,9 @@ class Outputs:
 def to_dtype(data: np.ndarray, dtype: str, nodata: float) -> np.ndarray:
     """Float32 values (NaN = empty) as ``dtype`` with ``nodata``: integers rounded and clipped
     to the type's range; valid values equal to ``nodata`` move one step into the range."""
-    empty = ~np.isfinite(data)
     if dtype == "float32":
-        return np.where(empty, np.float32(nodata), data) if not np.isnan(nodata) else data
+        return data if np.isnan(nodata) else np.where(np.isfinite(data), data, np.float32(nodata))
+    empty = ~np.isfinite(data)
     info = np.iinfo(dtype)
     with np.errstate(invalid="ignore"):
         values = np.clip(np.rint(data), info.min, info.max)
