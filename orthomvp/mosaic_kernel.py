@@ -10,7 +10,7 @@ runs on one thread without the GIL (the engine's tiles run in parallel).
 
 This module imports numba (through :mod:`orthomvp.jit`): it is imported only when a mosaic
 large enough to pay for it composes (:data:`orthomvp.mosaic.FUSED_POSTS`); loading the
-compiled kernels from numba's cache takes about 0.45 s a process with numba's import,
+compiled kernels from numba's cache takes about 0.3 s a process with numba's import,
 compiling them the first time a few seconds."""
 
 from __future__ import annotations

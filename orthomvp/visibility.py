@@ -208,7 +208,7 @@ def compute_visibility(
 
     ``fused``: where ``fast`` applies, compute the geometry and the first codes with the numba
     kernel of :mod:`orthomvp.post_geometry_kernel` (the same results, bit for bit; about 2.5x
-    faster, after a load of about 0.45 s a process).
+    faster, after a load of about 0.3 s a process).
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
