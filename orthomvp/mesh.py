@@ -182,7 +182,8 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     def halfway(a: np.ndarray, b: np.ndarray, pa: np.ndarray, pb: np.ndarray) -> tuple:
         """Heights halfway between posts a and b, and whether the edge is a step."""
         rise = np.abs(a - b)
-        span = np.linalg.norm(pa - pb, axis=-1)
+        d = pa - pb  # (the sum of squares of np.linalg.norm, in its order, 2x faster)
+        span = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
         with np.errstate(invalid="ignore"):
             step = rise > STEP_SLOPE * np.sqrt(np.maximum(span * span - rise * rise, 0.0))
         return np.where(step, np.maximum(a, b), (a + b) / 2), step
@@ -237,7 +238,9 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
             else:  # only a cell with a hole has split sides here: it closes them
                 tris.append(np.stack([s0, s1, mid], -1)[split])
     tris = np.concatenate(tris)
-    tris = tris[np.isfinite(fine).ravel()[tris].all(axis=1)]
+    finite = np.isfinite(fine).ravel()
+    if not finite.all():
+        tris = tris[finite[tris].all(axis=1)]
     if len(tris) == 0:
         raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
     used, faces = _in_use(tris, fine.size)
