@@ -42,6 +42,13 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
     return out
 
 
+def _sizes(n: int) -> np.ndarray:
+    """Posts in each pair of ``n`` along an axis (uint8: 2, and 1 for the last at an odd end)."""
+    sizes = np.full(-(-n // 2), 2, np.uint8)
+    sizes[-1] -= n % 2
+    return sizes
+
+
 def halve(data: np.ndarray, resampling: str, nodata: float | None) -> np.ndarray:
     """The next overview level of ``data`` ((bands, rows, cols)): (bands, ceil(rows / 2),
     ceil(cols / 2)). ``average``: float32 means of the valid posts of each 2 x 2 block (summed
@@ -56,9 +63,13 @@ def halve(data: np.ndarray, resampling: str, nodata: float | None) -> np.ndarray
     if resampling != AVERAGE:
         raise ValueError(f"resampling must be {AVERAGE!r} or {NEAREST!r}, not {resampling!r}")
     empty = empty_mask(data, nodata)
-    values = np.where(empty, np.float32(0), data.astype(np.float32, copy=False))
+    if empty.any():
+        values = np.where(empty, np.float32(0), data.astype(np.float32, copy=False))
+        counts = _pairs(_pairs(np.logical_not(empty).view(np.uint8), -2), -1)  # 0 to 4
+    else:  # every post valid: the counts are the blocks' sizes (the same values, 2x faster)
+        values = data.astype(np.float32, copy=False)
+        counts = np.outer(_sizes(rows), _sizes(cols))
     sums = _pairs(_pairs(values, -2), -1)
-    counts = _pairs(_pairs(np.logical_not(empty).view(np.uint8), -2), -1)  # 0 to 4
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.divide(sums, counts, dtype=np.float32)  # 0 / 0: NaN where no post is valid
 
