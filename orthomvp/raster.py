@@ -478,21 +478,58 @@ used)."""
 
 _held_lock = threading.Lock()
 _held: dict[tuple, list[rasterio.DatasetReader]] = {}  # free datasets by file, oldest first
+_scopes = 0  # how many held_rasters() blocks are open
+_forked_off: list[dict] = []  # a forked child's copies of its parent's datasets, never used
+
+
+def _forget_held() -> None:
+    """In a forked child: nothing held, a fresh lock (the parent's datasets share their files'
+    offsets with it, and another thread may have held the lock). The copies are kept, unused
+    and unclosed: closing them would call GDAL, whose locks the fork may have copied held."""
+    global _held_lock, _held, _scopes
+    _forked_off.append(_held)
+    _held_lock, _held, _scopes = threading.Lock(), {}, 0
+
+
+os.register_at_fork(after_in_child=_forget_held)
+
+
+@contextlib.contextmanager
+def held_rasters() -> Iterator[None]:
+    """A block in which :func:`held_raster` keeps the datasets it opens for the next reader
+    (a run's tiles: :func:`orthomvp.engine.run.executor`'s threads); leaving the last such
+    block closes them, so that no file stays open after a run (a file deleted or changed
+    since, a VRT's sources or a sidecar file changed since, are read afresh by the next)."""
+    global _scopes
+    with _held_lock:
+        _scopes += 1
+    try:
+        yield
+    finally:
+        with _held_lock:
+            _scopes -= 1
+            old = [] if _scopes else [src for free in _held.values() for src in free]
+            if not _scopes:
+                _held.clear()
+        for dataset in old:
+            dataset.close()
 
 
 @contextlib.contextmanager
 def held_raster(path: Path) -> Iterator[rasterio.DatasetReader]:
     """``path`` opened as :func:`open_raster` opens it, for this thread alone while in the
-    ``with`` block, then kept open for the next reader (the :data:`HELD_OPEN` most recently
-    used): GDAL keeps a dataset's decoded blocks in its block cache only while the dataset is
-    open, so tiles that read overlapping windows of a compressed image decode its blocks once
-    (a JPEG-compressed 1152 x 640 image: 10 ms a read opened afresh, 2 ms held). A thread that
-    finds the file's dataset in use opens another. A file that changed since (another inode,
-    size or modification time) is opened afresh."""
+    ``with`` block; inside :func:`held_rasters`, kept open afterwards for the next reader (the
+    :data:`HELD_OPEN` most recently used), else closed. GDAL keeps a dataset's decoded blocks in
+    its block cache only while the dataset is open, so tiles that read overlapping windows of
+    a compressed image decode its blocks once (a JPEG-compressed 1152 x 640 image: 10 ms a read
+    opened afresh, 2 ms held). A thread that finds the file's dataset in use opens another; a
+    file that changed since (another inode, size or modification time) is opened afresh."""
     try:
         st = os.stat(path)
     except OSError:
-        with open_raster(path) as src:  # (its InputError)
+        st = None
+    if st is None or not _scopes:
+        with open_raster(path) as src:  # (a missing file: its InputError)
             yield src
         return
     key = (os.fspath(path), st.st_ino, st.st_size, st.st_mtime_ns)
@@ -507,8 +544,9 @@ def held_raster(path: Path) -> Iterator[rasterio.DatasetReader]:
         yield src
     finally:
         with _held_lock:
-            _held[key] = [*_held.pop(key, []), src]  # (last: the most recently used)
-            old = []
+            old = [] if _scopes else [src]  # (the last block closed meanwhile)
+            if _scopes:
+                _held[key] = [*_held.pop(key, []), src]  # (last: the most recently used)
             while sum(map(len, _held.values())) > HELD_OPEN:
                 oldest = next(iter(_held))
                 old.append(_held[oldest].pop(0))

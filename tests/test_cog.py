@@ -13,7 +13,7 @@ import rasterio.shutil
 from affine import Affine
 from rasterio.enums import Resampling
 
-from orthomvp.engine import Outputs, cog, plan_ortho, run_plan
+from orthomvp.engine import Outputs, cog, overviews, plan_ortho, run_plan
 from orthomvp.engine.cog import TiffLayoutError, assemble
 from orthomvp.engine.overviews import halve, window_level
 
@@ -64,13 +64,23 @@ def test_halve_gives_block_means_and_lower_right_posts(shape: tuple[int, int, in
 
 @pytest.mark.parametrize("shape", [(3, 6, 8), (1, 5, 7), (2, 1, 1), (1, 2, 3), (2, 9, 4)])
 @pytest.mark.parametrize("kind", ["float32", "uint16"])
-def test_halve_of_full_data_equals_the_masked_path(shape: tuple[int, int, int], kind: str) -> None:
+def test_halve_of_full_data_equals_the_masked_path(
+    shape: tuple[int, int, int], kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Without an empty post, block means bit for bit as the path for data with empty posts
-    gives them (one empty post, in block (0, 0) of band 0, sends it there)."""
+    gives them (one empty post, in block (0, 0) of band 0, sends it there), and without the
+    masked path's count sums (of uint8); also for an empty array."""
     rng = np.random.default_rng(sum(shape))
     data = (rng.random(shape) * 1000 + 1).astype(kind)
     nodata = np.nan if kind == "float32" else 0
+    summed = []
+    pairs = overviews._pairs
+    monkeypatch.setattr(
+        overviews, "_pairs", lambda a, axis: summed.append(a.dtype) or pairs(a, axis)
+    )
     full = halve(data, "average", nodata)
+    assert np.dtype(np.uint8) not in summed
+    assert halve(data[:, :0], "average", nodata).shape == (shape[0], 0, -(-shape[2] // 2))
     holed = data.copy()
     holed[0, 0, 0] = nodata
     masked = halve(holed, "average", nodata)

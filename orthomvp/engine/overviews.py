@@ -45,7 +45,8 @@ def _pairs(a: np.ndarray, axis: int) -> np.ndarray:
 def _sizes(n: int) -> np.ndarray:
     """Posts in each pair of ``n`` along an axis (uint8: 2, and 1 for the last at an odd end)."""
     sizes = np.full(-(-n // 2), 2, np.uint8)
-    sizes[-1] -= n % 2
+    if n % 2:
+        sizes[-1] = 1
     return sizes
 
 

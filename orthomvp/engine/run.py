@@ -29,6 +29,7 @@ from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
 from orthomvp.mosaic import Correction
+from orthomvp.raster import held_rasters
 
 
 class WorkerError(OrthoMVPError):
@@ -145,10 +146,12 @@ def executor(
     else:
         pool = cf.ThreadPoolExecutor(workers)
         submit = lambda i, *a: pool.submit(work, plan, i, *a)  # noqa: E731
-    try:
-        yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    # the images' datasets kept open between tiles (in threads; a worker process reads anew)
+    with held_rasters() if not processes else contextlib.nullcontext():
+        try:
+            yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def results(
