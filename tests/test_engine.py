@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
+import sys
 import tracemalloc
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +39,8 @@ from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import look_at
 from orthomvp.terrain import Terrain
 from orthomvp.visibility import compute_visibility
+from tests.test_cli import assert_one_line_error
+from tests.test_cli import run as cli_run
 
 
 def read(path: Path) -> np.ndarray:
@@ -311,6 +314,23 @@ def test_dask_local_cluster_equals_threads(crater: dict, tmp_path: Path) -> None
         with dask_client(address="tcp://127.0.0.1:9", timeout=1):
             pass
     assert "\n" not in str(err.value)
+
+
+def test_dask_without_distributed_says_what_to_install(
+    crater: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without Dask's distributed (the dask extra), dask_client and --dask give one line that
+    names the package to install (it was an internal error), and write nothing."""
+    monkeypatch.setitem(sys.modules, "distributed", None)  # (an import of it fails)
+    with pytest.raises(InputError, match=r"pip install dask\[distributed\]") as err:
+        with dask_client(workers=1):
+            pass
+    assert "\n" not in str(err.value)
+    image, camera = crater["views"]["oblique"]
+    out = tmp_path / "ortho.tif"
+    args = ("ortho", str(crater["dem"]), str(image), str(camera), "-o", str(out))
+    assert_one_line_error(cli_run(*args, "--dask", "local:1"), "pip install dask[distributed]")
+    assert list(tmp_path.iterdir()) == []
 
 
 class DyingOnceCamera(PinholeCamera):

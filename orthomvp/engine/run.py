@@ -29,6 +29,7 @@ from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
 from orthomvp.mosaic import Correction
+from orthomvp.optional import require
 from orthomvp.raster import held_rasters
 
 
@@ -221,16 +222,17 @@ def dask_client(
     here and stopped on exit. Every worker imports the engine before the client is handed
     out (the import costs a second or two per worker, outside any run).
 
-    InputError (one line) when the scheduler does not answer within ``timeout`` seconds, or
-    when its workers cannot import orthomvp (a remote cluster needs orthomvp installed, and
-    the plan's files at the same paths)."""
+    InputError (one line) when Dask's ``distributed`` is not installed (the ``dask`` extra),
+    when the scheduler does not answer within ``timeout`` seconds, or when its workers cannot
+    import orthomvp (a remote cluster needs orthomvp installed, and the plan's files at the
+    same paths)."""
     import logging
 
-    from distributed import Client, LocalCluster
+    distributed = require("distributed", "running tiles on Dask (--dask)", "dask[distributed]")
 
     if address is not None:
         try:
-            client = Client(address, timeout=timeout)
+            client = distributed.Client(address, timeout=timeout)
         except (OSError, TimeoutError) as exc:
             reason = " ".join(str(exc).split()) or type(exc).__name__
             raise InputError(f"no Dask scheduler answers at {address} ({reason})") from None
@@ -238,14 +240,14 @@ def dask_client(
             _warm_up(client, address)
             yield client
         return
-    cluster = LocalCluster(
+    cluster = distributed.LocalCluster(
         n_workers=workers or os.cpu_count() or 1,
         threads_per_worker=1,
         processes=True,
         dashboard_address=None,
         silence_logs=logging.ERROR,
     )
-    with cluster, Client(cluster) as client:
+    with cluster, distributed.Client(cluster) as client:
         _warm_up(client, "the local cluster")
         yield client
 
