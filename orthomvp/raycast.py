@@ -21,6 +21,7 @@ from orthomvp.embree import Scene, vertex_buffer
 from orthomvp.errors import InputError
 from orthomvp.mesh import TerrainMesh
 from orthomvp.optional import require
+from orthomvp.vectors import column_range
 
 BACKENDS = ("embree", "open3d")
 CHUNK = 1 << 17
@@ -57,9 +58,7 @@ class RayCaster:
         self.backend = backend
         self.threads = threads or os.cpu_count() or 1
         verts = np.asarray(tmesh.vertices, dtype=np.float64)
-        # (per column: numpy's reduction over the rows of an (n, 3) array is 7x slower)
-        lo = np.array([column.min() for column in verts.T])
-        hi = np.array([column.max() for column in verts.T])
+        lo, hi = column_range(verts)
         self._centre = (lo + hi) / 2
         self._radius = float(np.linalg.norm(hi - lo) / 2) * 1.001 + 1.0
         faces = np.asarray(tmesh.faces, dtype=np.int32)
