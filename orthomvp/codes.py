@@ -53,6 +53,13 @@ CODE_RGB = np.array([c.rgb for c in Code], np.uint8)
 """RGB uint8 (4, 3) look-up table indexed by code."""
 
 
+DOUBT = 0.5
+"""A first hit farther than epsilon minus this many DEM posts from its post makes the post
+doubtful for a mosaic (:func:`orthomvp.mosaic.doubtful`), though visible; the visibility test
+calls a post visible without a cast only where its first hit cannot lie that far
+(:mod:`orthomvp.occluders`)."""
+
+
 def classify(miss: np.ndarray, eps: np.ndarray | float) -> np.ndarray:
     """The epsilon rule on the posts whose ray was cast: OCCLUDED where the first hit lies more
     than ``eps`` DEM posts from the post (``miss``, finite), VISIBLE otherwise, including rays

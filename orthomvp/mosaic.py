@@ -19,11 +19,11 @@ contributes where it does not see the post.
 
 Trust. Before all that, each post keeps only the views it trusts most among those that see it
 (:func:`trusted`): a view is doubtful at a post whose first hit landed in the last
-:data:`DOUBT` posts of its epsilon (on sharp surface models those are as often hidden or facing
-away as visible). Among the others a post takes the views farthest from their own occlusion
-boundary: those whose eight neighbours of the post are all visible, else those whose four
-nearest are, else the rest (pixels at a boundary straddle a wall or roof edge, and the
-visibility rule's remaining misses all lie there). Never a doubtful view: a post only doubtful
+:data:`~orthomvp.codes.DOUBT` posts of its epsilon (on sharp surface models those are as often
+hidden or facing away as visible). Among the others a post takes the views farthest from their
+own occlusion boundary: those whose eight neighbours of the post are all visible, else those
+whose four nearest are, else the rest (pixels at a boundary straddle a wall or roof edge, and
+the visibility rule's remaining misses all lie there). Never a doubtful view: a post only doubtful
 views see stays empty (or is filled by the hole policy).
 
 Holes (posts no view sees) follow :data:`FILLS`; filled posts are flagged (:class:`Flag`).
@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from orthomvp.camera import Camera
-from orthomvp.codes import Code
+from orthomvp.codes import DOUBT, Code
 from orthomvp.errors import InputError
 from orthomvp.terrain import Terrain
 
@@ -69,10 +69,6 @@ at 1): an eighth apart costs as much as the whole priority range."""
 
 ORDER_STEP = 8
 """Cost between consecutive views under priority "order" (more than all other costs)."""
-
-DOUBT = 0.5
-"""A view's first hit farther than epsilon minus this many posts from the post makes it
-doubtful there (:func:`trusted`)."""
 
 NETWORK_LAYERS = 8
 """Views up to which :func:`visible_median` sorts by a network of minima and maxima."""
@@ -262,7 +258,7 @@ def disagreement(values: np.ndarray, visible: np.ndarray) -> np.ndarray:
 
 def doubtful(miss: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """Where a view's first hit (``miss``, posts; inf where the ray found nothing) lies within
-    its epsilon ``eps`` but farther than ``eps`` - :data:`DOUBT` from the post."""
+    its epsilon ``eps`` but farther than ``eps`` - :data:`~orthomvp.codes.DOUBT` from the post."""
     with np.errstate(invalid="ignore"):
         return np.isfinite(miss) & (miss > eps - DOUBT)
 

@@ -15,8 +15,9 @@ def of_type(value: Any, types: type | tuple[type, ...], what: str, hint: str = "
     """``value`` when it is an instance of ``types``; InputError otherwise."""
     if not isinstance(value, types):
         names = " or ".join(t.__name__ for t in (types if isinstance(types, tuple) else (types,)))
+        article = "an" if names[0] in "AEIOU" else "a"
         raise InputError(
-            f"{what} must be a {names}{hint}, got {type(value).__name__} {_short(value)}"
+            f"{what} must be {article} {names}{hint}, got {type(value).__name__} {_short(value)}"
         )
     return value
 

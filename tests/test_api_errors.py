@@ -107,7 +107,7 @@ def test_wrong_types_and_shapes_raise_the_family(view: tuple, crater_dir: Path) 
         "expected an image array ": lambda: orthorectify(dem, "oblique.tif", camera),
         "eps (DEM posts) must be a number": lambda: orthorectify(dem, image, camera, eps="x"),
         "visibility must be a Visibility": lambda: orthorectify(dem, image, camera, visibility=1),
-        "caster must be a RayCaster": lambda: compute_visibility(dem, camera, caster="x"),
+        "caster must be an Occluders": lambda: compute_visibility(dem, camera, caster="x"),
         "camera must be a Camera": lambda: compute_visibility(dem, "camera"),
         "(image, camera) pair": lambda: mosaic(dem, [image]),
         "a list of (image, camera) views": lambda: mosaic(dem, None),

@@ -138,7 +138,7 @@ def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None
     def refuse(*args: object, **kw: object) -> None:
         raise AssertionError("a mesh was built")
 
-    monkeypatch.setattr("orthomvp.engine.tile.occluder_caster", refuse)
+    monkeypatch.setattr("orthomvp.occluders.occluder_mesh", refuse)
     monkeypatch.setattr("orthomvp.visibility.occluder_mesh", refuse)
     plan = plan_ortho(crater["dem"], [view], tile=16, occlusion=False, progress=False)
     got = run(plan, tmp_path, "naive", kinds=("ortho",))

@@ -26,7 +26,7 @@ LAYERS = [
     ("orthomvp.world", "orthomvp.camera"),
     ("orthomvp.mesh", "orthomvp.embree"),
     ("orthomvp.raycast", "orthomvp.post_geometry"),
-    ("orthomvp.post_geometry_kernel",),
+    ("orthomvp.post_geometry_kernel", "orthomvp.occluders"),
     ("orthomvp.visibility", "orthomvp.mosaic_kernel"),
     ("orthomvp.mosaic",),
     ("orthomvp.ortho", "orthomvp.mvp"),

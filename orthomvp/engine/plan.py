@@ -28,6 +28,7 @@ from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mosaic import FUSED_POSTS, Correction, MosaicOptions
+from orthomvp.occluders import BOUND_BYTES
 from orthomvp.ortho import INTERPOLATION
 from orthomvp.vectors import nan_median
 from orthomvp.world import check_cameras_above, detect_world
@@ -160,7 +161,7 @@ class Plan:
         """Expected peak memory of one tile in a worker, bytes (the constants above)."""
         r0, r1, c0, c1 = job.window
         ext = (r1 - r0 + 2) * (c1 - c0 + 2)
-        mesh = MESH_BYTES * job.dem_posts if self.occlusion else 0
+        mesh = (MESH_BYTES + BOUND_BYTES) * job.dem_posts if self.occlusion else 0
         pixels = max((min(p, SAMPLE_BUDGET_PIXELS) for p in job.image_pixels), default=0)
         image = 8 * self.bands * pixels if images else 0
         if self.mosaic is not None:

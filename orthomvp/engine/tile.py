@@ -23,11 +23,12 @@ from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob, pixel_window
 from orthomvp.mosaic import Correction, compose, doubtful, nadir_angle
+from orthomvp.occluders import Occluders
 from orthomvp.ortho import OUTSIDE, sample_image
 from orthomvp.raycast import RayCaster
 from orthomvp.terrain import Terrain
 from orthomvp.vectors import column_range, finite_rows
-from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
+from orthomvp.visibility import Visibility, compute_visibility
 
 
 @dataclass
@@ -260,10 +261,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     grid, inner = _grid_tile(plan, job, window, job.window)
     if grid is None:
         return result
-    caster = None
-    if plan.occlusion:
-        with _timed(seconds, "mesh"):
-            caster = occluder_caster(window, threads=threads)
+    caster = Occluders(window, threads=threads) if plan.occlusion else None
     result.valid = int(np.isfinite(grid.values[inner]).sum())
     best = np.full(grid.values[inner].shape, np.inf)
     label = np.zeros(best.shape, np.int64)  # the 1-based view each post came from, 0 none
@@ -288,6 +286,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
             label[keep] = k + 1
             if many:
                 best[keep] = emission[keep]
+    _mesh_phase(seconds, caster)
     if result.source is not None:
         result.source[0] = label
     if result.data is not None or result.source is not None:
@@ -316,13 +315,14 @@ def _visibility(
     plan: Plan,
     grid: Terrain,
     k: int,
-    caster: RayCaster | None,
+    caster: Occluders | RayCaster | None,
     window: Terrain,
     threads: int,
     fields: frozenset[str],
+    prove: bool | None = None,
 ) -> Visibility:
     """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``), with the
-    optional ``fields`` of :func:`~orthomvp.visibility.compute_visibility`."""
+    optional ``fields`` and ``prove`` of :func:`~orthomvp.visibility.compute_visibility`."""
     return compute_visibility(
         grid,
         plan.views[k].camera,
@@ -336,7 +336,16 @@ def _visibility(
         dem=window,
         fields=fields,
         fused=plan.fused,
+        prove=prove,
     )
+
+
+def _mesh_phase(seconds: dict[str, float], caster: Occluders | None) -> None:
+    """Move the time spent meshing the occluders, at the first cast within a view's
+    visibility, from the visibility phase to the mesh phase."""
+    if caster is not None and caster.mesh_seconds:
+        seconds["mesh"] = caster.mesh_seconds
+        seconds["visibility"] -= caster.mesh_seconds
 
 
 def _mosaic_tile(
@@ -358,10 +367,7 @@ def _mosaic_tile(
     r0, r1, c0, c1 = job.window
     core = (slice(r0 - ext[0], r1 - ext[0]), slice(c0 - ext[2], c1 - ext[2]))
     shape = (ext[1] - ext[0], ext[3] - ext[2])
-    caster = None
-    if plan.occlusion:
-        with _timed(seconds, "mesh"):
-            caster = occluder_caster(window, threads=threads)
+    caster = Occluders(window, threads=threads) if plan.occlusion else None
     result.valid = int(np.isfinite(grid.values[inner][core]).sum())
     # the stacks hold the tile's views only, in the plan's order: the others see none of the
     # window, and compose gives what it gives with them (priority "order" depends only on the
@@ -381,7 +387,8 @@ def _mosaic_tile(
     fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
-            vis = _visibility(plan, grid, k, caster, window, threads, fields)
+            # (a view's misses matter only to its doubt, which a proved post cannot have)
+            vis = _visibility(plan, grid, k, caster, window, threads, fields, prove=True)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
@@ -404,6 +411,7 @@ def _mosaic_tile(
                 sample_grid(plan.views[k], uv, need, plan.interp, out=values[i])
         else:
             values[i].fill(np.nan)
+    _mesh_phase(seconds, caster)
     if "stack" in kinds:  # every view's, as the survey takes them
         rows, cols = r1 - r0, c1 - c0
         every = np.full((n, plan.bands, rows, cols), np.nan, np.float32)

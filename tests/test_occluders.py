@@ -1,0 +1,285 @@
+"""Rays proved clear from the DEM's heights (orthomvp.occluders): the oracle is the first hit
+cast on the whole occluder mesh, for every post, on rough, stepped and city terrain seen from
+low to high elevations; visibility with the proof gives the codes of casting every ray."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from affine import Affine
+from pyproj import CRS
+
+from orthomvp.camera import PinholeCamera
+from orthomvp.camera.distortion import TsaiDistortion
+from orthomvp.codes import DOUBT, Code, WorldFrame
+from orthomvp.engine import Outputs, plan_ortho, run_plan
+from orthomvp.mesh import occluder_mesh
+from orthomvp.mosaic import MosaicOptions, doubtful
+from orthomvp.occluders import RADII, Occluders
+from orthomvp.ortho import mosaic
+from orthomvp.raycast import RayCaster
+from orthomvp.synthetic import make_scene
+from orthomvp.synthetic.cameras import look_at
+from orthomvp.terrain import Terrain
+from orthomvp.visibility import compute_visibility
+
+SPACING = 2.0
+
+
+def map_terrain(values: np.ndarray) -> Terrain:
+    """``values`` on 2 m posts in UTM 33N (map frame)."""
+    return Terrain(
+        np.asarray(values, np.float64),
+        Affine(SPACING, 0, 500_000.0, 0, -SPACING, 5_000_000.0),
+        CRS.from_epsg(32633),
+        world=WorldFrame.MAP,
+    )
+
+
+def rough(seed: int, shape: tuple[int, int] = (90, 110)) -> np.ndarray:
+    """Hills, one-post spikes, walls of a few posts and holes: every kind of height a proof
+    must bound."""
+    rng = np.random.default_rng(seed)
+    r, c = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+    z = 20 * np.sin(r / 9) * np.cos(c / 13) + rng.normal(0, 0.7, shape)
+    spikes = rng.random(shape) < 0.002
+    z[spikes] += rng.uniform(5, 30, spikes.sum())
+    z[20:24, 30:70] += 25  # a wall
+    z[50:80, 80:84] += 12
+    z[rng.random(shape) < 0.003] = np.nan
+    return z
+
+
+def camera_at(terrain: Terrain, elevation: float, azimuth: float) -> PinholeCamera:
+    """A camera 1.5 km from the grid centre at ``elevation`` degrees above its horizon, from
+    ``azimuth`` degrees east of north, with an image holding the whole grid."""
+    rows, cols = terrain.shape
+    target = terrain.to_world(np.array((cols - 1) / 2), np.array((rows - 1) / 2), np.array(0.0))
+    e, a = np.radians(elevation), np.radians(azimuth)
+    centre = target + 1500.0 * np.array([np.cos(e) * np.sin(a), np.cos(e) * np.cos(a), np.sin(e)])
+    return PinholeCamera(
+        1500.0, 1500.0, 1000.0, 1000.0, centre,
+        look_at(centre, target, np.array([0.0, 1.0, 0.0])), width=2000, height=2000,
+    )  # fmt: skip
+
+
+VIEWS = [(89.9, 0.0), (70.0, 30.0), (45.0, 200.0), (20.0, 290.0)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize(("elevation", "azimuth"), VIEWS)
+def test_a_ray_proved_clear_meets_nothing_beyond_its_reach(
+    seed: int, elevation: float, azimuth: float
+) -> None:
+    """Every post of a rough map (spikes, walls, holes) with a random reach of 0.5 to 6 posts:
+    a ray proved clear has its first cast hit (on the whole occluder mesh) within its reach of
+    the post, horizontally, or past the post. The proof is not vacuous: it proves some rays,
+    not all, and leaves those that meet the surface farther away; from high above it proves
+    nearly half."""
+    t = map_terrain(rough(seed))
+    cam = camera_at(t, elevation, azimuth)
+    posts = t.world_points().reshape(-1, 3)
+    posts = posts[np.isfinite(posts[:, 2])]
+    reach = np.random.default_rng(seed).uniform(0.5, 6, len(posts)) * SPACING
+    proved = Occluders(t).clear(posts, cam.center, reach)
+    hits = RayCaster(occluder_mesh(t)).first_hit(cam.center, posts - cam.center)
+    along = np.linalg.norm(posts - cam.center, axis=1)
+    before = hits.mask & (hits.distance < along - 1e-6)  # hits in front of the post
+    away = np.hypot(*(hits.points[:, :2] - posts[:, :2]).T)
+    assert not (proved & before & (away > reach + 1e-6)).any()
+    far = before & (away > reach)
+    assert proved.sum() > 20 and not proved.all()
+    if elevation > 60:
+        assert proved.mean() > 0.4
+    else:
+        assert far.sum() > 100  # posts that the proof must not take
+
+
+def test_a_ray_proved_clear_on_the_city_meets_nothing_beyond_its_reach() -> None:
+    """The city's walls (steps of many metres between 1 m posts), seen by its four views:
+    the same guarantee, with reaches of 2.5 posts (the default epsilon's)."""
+    scene = make_scene("city", size=64)
+    t = scene.terrain
+    posts = t.world_points().reshape(-1, 3)
+    reach = 2.5 * min(abs(t.transform.a), abs(t.transform.e))
+    caster = RayCaster(occluder_mesh(t))
+    occluders = Occluders(t)
+    proved_any = 0
+    for cam in scene.cameras.values():
+        proved = occluders.clear(posts, cam.center, reach)
+        hits = caster.first_hit(cam.center, posts - cam.center)
+        along = np.linalg.norm(posts - cam.center, axis=1)
+        before = hits.mask & (hits.distance < along - 1e-6)
+        away = np.hypot(*(hits.points[:, :2] - posts[:, :2]).T)
+        assert not (proved & before & (away > reach + 1e-6)).any()
+        proved_any += proved.sum()
+    assert proved_any > 0.2 * 4 * len(posts)
+
+
+def test_the_bounds_are_the_highest_posts_of_their_boxes() -> None:
+    """The height bounds against a direct maximum over each box, rounded up to float32."""
+    values = rough(3, (40, 50))
+    occluders = Occluders(map_terrain(values))
+    top, boxes, _ = occluders._bounds
+    assert top >= np.nanmax(values) and np.float32(top) == top
+    low = np.where(np.isnan(values), -np.inf, values)
+    for radius, box in zip(RADII, boxes, strict=True):
+        for r, c in [(0, 0), (17, 23), (39, 49), (5, 44)]:
+            want = low[max(r - radius, 0) : r + radius + 1, max(c - radius, 0) : c + radius + 1]
+            assert (
+                box[r, c] >= want.max()
+                and box[r, c] == np.float32(want.max())
+                or (np.float32(want.max()) < want.max() <= box[r, c])
+            )
+
+
+def test_nothing_is_proved_off_the_map_frame() -> None:
+    """On a body-fixed frame (the crater on the Moon) the heights are not along z: no proof."""
+    scene = make_scene("crater", size=32, spacing=80.0)
+    posts = scene.terrain.world_points().reshape(-1, 3)
+    occluders = Occluders(scene.terrain)
+    assert not occluders.provable
+    assert not occluders.clear(posts, scene.cameras["nadir"].center, 1e6).any()
+
+
+@pytest.mark.parametrize("scene_kind", ["rough", "city"])
+def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(scene_kind: str) -> None:
+    """The codes, pixels and cast misses with the proof are those of casting every ray; a
+    proved post has no miss or eps (NaN), and cast it would not have been doubtful; fewer
+    rays are cast."""
+    if scene_kind == "city":
+        scene = make_scene("city", size=64)
+        t, cameras = scene.terrain, list(scene.cameras.values())
+    else:
+        t = map_terrain(rough(5))
+        cameras = [camera_at(t, e, a) for e, a in VIEWS]
+    occluded = 0
+    for cam in cameras:
+        counted = Counting(t)
+        proved = compute_visibility(t, cam, caster=counted, prove=True)
+        every = compute_visibility(t, cam, caster=Occluders(t), prove=False)
+        np.testing.assert_array_equal(proved.codes, every.codes)
+        np.testing.assert_array_equal(proved.uv, every.uv)
+        cast = np.isin(every.codes, (Code.VISIBLE, Code.OCCLUDED))
+        assert np.isfinite(every.eps[cast]).all()
+        skipped = cast & np.isnan(proved.miss)
+        assert skipped.any() and np.isnan(proved.eps[skipped]).all()
+        assert (every.codes[skipped] == Code.VISIBLE).all()
+        assert not doubtful(every.miss, every.eps)[skipped].any()
+        miss = every.miss[skipped]
+        assert ((miss <= every.eps[skipped] - DOUBT) | (miss == np.inf)).all()
+        kept = cast & ~skipped
+        np.testing.assert_array_equal(proved.miss[kept], every.miss[kept])
+        assert counted.rays == kept.sum() < cast.sum()
+        occluded += (every.codes == Code.OCCLUDED).sum()
+    assert occluded > 500
+
+
+class Counting(Occluders):
+    """Occluders that count the rays cast."""
+
+    rays = 0
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN201
+        self.rays += len(np.atleast_2d(directions))
+        return super().first_hit(origins, directions)
+
+
+def test_misses_asked_for_are_measured_for_every_post() -> None:
+    """By default the proof runs unless the misses are asked for: with them every post in the
+    image and facing the camera is cast (finite eps); without them the proof skips posts."""
+    t = map_terrain(rough(6))
+    cam = camera_at(t, 70.0, 30.0)
+    full = compute_visibility(t, cam)
+    cast = np.isin(full.codes, (Code.VISIBLE, Code.OCCLUDED))
+    assert np.isfinite(full.eps[cast]).all()
+    counted = Counting(t)
+    codes = compute_visibility(t, cam, caster=counted, fields=frozenset()).codes
+    np.testing.assert_array_equal(codes, full.codes)
+    assert counted.rays < 0.8 * cast.sum()
+
+
+def test_a_distorted_camera_casts_every_ray() -> None:
+    """A lens with distortion bends the ray through a post's pixel off the straight line that
+    the proof bounds: every ray is cast."""
+    t = map_terrain(rough(7))
+    cam = camera_at(t, 70.0, 30.0)
+    bent = replace(cam, distortion=TsaiDistortion(k1=1e-3, k2=0.0, p1=0.0, p2=0.0))
+    vis = compute_visibility(t, bent, prove=True)
+    cast = np.isin(vis.codes, (Code.VISIBLE, Code.OCCLUDED))
+    assert cast.sum() > 1000 and not np.isnan(vis.miss[cast]).any()
+
+
+def test_posts_all_proved_build_no_mesh(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Gentle ground seen from straight above: every ray is proved clear and no mesh is
+    built; the codes are those of casting."""
+    r, c = np.mgrid[0:60, 0:70].astype(float)
+    t = map_terrain(3 * np.sin(r / 15) + 2 * np.cos(c / 11))
+    cam = camera_at(t, 89.9, 0.0)
+    every = compute_visibility(t, cam, caster=Occluders(t), prove=False)
+
+    def refuse(*args: object, **kw: object) -> None:
+        raise AssertionError("a mesh was built")
+
+    monkeypatch.setattr("orthomvp.occluders.occluder_mesh", refuse)
+    occluders = Occluders(t)
+    proved = compute_visibility(t, cam, caster=occluders, prove=True)
+    np.testing.assert_array_equal(proved.codes, every.codes)
+    assert (proved.codes == Code.VISIBLE).mean() > 0.9 and occluders.mesh_seconds == 0
+
+
+def test_engine_mosaic_of_the_city_with_the_proof_is_the_in_memory_one(
+    city_dir: Path, tmp_path: Path
+) -> None:
+    """The engine proves rays in the map frame; the in-memory mosaic casts every ray: the
+    same views, flags and values, in tiles."""
+    import json
+
+    from orthomvp.synthetic.loader import load_scene
+
+    summary = json.loads((city_dir / "scene.json").read_text())
+    names = list(summary["views"])
+    views = [(city_dir / v["image"], city_dir / v["camera"]) for v in summary["views"].values()]
+    plan = plan_ortho(city_dir / summary["dem"], views, tile=24, progress=False,
+                      mosaic=MosaicOptions())  # fmt: skip
+    out = Outputs(ortho=tmp_path / "m.tif", source=tmp_path / "s.tif")
+    run_plan(plan, out, threads=2, progress=False)
+    with rasterio.open(out.ortho) as a, rasterio.open(out.source) as b:
+        data, source = a.read(), b.read()
+    scene = load_scene(city_dir)
+    memory = mosaic(scene.terrain, [(scene.views[n].image, scene.views[n].camera) for n in names])
+    np.testing.assert_array_equal(source[0], memory.source)
+    np.testing.assert_array_equal(source[1], memory.flags)
+    np.testing.assert_allclose(data, memory.data, rtol=1e-6, equal_nan=True)
+    assert (memory.flags != 0).any() and np.isfinite(data).mean() > 0.9
+
+
+@pytest.mark.parametrize("radius", RADII)
+@pytest.mark.parametrize("offset", [0.0, 0.45])
+def test_a_spike_just_outside_a_box_is_not_missed(radius: int, offset: float) -> None:
+    """Flat ground and one spike, a wall on every side, one post beyond a box's radius east of
+    a point ``offset`` posts east of a post, under a camera far due east at 60 degrees. The
+    spike's cell centres stand at its height half a post nearer: the ray meets them when the
+    spike stands higher than the ray there, here 0.25 post's rise higher; such a ray is never
+    proved clear (a box stretched half a post farther would prove it). A spike lower than the
+    ray where the box's stretch ends is proved clear."""
+    cols = 2 * radius + 12
+    values = np.zeros((9, cols))
+    c0 = 4
+    spike = c0 + radius + 1
+    t = np.tan(np.radians(60.0))
+    rise = SPACING * t  # the ray's rise per post
+    values[4, spike] = (spike - 0.5 - c0 - offset + 0.25) * rise
+    terrain = map_terrain(values)
+    point = terrain.to_world(np.array(c0 + offset), np.array(4.0), np.array(0.0))
+    centre = point + 1e5 * np.array([0.5, 0.0, np.sqrt(3) / 2])
+    reach = 2.5 * SPACING
+    hit = RayCaster(occluder_mesh(terrain)).first_hit(centre, point - centre)
+    assert hit.mask[0] and hit.points[0, 0] - point[0] > reach  # the ray meets the spike
+    assert not Occluders(terrain).clear(point[None], centre, reach)[0]
+    values[4, spike] = (radius - 1.25) * rise  # below the ray where the box ends: proved
+    assert Occluders(map_terrain(values)).clear(point[None], centre, reach)[0]
