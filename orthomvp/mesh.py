@@ -60,8 +60,9 @@ class TerrainMesh:
         return np.column_stack([(c + 0.5) / cols, 1.0 - (r + 0.5) / rows])
 
 
-def grid_triangles(valid: np.ndarray) -> np.ndarray:
-    """Triangles (as flat post indices, (n, 3) int32) of a grid, two per cell, skipping holes.
+def grid_triangles(valid: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
+    """Triangles (as flat post indices, (n, 3) int32) of a grid, two per cell, skipping holes;
+    only of the cells ``where`` (rows - 1, cols - 1) is True, when given.
 
     Cell (c, r)-(c+1, r+1) splits along the diagonal from (c+1, r) to (c, r+1).
     """
@@ -77,9 +78,11 @@ def grid_triangles(valid: np.ndarray) -> np.ndarray:
         for j, corner in enumerate(corners):
             tris[k, ..., j] = corner
     tris = tris.reshape(2 * cells, 3)
-    if valid.all():
+    if valid.all() and where is None:
         return tris
     first, second = cell_triangles(valid)
+    if where is not None:
+        first, second = first & where, second & where
     return tris[np.concatenate([first.ravel(), second.ravel()])]
 
 
@@ -95,9 +98,14 @@ def cell_triangles(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def terrain_mesh(
-    terrain: Terrain, values: np.ndarray | None = None, origin: np.ndarray | None = None
+    terrain: Terrain,
+    values: np.ndarray | None = None,
+    origin: np.ndarray | None = None,
+    *,
+    where: np.ndarray | None = None,
 ) -> TerrainMesh:
-    """Triangulate ``terrain`` (or other ``values`` on its grid) in the world frame.
+    """Triangulate ``terrain`` (or other ``values`` on its grid) in the world frame; only the
+    cells ``where`` (rows - 1, cols - 1) bool is True, when given.
 
     ``origin`` defaults to the world position of the valid post nearest the grid centre. Faces
     are wound so that their normals point up (away from the body centre, or +z in a map frame).
@@ -106,7 +114,7 @@ def terrain_mesh(
     t = terrain if values is None else terrain.with_values(values)
     pts = t.world_points().reshape(-1, 3)
     valid = t.valid
-    tris = grid_triangles(valid)
+    tris = grid_triangles(valid, where)
     if len(tris) == 0:
         raise InputError(f"{terrain.name}: no grid cell has four valid posts; nothing to mesh")
     if origin is None:
@@ -115,7 +123,7 @@ def terrain_mesh(
         k = np.argmin((r - (rows - 1) / 2) ** 2 + (c - (cols - 1) / 2) ** 2)
         origin = pts[r[k] * cols + c[k]]
     origin = np.array(origin, dtype=np.float64)  # a copy: pts changes below
-    if valid.all():  # every post is a vertex, in grid order: no remapping
+    if valid.all() and where is None:  # every post is a vertex, in grid order: no remapping
         used, faces, local = np.arange(len(pts)), tris, pts
         local -= origin  # pts is this function's own array
     else:
@@ -155,7 +163,9 @@ STEP_SLOPE = 3.0
 surface takes the step between them as a wall halfway between them (:func:`occluder_mesh`)."""
 
 
-def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> TerrainMesh:
+def occluder_mesh(
+    terrain: Terrain, origin: np.ndarray | None = None, *, where: np.ndarray | None = None
+) -> TerrainMesh:
     """The surface that visibility casts on: the DEM mesh, with every step between two
     neighbouring posts steeper than :data:`STEP_SLOPE` made a wall halfway between them.
 
@@ -173,7 +183,9 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     DEM heights or means of two: never above the DEM's highest post. Each edge's slope uses only
     its two posts, so the surface over a window of the DEM is that of the whole DEM (tiling
     gives the same result). With steps, ``vertex_post`` indexes the refined grid of (2 rows - 1,
-    2 cols - 1) points (posts, edge midpoints, cell centres). Why: see
+    2 cols - 1) points (posts, edge midpoints, cell centres). ``where`` (rows - 1, cols - 1)
+    bool keeps only those cells' triangles: the same triangles as in the whole mesh, but on
+    the grid's edge, where a cell's split depends on its neighbours. Why: see
     :func:`orthomvp.visibility.default_eps`."""
     of_type(terrain, Terrain, "terrain")
     v = terrain.values
@@ -196,7 +208,7 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     top = np.maximum(np.maximum(v[:-1, :-1], v[:-1, 1:]), np.maximum(v[1:, :-1], v[1:, 1:]))
     fine[1::2, 1::2] = np.where(stepped, top, (v[:-1, 1:] + v[1:, :-1]) / 2)
     if not stepped.any():
-        return terrain_mesh(terrain, origin=origin)
+        return terrain_mesh(terrain, origin=origin, where=where)
     # an edge is split at its midpoint when a cell on either side has a step
     split_down = np.zeros(down.shape, bool)
     split_down[:, :-1] |= stepped
@@ -217,7 +229,7 @@ def occluder_mesh(terrain: Terrain, origin: np.ndarray | None = None) -> Terrain
     fan &= np.isfinite(fine[1::2, 1::2])  # a cell with a hole does not fan
     tris = []
     for fanned in (True, False):
-        cells = np.flatnonzero(fan == fanned)
+        cells = np.flatnonzero(fan == fanned if where is None else (fan == fanned) & where)
         a, b, d, e, m = corners(cells)
         # the cell's sides in one turn: (from, midpoint, to, split)
         sides = (

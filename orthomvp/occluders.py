@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from orthomvp.codes import WorldFrame
-from orthomvp.mesh import occluder_mesh
+from orthomvp.mesh import cell_triangles, occluder_mesh
 from orthomvp.raycast import Hits, RayCaster
 from orthomvp.terrain import Terrain
 
@@ -43,29 +43,127 @@ float32 casting errs by about 1e-7 of it)."""
 class Occluders:
     """The occluder surface of ``terrain`` (a DEM or a window of one): :meth:`first_hit` casts
     on its :func:`~orthomvp.mesh.occluder_mesh` (built, with its ray caster on ``threads``, at
-    the first cast), :meth:`clear` proves rays clear without one. ``mesh_seconds`` is the time
-    spent meshing."""
+    the first cast), :meth:`cast_from` on the cells that rays from a camera centre can meet,
+    :meth:`clear` proves rays clear without a mesh. ``mesh_seconds`` is the time spent
+    meshing."""
 
     def __init__(self, terrain: Terrain, *, threads: int | None = None) -> None:
         self.terrain = terrain
         self.threads = threads
         self.mesh_seconds = 0.0
         self._caster: RayCaster | None = None
+        self._meshed = 0  # cells meshed in parts so far
         self._lock = threading.Lock()
+        self._count = threading.Lock()
 
     @property
     def caster(self) -> RayCaster:
-        """The ray caster on the occluder mesh, built on first use."""
+        """The ray caster on the whole occluder mesh, built on first use."""
         with self._lock:
             if self._caster is None:
-                start = time.perf_counter()
-                self._caster = RayCaster(occluder_mesh(self.terrain), threads=self.threads)
-                self.mesh_seconds += time.perf_counter() - start
+                self._caster = self._mesh()
             return self._caster
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
         """:meth:`orthomvp.raycast.RayCaster.first_hit` on the occluder mesh."""
         return self.caster.first_hit(origins, directions)
+
+    def cast_from(self, centre: np.ndarray, points: np.ndarray, beyond: float) -> Hits:
+        """:meth:`first_hit` of the rays from ``centre`` (3,) through ``points`` (n, 3), map
+        world frame, up to ``beyond`` (world units) past them: the same hits, cast on a mesh
+        of only the cells they pass over, from ``beyond`` past their point (horizontally) to
+        where they rise above the highest post (:meth:`track_cells`), while those meshes add
+        up to fewer cells than the whole surface has (then on the whole)."""
+        centre = np.asarray(centre, dtype=np.float64)
+        points = np.asarray(points, dtype=np.float64)
+        if self._caster is None and self.provable:
+            where = self.track_cells(centre, points, beyond)
+            with self._lock:
+                part = self._caster is None and self._meshed + where.sum() < where.size
+                if part:
+                    self._meshed += int(where.sum())
+            if part:
+                caster = self._part(where)
+                if caster is None:  # no triangle there: nothing to meet
+                    return Hits.none(len(points))
+                return caster.first_hit(centre, points - centre)
+        return self.first_hit(centre, points - centre)
+
+    def track_cells(self, centre: np.ndarray, points: np.ndarray, beyond: float) -> np.ndarray:
+        """The cells (rows - 1, cols - 1) bool that the rays from ``centre`` to ``points``
+        (map world frame) pass over from ``beyond`` past their point to where they stand above
+        the highest post (all of them for a ray from below its point). The ground tracks are
+        sampled at most a post apart, so the cells between samples are next to theirs."""
+        top, _, clearance = self._bounds
+        rows, cols = self.terrain.shape
+        where = np.zeros((rows - 1, cols - 1), np.uint8)
+        c, r = self.terrain.crs_to_pixel(points[:, 0], points[:, 1])
+        cc, cr = self.terrain.crs_to_pixel(centre[0], centre[1])
+        dc, dr = cc - c, cr - r  # to the centre's ground point, in posts
+        rise = centre[2] - points[:, 2]
+        if not (rise > 0).all():
+            return np.ones(where.shape, bool)
+        S = self.terrain.S
+        back = beyond / min(abs(S[0, 0]), abs(S[1, 1])) + 1  # posts past the point
+        steps = np.maximum(np.abs(dc), np.abs(dr))  # posts to the centre's ground point
+        with np.errstate(divide="ignore", invalid="ignore"):
+            end = np.clip((top + clearance - points[:, 2]) / rise, 0, 1)  # of the way there
+            start = np.where(steps > 0, -back / steps, 0.0)
+        n = np.ceil((end - start) * steps).astype(np.intp) + 2  # samples a post apart at most
+        first = np.cumsum(n) - n
+        ray = np.repeat(np.arange(len(n)), n)
+        k = np.arange(first[-1] + n[-1] if len(n) else 0) - first[ray]
+        f = start[ray] + k * ((end - start) / (n - 1))[ray]
+        sc = np.clip(np.floor(c[ray] + f * dc[ray]), 0, cols - 2).astype(np.intp)
+        sr = np.clip(np.floor(r[ray] + f * dr[ray]), 0, rows - 2).astype(np.intp)
+        where[sr, sc] = 1
+        return cv2.dilate(where, np.ones((3, 3), np.uint8)).view(bool)
+
+    @cached_property
+    def _frame(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+        """The origin and local box of every mesh of this surface in the map world frame, so
+        that a mesh of part of it casts as the whole does (None elsewhere: each mesh its
+        own): the middle and the extent of the grid and its heights."""
+        if not self.provable:
+            return None
+        v = self.terrain.values
+        rows, cols = v.shape
+        x, y = self.terrain.pixel_to_crs(np.array([0.0, cols - 1.0]), np.array([0.0, rows - 1.0]))
+        low = np.array([x.min(), y.min(), np.nanmin(v)])
+        high = np.array([x.max(), y.max(), np.nanmax(v)])
+        origin = (low + high) / 2
+        return origin, (low - origin, high - origin)
+
+    def _part(self, where: np.ndarray) -> RayCaster | None:
+        """A ray caster on the cells ``where`` of the occluder mesh (None when none of them
+        has a triangle): the mesh of the posts around them, grown by a cell (a cell's split
+        depends on its neighbours'), cut to them."""
+        first, second = cell_triangles(self.terrain.valid)
+        where = where & (first | second)
+        if not where.any():
+            return None
+        rows, cols = where.shape  # cells
+        r = np.flatnonzero(where.any(axis=1))
+        c = np.flatnonzero(where.any(axis=0))
+        r0, r1 = max(r[0] - 1, 0), min(r[-1] + 2, rows)
+        c0, c1 = max(c[0] - 1, 0), min(c[-1] + 2, cols)
+        return self._mesh(self.terrain.crop(r0, r1 + 1, c0, c1 + 1), where[r0:r1, c0:c1])
+
+    def _mesh(self, terrain: Terrain | None = None, where: np.ndarray | None = None) -> RayCaster:
+        """A ray caster on the occluder mesh of ``terrain`` (default the whole surface), of
+        the cells ``where`` only when given."""
+        start = time.perf_counter()
+        terrain, frame = terrain or self.terrain, self._frame
+        if frame is None:
+            caster = RayCaster(occluder_mesh(terrain), threads=self.threads)
+        else:
+            origin, bounds = frame
+            mesh = occluder_mesh(terrain, origin, where=where)
+            caster = RayCaster(mesh, threads=self.threads, bounds=bounds)
+        seconds = time.perf_counter() - start
+        with self._count:
+            self.mesh_seconds += seconds
+        return caster
 
     @property
     def provable(self) -> bool:
@@ -100,34 +198,25 @@ class Occluders:
         points off the DEM or not below the centre, and everywhere off the map world frame."""
         points = np.asarray(points, dtype=np.float64)
         n = len(points)
-        proven = np.zeros(n, bool)
         if not self.provable or n == 0:
-            return proven
+            return np.zeros(n, bool)
         top, boxes, clearance = self._bounds
         rows, cols = self.terrain.shape
         c, r = self.terrain.crs_to_pixel(points[:, 0], points[:, 1])
+        z = points[:, 2]
         ground = np.hypot(centre[0] - points[:, 0], centre[1] - points[:, 1])
         with np.errstate(divide="ignore", invalid="ignore"):
-            slope = (centre[2] - points[:, 2]) / ground
-            slope[(ground == 0) & (centre[2] > points[:, 2])] = np.inf
-            ok = (slope > 0) & (c > -0.5) & (c < cols - 0.5) & (r > -0.5) & (r < rows - 0.5)
-        todo = np.flatnonzero(ok)
-        ri = np.rint(r[todo]).astype(np.intp)
-        ci = np.rint(c[todo]).astype(np.intp)
-        start = np.broadcast_to(np.asarray(reach, dtype=np.float64), (n,))[todo]
-        z, slope = points[todo, 2], slope[todo]
+            slope = (centre[2] - z) / ground  # inf straight below the centre
+            proven = (slope > 0) & (c > -0.5) & (c < cols - 0.5) & (r > -0.5) & (r < rows - 0.5)
+        post = np.where(proven, np.rint(r) * cols + np.rint(c), 0).astype(np.intp)
+        start = np.asarray(reach, dtype=np.float64)
         S = self.terrain.S  # (a grid is never rotated: Terrain refuses it)
-        post = min(abs(S[0, 0]), abs(S[1, 1]))  # world units: the map frame's
-        for radius, box in zip(RADII, boxes, strict=True):
-            height = z + start * slope  # the ray where the stretch begins
-            above = height > top + clearance
-            proven[todo[above]] = True
-            end = (radius - 1) * post  # the stretch up to here lies over the box
-            within = start < end
-            keep = ~above & (~within | (height > box[ri, ci] + clearance))
-            todo, ri, ci, z, slope = todo[keep], ri[keep], ci[keep], z[keep], slope[keep]
-            start = np.maximum(start[keep], end)
-            if not todo.size:
-                return proven
-        proven[todo[z + start * slope > top + clearance]] = True
+        step = min(abs(S[0, 0]), abs(S[1, 1]))  # world units: the map frame's
+        with np.errstate(invalid="ignore"):  # (0 * inf: not proved)
+            for radius, box in zip(RADII, boxes, strict=True):
+                end = (radius - 1) * step  # the stretch up to here lies over the box
+                bound = np.take(box.ravel(), post) + clearance  # (no higher than the top)
+                proven &= (start >= end) | (z + start * slope > bound)
+                start = np.maximum(start, end)
+            proven &= z + start * slope > top + clearance
         return proven

@@ -42,11 +42,32 @@ class Hits:
     points: np.ndarray
     mask: np.ndarray
 
+    @classmethod
+    def none(cls, n: int) -> Hits:
+        """The result of ``n`` rays that hit nothing."""
+        return cls(
+            np.full(n, np.inf),
+            np.full(n, -1, np.int64),
+            np.full((n, 2), np.nan),
+            np.full((n, 3), np.nan),
+            np.zeros(n, bool),
+        )
+
 
 class RayCaster:
-    """First-hit queries against a :class:`~orthomvp.mesh.TerrainMesh`."""
+    """First-hit queries against a :class:`~orthomvp.mesh.TerrainMesh`. ``bounds``: a box
+    (low, high corners, local frame) holding the mesh, whose bounding sphere rays start at;
+    default the mesh's own. Meshes of parts of one surface, with its origin and box, cast bit
+    for bit as the whole does."""
 
-    def __init__(self, tmesh: TerrainMesh, backend: str = "embree", threads: int | None = None):
+    def __init__(
+        self,
+        tmesh: TerrainMesh,
+        backend: str = "embree",
+        threads: int | None = None,
+        *,
+        bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    ):
         if backend not in BACKENDS:
             raise InputError(f"ray-casting backend must be one of {BACKENDS}, not {backend!r}")
         if not isinstance(tmesh, TerrainMesh):
@@ -58,7 +79,7 @@ class RayCaster:
         self.backend = backend
         self.threads = threads or os.cpu_count() or 1
         verts = np.asarray(tmesh.vertices, dtype=np.float64)
-        lo, hi = column_range(verts)
+        lo, hi = column_range(verts) if bounds is None else bounds
         self._centre = (lo + hi) / 2
         self._radius = float(np.linalg.norm(hi - lo) / 2) * 1.001 + 1.0
         faces = np.asarray(tmesh.faces, dtype=np.int32)

@@ -269,6 +269,14 @@ class Terrain:
             )
         return replace(self, values=vals)
 
+    def crop(self, r0: int, r1: int, c0: int, c1: int) -> Terrain:
+        """The posts ``[r0:r1, c0:c1]`` as a Terrain of their own (a view of the values)."""
+        return replace(
+            self,
+            values=self.values[r0:r1, c0:c1],
+            transform=self.transform @ Affine.translation(c0, r0),
+        )
+
     # ----------------------------------------------------------------------------- the grid
     @property
     def shape(self) -> tuple[int, int]:

@@ -19,10 +19,9 @@ import contextlib
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
-from affine import Affine
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
 from orthomvp.codes import DOUBT, Code, WorldFrame, classify
@@ -245,15 +244,16 @@ def compute_visibility(
     fields = FIELDS if fields is None else frozenset(fields)
     if not fields <= FIELDS:
         raise InputError(f"visibility fields must be among {sorted(FIELDS)}, not {sorted(fields)}")
-    prove = "miss" not in fields if prove is None else bool(prove)
-    proving = (
-        prove
-        and isinstance(caster, Occluders)
+    # rays straight from the camera centre over the occluders' own map: they can be proved
+    # clear, and cast on the cells they pass over
+    straight = (
+        isinstance(caster, Occluders)
         and caster.provable
         and terrain.world == WorldFrame.MAP
         and caster.terrain.crs == terrain.crs
         and _pinhole_ray(camera)
     )
+    proving = straight and ("miss" not in fields if prove is None else bool(prove))
     step = min(abs(terrain.S[0, 0]), abs(terrain.S[1, 1])) / post_scale  # a grid post, world
     nothing = np.broadcast_to(np.nan, (rows, cols))
 
@@ -307,7 +307,9 @@ def compute_visibility(
                 dist[~ray] = np.nan
             if ray.any():
                 r, c = np.nonzero(cast)
-                dist[ray] = _misses(terrain, camera, caster, g, pc, ray, r, c, rs, cs, spacing)
+                dist[ray] = _misses(
+                    terrain, camera, caster, g, pc, ray, (r, c), (rs, cs), spacing, straight
+                )
                 dist[ray] *= post_scale
             # a ray that hits nothing has nothing in its way: the post is visible
             t_codes[cast] = classify(dist, cast_eps)
@@ -356,22 +358,25 @@ def _misses(
     g: PostGeometry,
     pc: np.ndarray,
     ray: np.ndarray,
-    r: np.ndarray,
-    c: np.ndarray,
-    rs: slice,
-    cs: slice,
+    at: tuple[np.ndarray, np.ndarray],
+    tile: tuple[slice, slice],
     spacing: float,
+    straight: bool,
 ) -> np.ndarray:
-    """Distance in grid posts from the posts ``ray`` of those cast (world points ``pc``,
-    positions ``r``, ``c`` in tile (``rs``, ``cs``), geometry ``g``) to their ray's first hit;
-    inf where the ray meets nothing in front of the post."""
+    """Distance in grid posts from the posts ``ray`` of those cast (world points ``pc``, rows
+    and columns ``at`` in ``tile``, geometry ``g``) to their ray's first hit; inf where the
+    ray meets nothing in front of the post. ``straight``: the rays run straight from the
+    camera centre over the map of ``caster``, an Occluders, which casts them on the cells
+    they pass over."""
+    r, c = at[0][ray], at[1][ray]
+    rs, cs = tile
     pc = pc[ray]
-    o = camera.center if g.origins is None else g.origins[r[ray], c[ray]]
+    o = camera.center if g.origins is None else g.origins[r, c]
     if _pinhole_ray(camera):
         d = pc - o  # the pinhole's own ray through the post's pixel
     else:
-        o, d = camera.ray(g.uv[r[ray], c[ray]])  # the model's own ray through that pixel
-    hits = caster.first_hit(o, d)
+        o, d = camera.ray(g.uv[r, c])  # the model's own ray through that pixel
+    hits = caster.cast_from(o, pc, spacing) if straight else caster.first_hit(o, d)
     # A first hit more than one post beyond the post means that the ray slipped past the
     # post's own vertex (a crest it grazes) with nothing in front of it: no hit.
     along = np.einsum("ij,ij->i", pc - o, d) / np.linalg.norm(d, axis=1)
@@ -379,7 +384,7 @@ def _misses(
     dist = np.full(len(d), np.inf)
     if front.any():
         hc, hr, _ = terrain.from_world(hits.points[front])
-        pcol, prow = c[ray][front] + cs.start, r[ray][front] + rs.start
+        pcol, prow = c[front] + cs.start, r[front] + rs.start
         dist[front] = np.hypot(hc - pcol, hr - prow)
     return dist
 
@@ -419,7 +424,7 @@ class _DemCodes:
         c1 = int(np.clip(np.floor(np.nanmax(dc, initial=-np.inf)) + 4, 0, cols))
         codes = np.zeros((max(r1 - r0, 0), max(c1 - c0, 0)), np.uint8)
         if min(codes.shape) >= 2:
-            sub = _crop(dem, r0, r1, c0, c1)
+            sub = dem.crop(r0, r1, c0, c1)
             codes = compute_visibility(
                 sub, camera, eps=eps, caster=caster, threads=threads, spacing=spacing,
                 strict=False, fused=fused, fields=frozenset(), prove=prove,
@@ -488,15 +493,6 @@ def _around(window: tuple[int, int, int, int], shape: tuple[int, int]) -> list:
         (slice(r0, r1), slice(0, c0)),
         (slice(r0, r1), slice(c1, cols)),
     ]
-
-
-def _crop(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> Terrain:
-    """The posts ``[r0:r1, c0:c1]`` of ``terrain`` as a Terrain of their own."""
-    return replace(
-        terrain,
-        values=terrain.values[r0:r1, c0:c1],
-        transform=terrain.transform @ Affine.translation(c0, r0),
-    )
 
 
 def _pinhole_ray(camera: Camera) -> bool:

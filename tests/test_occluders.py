@@ -17,7 +17,7 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.camera.distortion import TsaiDistortion
 from orthomvp.codes import DOUBT, Code, WorldFrame
 from orthomvp.engine import Outputs, plan_ortho, run_plan
-from orthomvp.mesh import occluder_mesh
+from orthomvp.mesh import TerrainMesh, occluder_mesh
 from orthomvp.mosaic import MosaicOptions, doubtful
 from orthomvp.occluders import RADII, Occluders
 from orthomvp.ortho import mosaic
@@ -146,11 +146,28 @@ def test_nothing_is_proved_off_the_map_frame() -> None:
     assert not occluders.clear(posts, scene.cameras["nadir"].center, 1e6).any()
 
 
+@pytest.fixture
+def rays(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The number of rays cast by every RayCaster.first_hit call from now on."""
+    calls: list[int] = []
+    first_hit = RayCaster.first_hit
+
+    def counted(self: RayCaster, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN202
+        calls.append(len(np.atleast_2d(directions)))
+        return first_hit(self, origins, directions)
+
+    monkeypatch.setattr(RayCaster, "first_hit", counted)
+    return calls
+
+
 @pytest.mark.parametrize("scene_kind", ["rough", "city"])
-def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(scene_kind: str) -> None:
-    """The codes, pixels and cast misses with the proof are those of casting every ray; a
-    proved post has no miss or eps (NaN), and cast it would not have been doubtful; fewer
-    rays are cast."""
+def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(
+    scene_kind: str, rays: list[int]
+) -> None:
+    """The codes, pixels and cast misses with the proof are those of casting every ray on the
+    whole occluder mesh (a plain RayCaster, in its own frame: the misses within 1% of a post
+    but at crests); a proved post has no miss or eps (NaN), and cast it would not have been
+    doubtful; fewer rays are cast."""
     if scene_kind == "city":
         scene = make_scene("city", size=64)
         t, cameras = scene.terrain, list(scene.cameras.values())
@@ -158,10 +175,12 @@ def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(scene_kind
         t = map_terrain(rough(5))
         cameras = [camera_at(t, e, a) for e, a in VIEWS]
     occluded = 0
+    whole = RayCaster(occluder_mesh(t))
     for cam in cameras:
-        counted = Counting(t)
-        proved = compute_visibility(t, cam, caster=counted, prove=True)
-        every = compute_visibility(t, cam, caster=Occluders(t), prove=False)
+        rays.clear()
+        proved = compute_visibility(t, cam, caster=Occluders(t), prove=True)
+        cast_proved = sum(rays)
+        every = compute_visibility(t, cam, caster=whole)
         np.testing.assert_array_equal(proved.codes, every.codes)
         np.testing.assert_array_equal(proved.uv, every.uv)
         cast = np.isin(every.codes, (Code.VISIBLE, Code.OCCLUDED))
@@ -173,23 +192,20 @@ def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(scene_kind
         miss = every.miss[skipped]
         assert ((miss <= every.eps[skipped] - DOUBT) | (miss == np.inf)).all()
         kept = cast & ~skipped
-        np.testing.assert_array_equal(proved.miss[kept], every.miss[kept])
-        assert counted.rays == kept.sum() < cast.sum()
+        a, b = proved.miss[kept], every.miss[kept]
+        # a ray through a crest's vertex meets it, or slips past to meet the surface within a
+        # post beyond it or not at all, as float32 rounds the vertices in each frame
+        apart = ~np.isclose(a, b, atol=1e-2)
+        assert apart.sum() <= 0.05 * apart.size and (np.fmin(a, b)[apart] < 1e-3).all()
+        assert (np.fmax(a, b)[apart] < 1.5).sum() + np.isinf(np.fmax(a, b)[apart]).sum() == (
+            apart.sum()
+        )
+        assert cast_proved == kept.sum() < cast.sum()
         occluded += (every.codes == Code.OCCLUDED).sum()
     assert occluded > 500
 
 
-class Counting(Occluders):
-    """Occluders that count the rays cast."""
-
-    rays = 0
-
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN201
-        self.rays += len(np.atleast_2d(directions))
-        return super().first_hit(origins, directions)
-
-
-def test_misses_asked_for_are_measured_for_every_post() -> None:
+def test_misses_asked_for_are_measured_for_every_post(rays: list[int]) -> None:
     """By default the proof runs unless the misses are asked for: with them every post in the
     image and facing the camera is cast (finite eps); without them the proof skips posts."""
     t = map_terrain(rough(6))
@@ -197,10 +213,11 @@ def test_misses_asked_for_are_measured_for_every_post() -> None:
     full = compute_visibility(t, cam)
     cast = np.isin(full.codes, (Code.VISIBLE, Code.OCCLUDED))
     assert np.isfinite(full.eps[cast]).all()
-    counted = Counting(t)
-    codes = compute_visibility(t, cam, caster=counted, fields=frozenset()).codes
+    assert sum(rays) == cast.sum()
+    rays.clear()
+    codes = compute_visibility(t, cam, fields=frozenset()).codes
     np.testing.assert_array_equal(codes, full.codes)
-    assert counted.rays < 0.8 * cast.sum()
+    assert sum(rays) < 0.8 * cast.sum()
 
 
 def test_a_distorted_camera_casts_every_ray() -> None:
@@ -283,3 +300,53 @@ def test_a_spike_just_outside_a_box_is_not_missed(radius: int, offset: float) ->
     assert not Occluders(terrain).clear(point[None], centre, reach)[0]
     values[4, spike] = (radius - 1.25) * rise  # below the ray where the box ends: proved
     assert Occluders(map_terrain(values)).clear(point[None], centre, reach)[0]
+
+
+@pytest.mark.parametrize("scene_kind", ["rough", "city"])
+def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
+    scene_kind: str, rays: list[int]
+) -> None:
+    """Casting the rays not proved clear on meshes of only the cells they pass over
+    (Occluders.cast_from) gives the misses of casting them on the whole mesh, bit for bit."""
+    if scene_kind == "city":
+        scene = make_scene("city", size=64)
+        t, cameras = scene.terrain, list(scene.cameras.values())
+    else:
+        t = map_terrain(rough(8))
+        cameras = [camera_at(t, e, a) for e, a in VIEWS]
+    whole = Occluders(t)
+    assert whole.caster is not None  # built: every cast on the whole mesh
+    parts = 0
+    for cam in cameras:
+        occluders = Occluders(t)
+        part = compute_visibility(t, cam, caster=occluders, prove=True)
+        every = compute_visibility(t, cam, caster=whole, prove=True)
+        np.testing.assert_array_equal(part.codes, every.codes)
+        np.testing.assert_array_equal(part.miss, every.miss)
+        parts += occluders._caster is None  # cast on parts only
+    assert parts >= 2
+
+
+def test_a_mesh_of_some_cells_has_the_whole_mesh_triangles_there() -> None:
+    """Meshes of blocks of the city's cells (its walls split cells into fans that depend on
+    their neighbours, across the blocks' edges too) hold exactly the whole mesh's triangles
+    over those cells, vertex for vertex."""
+    t = make_scene("city", size=48).terrain
+    occluders = Occluders(t)
+    cells = (t.shape[0] - 1, t.shape[1] - 1)
+
+    def triangles(mesh: TerrainMesh, keep: np.ndarray | None = None) -> set:
+        tri = mesh.world_vertices[mesh.faces]  # (n, 3, 3)
+        if keep is not None:  # those over a kept cell: their centroid's cell
+            c, r = t.crs_to_pixel(*tri.mean(axis=1)[:, :2].T)
+            tri = tri[keep[np.floor(r).astype(int), np.floor(c).astype(int)]]
+        return {tuple(np.round(v, 6).ravel()) for v in tri}
+
+    blocks = [np.s_[r : r + 6, 5:40] for r in range(1, cells[0] - 6, 3)]
+    blocks += [np.s_[5:40, c : c + 6] for c in range(1, cells[1] - 6, 3)]
+    for block in blocks:  # strips across the walls, each way
+        where = np.zeros(cells, bool)
+        where[block] = True
+        part = occluders._part(where).tmesh
+        mine = triangles(part)
+        assert mine == triangles(occluder_mesh(t, part.origin), where) and len(mine) > 200
