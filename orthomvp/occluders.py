@@ -6,11 +6,12 @@ The proof (map world frame, a ray straight from a camera centre C to a post P; h
 z). Along the ground track from P towards C, at horizontal distance s, the ray stands at
 ``z_P + s t`` with ``t = (z_C - z_P) / |C - P|`` (horizontal distance). The occluder surface
 over a ground point is no higher than the highest post of its cell (its heights are post
-heights, means of two or maxima). Within ``s <= (k - 1) p`` of P (``p`` the smaller post
-spacing) the track stays within ``k - 1/2`` posts, along rows and columns, of the post nearest
-P, over cells whose corners lie within ``k`` posts of it: there the surface is no higher than
-the highest post of that box. Where the ray at ``s_a`` stands above that height, it meets
-nothing from ``s_a`` to ``s_b = (k - 1) p``. Stretches bounded by the
+heights, means of two or maxima). Within ``s <= (k - 1/2) p`` of P (``p`` the smaller post
+spacing) the track stays within ``k`` posts, along rows and columns, of the post nearest P
+(half a post away at most), over cells whose corners lie within ``k`` posts of it (or on the
+edge of such a cell, whose heights are those of its own two posts): there the surface is no
+higher than the highest post of that box. Where the ray at ``s_a`` stands above that height,
+it meets nothing from ``s_a`` to ``s_b = (k - 1/2) p``. Stretches bounded by the
 boxes of :data:`RADII` posts, then the DEM's highest post, cover the track from a ``reach``
 ``s_0`` on: a ray proved clear can meet the surface only within ``s_0`` of P, horizontally, or
 beyond P. The heights are rounded up to float32 and the ray must clear them by
@@ -55,6 +56,8 @@ class Occluders:
         self._meshed = 0  # cells meshed in parts so far
         self._lock = threading.Lock()
         self._count = threading.Lock()
+        self._bounding = threading.Lock()
+        self._bounded: tuple[float, list[np.ndarray], float] | None = None
 
     @property
     def caster(self) -> RayCaster:
@@ -170,10 +173,18 @@ class Occluders:
         """Whether :meth:`clear` can prove anything: the map world frame, heights along z."""
         return self.terrain.world == WorldFrame.MAP
 
-    @cached_property
+    @property
     def _bounds(self) -> tuple[float, list[np.ndarray], float]:
         """The highest post, the highest post within each of :data:`RADII` posts (rows and
-        columns) of every post (float32, rounded up; holes lowest), and the clearance."""
+        columns) of every post (float32, rounded up; holes lowest), and the clearance;
+        computed once, whatever the threads asking."""
+        with self._bounding:
+            if self._bounded is None:
+                self._bounded = self._height_bounds()
+            return self._bounded
+
+    def _height_bounds(self) -> tuple[float, list[np.ndarray], float]:
+        """:attr:`_bounds`, computed."""
         v = self.terrain.values
         up = v.astype(np.float32)
         up = np.where(up < v, np.nextafter(up, np.float32(np.inf)), up)
@@ -214,7 +225,7 @@ class Occluders:
         step = min(abs(S[0, 0]), abs(S[1, 1]))  # world units: the map frame's
         with np.errstate(invalid="ignore"):  # (0 * inf: not proved)
             for radius, box in zip(RADII, boxes, strict=True):
-                end = (radius - 1) * step  # the stretch up to here lies over the box
+                end = (radius - 0.5) * step  # the stretch up to here lies over the box
                 bound = np.take(box.ravel(), post) + clearance  # (no higher than the top)
                 proven &= (start >= end) | (z + start * slope > bound)
                 start = np.maximum(start, end)
