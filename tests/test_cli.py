@@ -88,6 +88,27 @@ def test_entry_point_sets_the_garbage_collection_up() -> None:
     assert seen == f"{threshold} True"
 
 
+def test_a_command_imports_its_own_module_only() -> None:
+    """A command's run (here its --help) imports its module, not every other command's; the
+    group's --help lists them all, each under its own name."""
+    code = (
+        "import sys\n"
+        "from orthomvp.cli import main\n"
+        "main(['ortho', '--help'])\n"
+        "print(sorted(m for m in sys.modules if m.startswith('orthomvp.cli.')))\n"
+        "main(['--help'])\n"
+        "from orthomvp.cli import cli\n"
+        "print(all(command.name == name for name, command in cli.commands.items()))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    loaded = eval(next(line for line in lines if line.startswith("['orthomvp.cli.")))  # noqa: S307
+    assert "orthomvp.cli.ortho" in loaded
+    assert not {"orthomvp.cli.bench", "orthomvp.cli.fit", "orthomvp.cli.check"} & set(loaded)
+    assert all(f"  {name} " in proc.stdout for name in COMMANDS) and lines[-1] == "True"
+
+
 def test_help_documents_every_argument_and_option() -> None:
     assert tuple(cli.commands) == COMMANDS
     assert run("--version").stdout.startswith("orthomvp ")

@@ -34,7 +34,7 @@ from types import FrameType
 import click
 
 from orthomvp import __version__
-from orthomvp.cli.command import Group
+from orthomvp.cli.command import Group, LazyCommands
 from orthomvp.cli.options import quiet_option
 from orthomvp.errors import OrthoMVPError
 
@@ -192,31 +192,19 @@ def main_entry() -> None:
 
 
 # the commands, in the order --help lists them
-from orthomvp.cli import (  # noqa: E402
-    bench,
-    check,
-    demo,
-    eps_study,
-    explore,
-    fit,
-    mesh,
-    ortho,
-    render,
-    synth,
+cli.commands = LazyCommands(
+    {
+        "demo": ("orthomvp.cli.demo", "demo"),
+        "synth": ("orthomvp.cli.synth", "synth"),
+        "mesh": ("orthomvp.cli.mesh", "mesh"),
+        "render": ("orthomvp.cli.render", "render"),
+        "visibility": ("orthomvp.cli.ortho", "visibility"),
+        "ortho": ("orthomvp.cli.ortho", "ortho"),
+        "mosaic": ("orthomvp.cli.ortho", "mosaic"),
+        "explore": ("orthomvp.cli.explore", "explore"),
+        "fit": ("orthomvp.cli.fit", "fit"),
+        "eps-study": ("orthomvp.cli.eps_study", "eps_study"),
+        "check": ("orthomvp.cli.check", "check"),
+        "bench": ("orthomvp.cli.bench", "bench"),
+    }
 )
-
-for _command in (
-    demo.demo,
-    synth.synth,
-    mesh.mesh,
-    render.render,
-    ortho.visibility,
-    ortho.ortho,
-    ortho.mosaic,
-    explore.explore,
-    fit.fit,
-    eps_study.eps_study,
-    check.check,
-    bench.bench,
-):
-    cli.add_command(_command)
