@@ -15,11 +15,11 @@ stay nodata.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from affine import Affine
-from pyproj import CRS
 
 from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
@@ -48,6 +48,10 @@ from orthomvp.visibility import (
     occluder_caster,
 )
 
+if TYPE_CHECKING:
+    from pyproj import CRS
+    from rasterio.crs import CRS as FileCRS
+
 MAP_SIDE = 32766
 """The most rows or columns a map of ``cv2.remap`` may have (OpenCV wants fewer than 32767)."""
 CUBIC_FRAME = 3
@@ -73,7 +77,7 @@ class Ortho:
 
     data: np.ndarray
     transform: Affine
-    crs: CRS
+    crs: CRS | FileCRS
     visibility: Visibility
 
 
@@ -87,7 +91,7 @@ class Mosaic:
     data: np.ndarray
     source: np.ndarray
     transform: Affine
-    crs: CRS
+    crs: CRS | FileCRS
     visibilities: list[Visibility]
     flags: np.ndarray
     weights: np.ndarray

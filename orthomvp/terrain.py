@@ -17,21 +17,26 @@ Conventions (see ARCHITECTURE.md):
 from __future__ import annotations
 
 import os
+import re
+import sys
 import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from affine import Affine
-from pyproj import CRS, Transformer
-from pyproj.exceptions import CRSError
+from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.memory import check_memory, count_text
 from orthomvp.raster import open_raster, read_values, write_geotiff
 from orthomvp.vectors import nan_median, row_norms
+
+if TYPE_CHECKING:
+    from pyproj import CRS, Transformer
 
 Triple = tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float]
 """Three components of vectors (x, y, z), arrays that broadcast together or numbers."""
@@ -118,16 +123,17 @@ def _heights(values: object, name: str) -> np.ndarray:
 
 
 def dem_georeference(
-    path: str | Path, file_crs: object | None, transform: Affine, crs: object | None
-) -> CRS:
-    """The CRS of the DEM at ``path``: ``crs`` when given, else the file's; InputError for a
-    DEM without CRS or without georeference (identity ``transform``)."""
+    path: str | Path, file_crs: FileCRS | None, transform: Affine, crs: object | None
+) -> CRS | FileCRS:
+    """The CRS of the DEM at ``path``: ``crs`` when given (a pyproj CRS, :func:`parse_crs`),
+    else the file's (rasterio's, read by GDAL: see :class:`Terrain`); InputError for a DEM
+    without CRS or without georeference (identity ``transform``)."""
     if crs is not None:
         the_crs = parse_crs(crs, str(path))
     elif file_crs is None:
         raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
     else:
-        the_crs = parse_crs(file_crs.to_wkt(), str(path))
+        the_crs = horizontal_crs(file_crs, str(path))
     if transform == Affine.identity():
         raise InputError(f"{path}: the DEM has no georeference (identity transform)")
     return the_crs
@@ -143,19 +149,54 @@ def warn_infinite(path: str | Path, count: int) -> None:
         )
 
 
-def horizontal_crs(crs: CRS) -> CRS:
-    """The horizontal part of a (possibly compound) CRS."""
-    if crs.is_compound:
-        return crs.sub_crs_list[0]
+def horizontal_crs(crs: CRS | FileCRS, source: str = "CRS") -> CRS | FileCRS:
+    """The horizontal part of a (possibly compound) CRS: a pyproj CRS's own, a file's (not
+    compound: itself) through pyproj."""
+    if is_pyproj(crs):
+        return crs.sub_crs_list[0] if crs.is_compound else crs
+    if crs.to_wkt().startswith(("COMPD_CS", "COMPOUNDCRS")):
+        return parse_crs(crs.to_wkt(), source)
     return crs
 
 
 def parse_crs(value: object, source: str) -> CRS:
     """A pyproj CRS from anything pyproj accepts (WKT, PROJ string, 'IAU_2015:30100', ...)."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
     try:
         return horizontal_crs(CRS.from_user_input(value))
     except CRSError as exc:
         raise InputError(f"{source}: cannot understand CRS {value!r} ({exc})") from exc
+
+
+def is_pyproj(crs: object) -> bool:
+    """Whether ``crs`` is a pyproj CRS (never, while pyproj is not imported)."""
+    pyproj = sys.modules.get("pyproj")
+    return pyproj is not None and isinstance(crs, pyproj.CRS)
+
+
+def as_pyproj(crs: CRS | FileCRS) -> CRS:
+    """``crs`` as a pyproj CRS: itself, or a file's read from its WKT (as :func:`parse_crs`
+    reads it)."""
+    return crs if is_pyproj(crs) else parse_crs(crs.to_wkt(), "CRS")
+
+
+_SPHEROID = re.compile(r'SPHEROID\["[^"]*",\s*([^,\]]+),\s*([^,\]]+)')
+
+
+def _file_radii(crs: FileCRS) -> tuple[float, float] | None:
+    """(semi-major, semi-minor) axes of a file CRS's ellipsoid from its WKT 1 (metres; the
+    semi-minor as PROJ computes it from the inverse flattening, 0 for a sphere); None when the
+    WKT does not say them plainly."""
+    found = _SPHEROID.search(crs.to_wkt())
+    if found is None:
+        return None
+    try:
+        a, rf = float(found[1]), float(found[2])
+    except ValueError:
+        return None
+    return a, (a if rf == 0 else (1.0 - 1.0 / rf) * a)
 
 
 REGRID_BYTES_PER_POST = 160
@@ -169,15 +210,18 @@ class Terrain:
 
     ``values`` is float64 ``(rows, cols)``, NaN at nodata posts (holes); infinite values are
     holes too (they become NaN). ``transform`` maps pixel *corner* coordinates to CRS
-    coordinates (GDAL convention); ``crs`` is a pyproj CRS or anything it reads. Construction
-    checks all of this and raises :class:`~orthomvp.errors.InputError`.
+    coordinates (GDAL convention); ``crs`` is a pyproj CRS or anything it reads, or a file's
+    CRS as rasterio reads it (kept as it is, read by GDAL: pyproj, whose import takes about
+    45 ms, is then imported only where a transformation or the body's geodetic CRS is needed,
+    not for a map-frame run). Construction checks all of this and raises
+    :class:`~orthomvp.errors.InputError`.
     ``wrap_lon``: the longitude (radians) that :meth:`pixel_to_lonlat` keeps longitudes within
     pi of, default the grid centre's (a window of a larger grid may take the larger grid's).
     """
 
     values: np.ndarray
     transform: Affine
-    crs: CRS
+    crs: CRS | FileCRS
     radius_values: bool = False
     world: WorldFrame = WorldFrame.BODY
     name: str = field(default="dem", compare=False)
@@ -195,8 +239,12 @@ class Terrain:
                 f"{self.name}: the transform must be an affine.Affine, got "
                 f"{type(self.transform).__name__}"
             )
-        crs = self.crs if isinstance(self.crs, CRS) else parse_crs(self.crs, self.name)
-        object.__setattr__(self, "crs", horizontal_crs(crs))
+        crs = self.crs
+        if isinstance(crs, FileCRS) or is_pyproj(crs):
+            crs = horizontal_crs(crs, self.name)
+        else:
+            crs = parse_crs(crs, self.name)
+        object.__setattr__(self, "crs", crs)
         object.__setattr__(self, "world", WorldFrame(self.world))  # InputError on a bad name
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")
@@ -323,12 +371,16 @@ class Terrain:
     # --------------------------------------------------------------------------- the body
     @cached_property
     def geodetic_crs(self) -> CRS:
-        """The geographic CRS (lon/lat on the body) underlying this DEM's CRS."""
-        return self.crs if self.crs.is_geographic else self.crs.geodetic_crs
+        """The geographic CRS (lon/lat on the body) underlying this DEM's CRS (pyproj's)."""
+        crs = as_pyproj(self.crs)
+        return crs if crs.is_geographic else crs.geodetic_crs
 
     @cached_property
     def radii(self) -> tuple[float, float]:
-        """(semi-major, semi-minor) axes of the body's reference ellipsoid, metres."""
+        """(semi-major, semi-minor) axes of the body's reference ellipsoid, metres; of a
+        file's CRS from its WKT, without pyproj, when the WKT says them plainly."""
+        if not is_pyproj(self.crs) and (radii := _file_radii(self.crs)) is not None:
+            return radii
         ell = self.geodetic_crs.ellipsoid
         return float(ell.semi_major_metre), float(ell.semi_minor_metre)
 
@@ -340,12 +392,16 @@ class Terrain:
 
     @cached_property
     def _to_lonlat(self) -> Transformer | None:
+        from pyproj import Transformer
+
         if self.crs.is_geographic:
             return None
-        return Transformer.from_crs(self.crs, self.geodetic_crs, always_xy=True)
+        return Transformer.from_crs(as_pyproj(self.crs), self.geodetic_crs, always_xy=True)
 
     @cached_property
     def _to_geocentric(self) -> Transformer:
+        from pyproj import CRS, Transformer
+
         a, b = self.radii
         geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
         return Transformer.from_crs(self.geodetic_crs.to_3d(), geocent, always_xy=True)

@@ -233,3 +233,73 @@ def test_apollo15_dem() -> None:
     np.testing.assert_allclose(np.degrees(lat), [9.668, 9.756], atol=2e-3)
     assert np.mean(t.post_spacing()) == pytest.approx(41.6, abs=0.5)
     random_round_trip(t)
+
+
+NGI_WKT = (
+    'PROJCS["Lo25 WGS84 + EGM2008 height",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",'
+    '6378137,298.257223563]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],'
+    'PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],'
+    'PARAMETER["central_meridian",25],PARAMETER["scale_factor",1],PARAMETER["false_easting",0],'
+    'PARAMETER["false_northing",0],UNIT["metre",1]]'
+)
+FILE_CRSS = [
+    "EPSG:32633",
+    "EPSG:4326",
+    NGI_WKT,
+    "+proj=eqc +R=1737400 +units=m +no_defs",
+    "+proj=longlat +a=3396190 +b=3376200 +no_defs",
+    "+proj=stere +lat_0=-90 +a=3396190 +rf=169.8944472236118 +units=m +no_defs",
+]
+
+
+@pytest.mark.parametrize("text", FILE_CRSS)
+def test_a_file_crs_is_what_pyproj_reads_of_it(text: str) -> None:
+    """A DEM's CRS as rasterio reads it from the file is kept (no pyproj), and behaves as the
+    pyproj CRS read from its WKT did: the same radii bit for bit (from the WKT's spheroid), the
+    same world points in the body frame, equal CRSs."""
+    from rasterio.crs import CRS as FileCRS
+
+    file_crs = FileCRS.from_user_input(text)
+    mine = Terrain(np.full((6, 7), 120.0), Affine(0.01, 0, 3, 0, -0.01, 40), file_crs)
+    if file_crs.is_projected:
+        mine = Terrain(mine.values, Affine(500.0, 0, 1e5, 0, -500.0, -2e5), file_crs)
+    assert mine.crs is file_crs
+    theirs = Terrain(mine.values, mine.transform, CRS.from_user_input(file_crs.to_wkt()))
+    assert mine.radii == theirs.radii and theirs.crs == mine.crs  # (pyproj's equality)
+    c, r = mine.grid()
+    np.testing.assert_array_equal(
+        mine.to_world(c, r, mine.values), theirs.to_world(c, r, theirs.values)
+    )
+
+
+def test_a_compound_file_crs_keeps_its_horizontal_part() -> None:
+    """A file's compound CRS (projected + vertical) becomes its horizontal part, as before."""
+    from rasterio.crs import CRS as FileCRS
+
+    compound = FileCRS.from_user_input("EPSG:5972")  # ETRS89 / UTM 32N + NN2000 height
+    t = Terrain(np.zeros((3, 3)), Affine(10.0, 0, 5e5, 0, -10.0, 6e6), compound)
+    horizontal = CRS.from_user_input(compound.to_wkt()).sub_crs_list[0]
+    assert t.crs.is_projected and not t.crs.is_compound and t.crs == horizontal
+
+
+def test_a_map_frame_run_never_imports_pyproj(city_dir) -> None:  # noqa: ANN001
+    """pyproj's import takes about 45 ms; a map-frame orthophoto of files needs none of it
+    (GDAL reads the CRSs), while a body-frame terrain imports it where it transforms."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from orthomvp.cli import main\n"
+        f"code = main(['-q', 'mosaic', {str(city_dir / 'dem.tif')!r}, "
+        f"{str(city_dir / 'ne.tif')!r}, {str(city_dir / 'ne.tsai')!r}, "
+        f"{str(city_dir / 'sw.tif')!r}, {str(city_dir / 'sw.tsai')!r}, "
+        f"'-o', sys.argv[1]])\n"
+        "print(code, 'pyproj' in sys.modules)\n"
+    )
+    out = city_dir.parent / "no-pyproj.tif"
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(out)], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1].split() == ["0", "False"] and out.exists()

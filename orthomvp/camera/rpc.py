@@ -28,17 +28,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import KW_ONLY, dataclass, field, replace
 from functools import cached_property
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pyproj import CRS, Transformer
-from pyproj.exceptions import CRSError
 
 from orthomvp.camera.model import FieldError, _points, check_crop, image_size
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
 
 if TYPE_CHECKING:
+    from pyproj import CRS, Transformer
+
     from orthomvp.terrain import Terrain
 
 OFFSETS_SCALES = (
@@ -59,8 +60,9 @@ COEFFICIENTS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_
 RPC_KEYS = OFFSETS_SCALES + COEFFICIENTS
 """Every key an :class:`Rpc` needs."""
 
-GEODETIC = CRS.from_epsg(4979)
-"""The RPCs' own coordinates: WGS84 longitude, latitude (degrees), ellipsoidal height (m)."""
+GEODETIC = 4979
+"""The RPCs' own coordinates, an EPSG code: WGS84 longitude, latitude (degrees), ellipsoidal
+height (m)."""
 
 _CHUNK = 1 << 16  # points per polynomial evaluation (bounds the (n, 20) term matrices)
 _TOLERANCE = 1e-10  # image to ground: last Newton step, normalised lon/lat units
@@ -294,11 +296,26 @@ class Rpc:
         return lon.reshape(shape), lat.reshape(shape)
 
 
+def _pyproj() -> ModuleType:
+    """pyproj, imported where a camera needs it (its import takes about 45 ms)."""
+    import pyproj
+    import pyproj.exceptions
+
+    return pyproj
+
+
+def _epsg(code: int) -> CRS:
+    """The pyproj CRS of EPSG ``code``."""
+    return _pyproj().CRS.from_epsg(code)
+
+
 def world_crs(terrain: Terrain) -> CRS:
     """The CRS of ``terrain``'s world frame: its own (projected) CRS in the map frame, else
     geocentric metres on its ellipsoid (what :meth:`Terrain.to_world` gives)."""
+    from pyproj import CRS
+
     if terrain.world == WorldFrame.MAP:
-        return terrain.crs
+        return CRS.from_user_input(terrain.crs)
     a, b = terrain.radii
     return CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
 
@@ -337,7 +354,7 @@ class RpcCamera:
     _: KW_ONLY
     width: int | None = None
     height: int | None = None
-    crs: CRS = field(default_factory=lambda: CRS.from_epsg(4978))
+    crs: CRS = field(default_factory=lambda: _epsg(4978))
     height_offset: float = 0.0
     top: float | None = None
     bottom: float | None = None
@@ -349,8 +366,8 @@ class RpcCamera:
         for name in ("width", "height"):
             object.__setattr__(self, name, image_size(name, getattr(self, name)))
         try:
-            crs = CRS.from_user_input(self.crs)
-        except CRSError as exc:
+            crs = _pyproj().CRS.from_user_input(self.crs)
+        except _pyproj().exceptions.CRSError as exc:
             raise FieldError(
                 "crs", f"cannot understand the world CRS {self.crs!r}: {exc}"
             ) from None
@@ -387,7 +404,9 @@ class RpcCamera:
 
     @cached_property
     def _to_geodetic(self) -> Transformer:
-        return Transformer.from_crs(_horizontal_3d(self.crs), GEODETIC, always_xy=True)
+        from pyproj import Transformer
+
+        return Transformer.from_crs(_horizontal_3d(self.crs), _epsg(GEODETIC), always_xy=True)
 
     def bind(self, terrain: Terrain) -> RpcCamera:
         """A copy in ``terrain``'s world frame (:func:`world_crs`)."""

@@ -12,11 +12,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rasterio
 from affine import Affine
-from pyproj import CRS, Transformer
+from rasterio.crs import CRS as FileCRS
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
@@ -24,8 +25,19 @@ from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.raster import held_raster, open_raster, read_values
-from orthomvp.terrain import Terrain, dem_georeference, parse_crs, warn_infinite
+from orthomvp.terrain import (
+    Terrain,
+    as_pyproj,
+    dem_georeference,
+    horizontal_crs,
+    is_pyproj,
+    parse_crs,
+    warn_infinite,
+)
 from orthomvp.vectors import nan_median
+
+if TYPE_CHECKING:
+    from pyproj import CRS
 
 PREVIEW = 256
 """Posts a side (at most) of the decimated DEM that :func:`scan_dem` keeps."""
@@ -68,7 +80,7 @@ class DemSource:
     path: Path
     shape: tuple[int, int]
     transform: Affine
-    crs: CRS
+    crs: CRS | FileCRS
     radius_values: bool
     world: WorldFrame
     h_min: float
@@ -225,7 +237,7 @@ class OutputGrid:
 
     transform: Affine
     shape: tuple[int, int]
-    crs: CRS
+    crs: CRS | FileCRS
     on_dem: bool
 
     def georef(self, window: WindowT, like: Terrain) -> Terrain:
@@ -275,7 +287,12 @@ def output_grid(
     DEM's post spacing at its centre measured in it. Posts are placed as by
     :meth:`Terrain.regrid`: ``round(extent / res)`` (at least 2) from the top-left corner.
     """
-    out_crs = dem.crs if crs is None else parse_crs(crs, "output CRS")
+    if crs is None:
+        out_crs = dem.crs
+    elif isinstance(crs, FileCRS) or is_pyproj(crs):  # (a grid's: the survey's)
+        out_crs = horizontal_crs(crs, "output CRS")
+    else:
+        out_crs = parse_crs(crs, "output CRS")
     same_crs = out_crs == dem.crs
     if not same_crs:
         if dem.world == WorldFrame.MAP:
@@ -292,7 +309,9 @@ def output_grid(
         right, bottom = left + cols * t.a, top + rows * t.e
         dx, dy = abs(t.a), abs(t.e)
     else:
-        to_out = Transformer.from_crs(dem.crs, out_crs, always_xy=True)
+        from pyproj import Transformer
+
+        to_out = Transformer.from_crs(as_pyproj(dem.crs), out_crs, always_xy=True)
         x0, y0, x1, y1 = (t.c, t.f + rows * t.e, t.c + cols * t.a, t.f)
         left, bottom, right, top = to_out.transform_bounds(x0, y0, x1, y1, densify_pts=21)
         c, r = (cols - 1) / 2, (rows - 1) / 2
@@ -321,9 +340,11 @@ def grid_to_dem(
     grid: OutputGrid, dem: DemSource
 ) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """A function from output-grid pixel positions ``(c, r)`` to DEM pixel positions."""
-    to_dem = (
-        None if grid.crs == dem.crs else Transformer.from_crs(grid.crs, dem.crs, always_xy=True)
-    )
+    to_dem = None
+    if grid.crs != dem.crs:
+        from pyproj import Transformer
+
+        to_dem = Transformer.from_crs(as_pyproj(grid.crs), as_pyproj(dem.crs), always_xy=True)
     g = grid.transform @ Affine.translation(0.5, 0.5)
     d = ~(dem.transform @ Affine.translation(0.5, 0.5))
 

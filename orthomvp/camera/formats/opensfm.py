@@ -50,10 +50,9 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from pyproj import CRS, Transformer
-from pyproj.exceptions import CRSError
 
 from orthomvp.camera.distortion import (
     Distortion,
@@ -71,6 +70,9 @@ from orthomvp.camera.formats._common import (
 from orthomvp.camera.model import FieldError, PinholeCamera
 from orthomvp.errors import FormatError, InputError
 
+if TYPE_CHECKING:
+    from pyproj import CRS, Transformer
+
 _BROWN = ("k1", "k2", "k3", "p1", "p2")
 PROJECTIONS: dict[str, tuple[str, ...]] = {
     "perspective": ("k1", "k2"),
@@ -86,8 +88,9 @@ _INTERIOR_KEYS = ("projection_type", "width", "height", "focal", "focal_x", "foc
 _CENTRE_KEYS = ("c_x", "c_y")
 CAMERAS_JSON = "cameras.json"
 """The name of ODM's interior parameter file."""
-WGS84 = CRS.from_epsg(4979)
-"""The CRS of ``reference_lla``: WGS 84 latitude, longitude (degrees), ellipsoidal height."""
+WGS84 = 4979
+"""The CRS of ``reference_lla``, an EPSG code: WGS 84 latitude, longitude (degrees),
+ellipsoidal height."""
 _SHOTS_KEY = re.compile(r'"shots"\s*:')
 _PROJECTION_KEY = re.compile(r'"projection_type"\s*:')
 _FEATURE_COLLECTION = re.compile(r'"type"\s*:\s*"FeatureCollection"')
@@ -106,6 +109,8 @@ def utm_crs(lat: float, lon: float) -> CRS:
     """The WGS 84 UTM CRS of latitude ``lat``, longitude ``lon`` (degrees): zone
     floor((lon + 180) / 6) mod 60 + 1, north for lat >= 0 (no Norway or Svalbard exceptions,
     as Orthority and ODM)."""
+    from pyproj import CRS
+
     zone = int(math.floor((lon + 180.0) / 6.0)) % 60 + 1
     return CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
 
@@ -249,6 +254,9 @@ def _camera(
 def _map_crs(crs: object, lat: float, lon: float) -> CRS:
     """The projected CRS ``crs`` (default :func:`utm_crs` of the reference); InputError when it
     is not one."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
     if crs is None:
         return utm_crs(lat, lon)
     try:
@@ -260,6 +268,13 @@ def _map_crs(crs: object, lat: float, lon: float) -> CRS:
             f"OpenSfM cameras are placed in a projected CRS (a map frame); {out.name} is not one"
         )
     return out
+
+
+def _to_map(crs: CRS) -> Transformer:
+    """The transformer from :data:`WGS84` (lon, lat) to the map ``crs``."""
+    from pyproj import CRS, Transformer
+
+    return Transformer.from_crs(CRS.from_epsg(WGS84), crs, always_xy=True)
 
 
 def _reconstruction(path: Path, text: str, crs: object) -> dict[str, PinholeCamera]:
@@ -280,7 +295,7 @@ def _reconstruction(path: Path, text: str, crs: object) -> dict[str, PinholeCame
             )
             for k in ("latitude", "longitude", "altitude")
         )
-        to_map = Transformer.from_crs(WGS84, _map_crs(crs, lat, lon), always_xy=True)
+        to_map = _to_map(_map_crs(crs, lat, lon))
         easting, northing = to_map.transform(lon, lat)
         origin = np.array([easting, northing, alt])
         shots = _object(path, f"{where}.shots", _get(path, rec, where, "shots"))
