@@ -28,7 +28,8 @@ import cv2
 import numpy as np
 
 from orthomvp.codes import WorldFrame
-from orthomvp.mesh import cell_triangles, occluder_mesh
+from orthomvp.errors import InputError
+from orthomvp.mesh import occluder_mesh
 from orthomvp.raycast import Hits, RayCaster
 from orthomvp.terrain import Terrain
 
@@ -39,6 +40,40 @@ BOUND_BYTES = 4 * len(RADII)
 CLEARANCE = 1e-5
 """Height by which a ray must clear a bound, as a fraction of the DEM's extent (1 cm a km;
 float32 casting errs by about 1e-7 of it)."""
+
+
+PART_BUDGET = 0.75
+"""What the meshes of parts of a surface may cost in all, as a share of its whole mesh's,
+before the whole is meshed instead (:meth:`Occluders.cast_from`)."""
+PART_PREP = 0.2
+"""The share of a mesh's cost that goes with its window's posts (the steps and the fine
+grid); the rest goes with the cells it triangulates (triangles and the BVH)."""
+TRACK_SAMPLES = 4
+"""Samples of the rays' tracks, per cell of the surface, beyond which the whole surface is
+meshed instead of the cells the tracks pass over (their arrays take about 40 bytes a sample;
+sampling costs less than meshing below about 15 a cell)."""
+
+
+def _box(where: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The cells (r0, r1, c0, c1) around the True cells of ``where``, grown by one (a cell's
+    split depends on its neighbours': :func:`~orthomvp.mesh.occluder_mesh`); None without
+    one."""
+    rows = np.flatnonzero(where.any(axis=1))
+    if not rows.size:
+        return None
+    cols = np.flatnonzero(where.any(axis=0))
+    height, width = where.shape
+    return (
+        max(int(rows[0]) - 1, 0),
+        min(int(rows[-1]) + 2, height),
+        max(int(cols[0]) - 1, 0),
+        min(int(cols[-1]) + 2, width),
+    )
+
+
+def _area(box: tuple[int, int, int, int]) -> int:
+    """Cells in ``box`` (r0, r1, c0, c1)."""
+    return (box[1] - box[0]) * (box[3] - box[2])
 
 
 class Occluders:
@@ -53,7 +88,7 @@ class Occluders:
         self.threads = threads
         self.mesh_seconds = 0.0
         self._caster: RayCaster | None = None
-        self._meshed = 0  # cells meshed in parts so far
+        self._meshed = 0.0  # the cost of the parts meshed so far, in cells
         self._lock = threading.Lock()
         self._count = threading.Lock()
         self._bounding = threading.Lock()
@@ -75,48 +110,60 @@ class Occluders:
         """:meth:`first_hit` of the rays from ``centre`` (3,) through ``points`` (n, 3), map
         world frame, up to ``beyond`` (world units) past them: the same hits, cast on a mesh
         of only the cells they pass over, from ``beyond`` past their point (horizontally) to
-        where they rise above the highest post (:meth:`track_cells`), while those meshes add
-        up to fewer cells than the whole surface has (then on the whole)."""
+        where they rise above the highest post (:meth:`track_cells`), while such meshes cost
+        less than the whole one (:data:`PART_BUDGET`; then on the whole, built once)."""
         centre = np.asarray(centre, dtype=np.float64)
         points = np.asarray(points, dtype=np.float64)
         if self._caster is None and self.provable:
             where = self.track_cells(centre, points, beyond)
+            box = None if where is None else _box(where)
             with self._lock:
-                part = self._caster is None and self._meshed + where.sum() < where.size
+                part = box is not None and self._caster is None
                 if part:
-                    self._meshed += int(where.sum())
+                    cost = PART_PREP * _area(box) + (1 - PART_PREP) * int(where.sum())
+                    part = self._meshed + cost <= PART_BUDGET * where.size
+                    self._meshed += cost if part else 0
             if part:
-                caster = self._part(where)
+                caster = self._part(where, box)
                 if caster is None:  # no triangle there: nothing to meet
                     return Hits.none(len(points))
                 return caster.first_hit(centre, points - centre)
         return self.first_hit(centre, points - centre)
 
-    def track_cells(self, centre: np.ndarray, points: np.ndarray, beyond: float) -> np.ndarray:
+    def track_cells(
+        self, centre: np.ndarray, points: np.ndarray, beyond: float
+    ) -> np.ndarray | None:
         """The cells (rows - 1, cols - 1) bool that the rays from ``centre`` to ``points``
         (map world frame) pass over from ``beyond`` past their point to where they stand above
-        the highest post (all of them for a ray from below its point). The ground tracks are
+        the highest post, within the grid; None (every cell) for a ray from below its point,
+        or tracks longer in all than :data:`TRACK_SAMPLES` times the cells. The tracks are
         sampled at most a post apart, so the cells between samples are next to theirs."""
         top, _, clearance = self._bounds
         rows, cols = self.terrain.shape
-        where = np.zeros((rows - 1, cols - 1), np.uint8)
         c, r = self.terrain.crs_to_pixel(points[:, 0], points[:, 1])
         cc, cr = self.terrain.crs_to_pixel(centre[0], centre[1])
         dc, dr = cc - c, cr - r  # to the centre's ground point, in posts
         rise = centre[2] - points[:, 2]
         if not (rise > 0).all():
-            return np.ones(where.shape, bool)
+            return None
         S = self.terrain.S
         back = beyond / min(abs(S[0, 0]), abs(S[1, 1])) + 1  # posts past the point
         steps = np.maximum(np.abs(dc), np.abs(dr))  # posts to the centre's ground point
         with np.errstate(divide="ignore", invalid="ignore"):
             end = np.clip((top + clearance - points[:, 2]) / rise, 0, 1)  # of the way there
             start = np.where(steps > 0, -back / steps, 0.0)
-        n = np.ceil((end - start) * steps).astype(np.intp) + 2  # samples a post apart at most
+            for p, d, size in ((c, dc, cols), (r, dr, rows)):  # cut to the grid (and a post)
+                low, high = (-1 - p) / d, (size - p) / d
+                start = np.where(d == 0, start, np.maximum(start, np.fmin(low, high)))
+                end = np.where(d == 0, end, np.minimum(end, np.fmax(low, high)))
+        n = np.where(end >= start, np.ceil((end - start) * steps) + 2, 0).astype(np.intp)
+        if n.sum() > TRACK_SAMPLES * (rows - 1) * (cols - 1):
+            return None
         first = np.cumsum(n) - n
         ray = np.repeat(np.arange(len(n)), n)
-        k = np.arange(first[-1] + n[-1] if len(n) else 0) - first[ray]
-        f = start[ray] + k * ((end - start) / (n - 1))[ray]
+        k = np.arange(n.sum()) - first[ray]
+        f = start[ray] + k * ((end - start) / np.maximum(n - 1, 1))[ray]
+        where = np.zeros((rows - 1, cols - 1), np.uint8)
         sc = np.clip(np.floor(c[ray] + f * dc[ray]), 0, cols - 2).astype(np.intp)
         sr = np.clip(np.floor(r[ray] + f * dr[ray]), 0, rows - 2).astype(np.intp)
         where[sr, sc] = 1
@@ -137,20 +184,14 @@ class Occluders:
         origin = (low + high) / 2
         return origin, (low - origin, high - origin)
 
-    def _part(self, where: np.ndarray) -> RayCaster | None:
-        """A ray caster on the cells ``where`` of the occluder mesh (None when none of them
-        has a triangle): the mesh of the posts around them, grown by a cell (a cell's split
-        depends on its neighbours'), cut to them."""
-        first, second = cell_triangles(self.terrain.valid)
-        where = where & (first | second)
-        if not where.any():
+    def _part(self, where: np.ndarray, box: tuple[int, int, int, int]) -> RayCaster | None:
+        """A ray caster on the cells ``where`` of the occluder mesh (None when they hold no
+        triangle): the mesh of the posts around them (``box``, :func:`_box`), cut to them."""
+        r0, r1, c0, c1 = box
+        try:  # (a box of holes: no heights, or no triangle, to mesh)
+            return self._mesh(self.terrain.crop(r0, r1 + 1, c0, c1 + 1), where[r0:r1, c0:c1])
+        except InputError:
             return None
-        rows, cols = where.shape  # cells
-        r = np.flatnonzero(where.any(axis=1))
-        c = np.flatnonzero(where.any(axis=0))
-        r0, r1 = max(r[0] - 1, 0), min(r[-1] + 2, rows)
-        c0, c1 = max(c[0] - 1, 0), min(c[-1] + 2, cols)
-        return self._mesh(self.terrain.crop(r0, r1 + 1, c0, c1 + 1), where[r0:r1, c0:c1])
 
     def _mesh(self, terrain: Terrain | None = None, where: np.ndarray | None = None) -> RayCaster:
         """A ray caster on the occluder mesh of ``terrain`` (default the whole surface), of

@@ -97,7 +97,10 @@ def test_a_command_imports_its_own_module_only() -> None:
         "main(['ortho', '--help'])\n"
         "print(sorted(m for m in sys.modules if m.startswith('orthomvp.cli.')))\n"
         "main(['--help'])\n"
+        "import click, orthomvp.cli\n"
         "from orthomvp.cli import cli\n"
+        "cli.add_command(click.Command('extra'))\n"
+        "assert orthomvp.cli.fit.fit is cli.commands['fit'] and 'extra' in cli.commands\n"
         "print(all(command.name == name for name, command in cli.commands.items()))\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -107,6 +110,7 @@ def test_a_command_imports_its_own_module_only() -> None:
     assert "orthomvp.cli.ortho" in loaded
     assert not {"orthomvp.cli.bench", "orthomvp.cli.fit", "orthomvp.cli.check"} & set(loaded)
     assert all(f"  {name} " in proc.stdout for name in COMMANDS) and lines[-1] == "True"
+    # (and a command added later, and the modules as attributes of orthomvp.cli)
 
 
 def test_help_documents_every_argument_and_option() -> None:

@@ -19,7 +19,7 @@ from orthomvp.codes import DOUBT, Code, WorldFrame
 from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.mesh import TerrainMesh, occluder_mesh
 from orthomvp.mosaic import MosaicOptions, doubtful
-from orthomvp.occluders import RADII, Occluders
+from orthomvp.occluders import RADII, Occluders, _box
 from orthomvp.ortho import mosaic
 from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import make_scene
@@ -313,7 +313,7 @@ def test_a_spike_just_outside_a_box_is_not_missed(radius: int, offset: float) ->
 
 @pytest.mark.parametrize("scene_kind", ["rough", "city"])
 def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
-    scene_kind: str, rays: list[int]
+    scene_kind: str, rays: list[int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Casting the rays not proved clear on meshes of only the cells they pass over
     (Occluders.cast_from) gives the misses of casting them on the whole mesh, bit for bit."""
@@ -323,6 +323,8 @@ def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
     else:
         t = map_terrain(rough(8))
         cameras = [camera_at(t, e, a) for e, a in VIEWS]
+    monkeypatch.setattr("orthomvp.occluders.PART_BUDGET", 100.0)  # parts, whatever they cost
+    monkeypatch.setattr("orthomvp.occluders.TRACK_SAMPLES", 1000)
     whole = Occluders(t)
     assert whole.caster is not None  # built: every cast on the whole mesh
     parts = 0
@@ -356,7 +358,7 @@ def test_a_mesh_of_some_cells_has_the_whole_mesh_triangles_there() -> None:
     for block in blocks:  # strips across the walls, each way
         where = np.zeros(cells, bool)
         where[block] = True
-        part = occluders._part(where).tmesh
+        part = occluders._part(where, _box(where)).tmesh
         mine = triangles(part)
         assert mine == triangles(occluder_mesh(t, part.origin), where) and len(mine) > 200
 
@@ -405,3 +407,70 @@ def test_points_off_the_dem_or_above_the_camera_are_not_proved() -> None:
     np.testing.assert_array_equal(occluders.clear(points, centre, 5.0), [0, 0, 0, 0, 0, 0, 1])
     low = centre - np.array([0.0, 0.0, 500.0])  # level with the ground
     assert not occluders.clear(points, low, 5.0).any()
+
+
+def test_parts_keep_the_walls_that_close_holes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A wall one post thick with a hole in it: the cells around the hole have no triangle of
+    their own but the triangles that close the wall's side; meshes of parts keep them, and
+    block the same rays as the whole mesh, from every side."""
+    monkeypatch.setattr("orthomvp.occluders.PART_BUDGET", 100.0)
+    values = np.zeros((80, 80))
+    values[20:60, 40] = 15.0
+    values[40, 40] = np.nan
+    t = map_terrain(values, (1.0, 1.0))
+    whole = Occluders(t)
+    assert whole.caster is not None
+    posts = t.world_points()[25:55, 25:55].reshape(-1, 3)
+    posts = posts[np.isfinite(posts[:, 2])]
+    middle = t.to_world(np.array(40.5), np.array(40.5), np.array(0.0))
+    blocked = 0
+    for elevation in (20, 30, 45):
+        for azimuth in range(0, 360, 15):
+            e, a = np.radians(elevation), np.radians(azimuth)
+            direction = np.array([np.cos(e) * np.sin(a), np.cos(e) * np.cos(a), np.sin(e)])
+            centre = middle + 500.0 * direction
+            part, every = (
+                Occluders(t).cast_from(centre, posts, 1.0),
+                whole.cast_from(centre, posts, 1.0),
+            )
+            along = np.linalg.norm(posts - centre, axis=1) - 0.5  # (the post's own vertex
+            # is met or slipped past as float32 rounds each mesh's BVH: not compared)
+            hit = [h.mask & (h.distance < along) for h in (part, every)]
+            np.testing.assert_array_equal(hit[0], hit[1])
+            np.testing.assert_array_equal(part.distance[hit[0]], every.distance[hit[1]])
+            blocked += hit[1].sum()
+    assert blocked > 1000
+
+
+def test_long_tracks_mesh_the_whole_surface() -> None:
+    """Tracks that would take more samples than the budget (a camera below a spike: every ray
+    runs on to the grid's edge), or a ray from below its point, mesh the whole surface."""
+    values = np.zeros((60, 60))
+    values[5, 5] = 500.0  # far above the camera
+    t = map_terrain(values)
+    posts = t.world_points().reshape(-1, 3)
+    centre = t.to_world(np.array(30.0), np.array(-200.0), np.array(100.0))  # far north
+    occluders = Occluders(t)
+    assert occluders.track_cells(centre, posts, 2.0) is None
+    occluders.cast_from(centre, posts, 2.0)
+    assert occluders._caster is not None  # the whole mesh
+    below = Occluders(t)
+    assert below.track_cells(centre - [0.0, 0.0, 200.0], posts, 2.0) is None
+    few = Occluders(t)
+    assert few.track_cells(centre, posts[:5], 2.0).sum() > 0  # a few tracks: their cells
+
+
+def test_an_output_crs_as_rasterio_reads_it(tmp_path: Path) -> None:
+    """A CRS object of rasterio's as the output CRS of a body-frame DEM (another raster's, say)
+    plans as its pyproj twin does."""
+    from rasterio.crs import CRS as FileCRS
+
+    from orthomvp.engine.grid import output_grid, scan_dem
+
+    scene = make_scene("crater", size=32, spacing=80.0)
+    scene.terrain.write(tmp_path / "dem.tif")
+    dem = scan_dem(tmp_path / "dem.tif")
+    text = "+proj=eqc +lon_0=3.6 +R=1737400 +units=m +no_defs"
+    mine = output_grid(dem, (100.0, 100.0), None, FileCRS.from_user_input(text))
+    theirs = output_grid(dem, (100.0, 100.0), None, text)
+    assert mine.shape == theirs.shape and mine.transform == theirs.transform

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import gc
+import importlib
 import os
 import signal
 import sys
@@ -29,7 +30,7 @@ import threading
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
-from types import FrameType
+from types import FrameType, ModuleType
 
 import click
 
@@ -190,6 +191,18 @@ def main_entry() -> None:
             stream.flush()
     os._exit(code)
 
+
+def __getattr__(name: str) -> ModuleType:
+    """The command modules (``orthomvp.cli.bench``, ...), imported when first asked for."""
+    if name in _MODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+_MODULES = (
+    *("bench", "check", "demo", "eps_study", "explore", "fit", "mesh", "ortho", "render"),
+    "synth",
+)
 
 # the commands, in the order --help lists them
 cli.commands = LazyCommands(

@@ -5,7 +5,7 @@ order they were added."""
 from __future__ import annotations
 
 import importlib
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, MutableMapping, Sequence
 from typing import Any
 
 import click
@@ -83,10 +83,11 @@ class Group(click.Group):
         return list(self.commands)
 
 
-class LazyCommands(Mapping[str, click.Command]):
+class LazyCommands(MutableMapping[str, click.Command]):
     """A group's commands by name, in order, each imported from its module at first use: a
     run imports its own command's module, not every other's (:class:`Group`'s ``commands``).
-    ``where`` maps each name to the (module, attribute) holding the command."""
+    ``where`` maps each name to the (module, attribute) holding the command; commands added
+    later (``add_command``) are held as they are."""
 
     def __init__(self, where: dict[str, tuple[str, str]]) -> None:
         self._where = dict(where)
@@ -97,6 +98,14 @@ class LazyCommands(Mapping[str, click.Command]):
             module, attribute = self._where[name]  # (KeyError: no such command)
             self._loaded[name] = getattr(importlib.import_module(module), attribute)
         return self._loaded[name]
+
+    def __setitem__(self, name: str, command: click.Command) -> None:
+        self._where[name] = ("", "")
+        self._loaded[name] = command
+
+    def __delitem__(self, name: str) -> None:
+        del self._where[name]
+        self._loaded.pop(name, None)
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._where)

@@ -261,8 +261,9 @@ class OutputGrid:
         ]
 
 
-def _same_body(dem: DemSource, crs: CRS) -> None:
+def _same_body(dem: DemSource, crs: CRS | FileCRS) -> None:
     """InputError unless ``crs`` lies on the DEM's body (same ellipsoid): heights carry over."""
+    crs = as_pyproj(crs)
     ours, theirs = dem.preview.geodetic_crs, crs if crs.is_geographic else crs.geodetic_crs
     a = (ours.ellipsoid.semi_major_metre, ours.ellipsoid.semi_minor_metre)
     b = (theirs.ellipsoid.semi_major_metre, theirs.ellipsoid.semi_minor_metre)
@@ -311,7 +312,7 @@ def output_grid(
     else:
         from pyproj import Transformer
 
-        to_out = Transformer.from_crs(as_pyproj(dem.crs), out_crs, always_xy=True)
+        to_out = Transformer.from_crs(as_pyproj(dem.crs), as_pyproj(out_crs), always_xy=True)
         x0, y0, x1, y1 = (t.c, t.f + rows * t.e, t.c + cols * t.a, t.f)
         left, bottom, right, top = to_out.transform_bounds(x0, y0, x1, y1, densify_pts=21)
         c, r = (cols - 1) / 2, (rows - 1) / 2
