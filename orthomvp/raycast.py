@@ -57,8 +57,9 @@ class Hits:
 class RayCaster:
     """First-hit queries against a :class:`~orthomvp.mesh.TerrainMesh`. ``bounds``: a box
     (low, high corners, local frame) holding the mesh, whose bounding sphere rays start at;
-    default the mesh's own. Meshes of parts of one surface, with its origin and box, cast bit
-    for bit as the whole does."""
+    default the mesh's own. Meshes of parts of one surface, with its origin and box, cast as
+    the whole does (to an ulp of the hits' distances; a ray through a vertex may meet it on
+    one and slip past on the other)."""
 
     def __init__(
         self,

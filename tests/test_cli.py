@@ -81,11 +81,16 @@ def test_entry_point_sets_the_garbage_collection_up() -> None:
         "sys.argv = ['orthomvp', '--version']\n"
         "main_entry()\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    threshold, version, seen = proc.stdout.splitlines()
+    threshold, version, seen = python(code).stdout.splitlines()
     assert version.startswith("orthomvp ") and int(threshold) > 700
     assert seen == f"{threshold} True"
+
+
+def python(code: str) -> subprocess.CompletedProcess:
+    """``code`` run by a fresh interpreter, which must succeed."""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return proc
 
 
 def test_a_command_imports_its_own_module_only() -> None:
@@ -103,8 +108,7 @@ def test_a_command_imports_its_own_module_only() -> None:
         "assert orthomvp.cli.fit.fit is cli.commands['fit'] and 'extra' in cli.commands\n"
         "print(all(command.name == name for name, command in cli.commands.items()))\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
+    proc = python(code)
     lines = proc.stdout.splitlines()
     loaded = eval(next(line for line in lines if line.startswith("['orthomvp.cli.")))  # noqa: S307
     assert "orthomvp.cli.ortho" in loaded

@@ -71,6 +71,15 @@ def camera_at(terrain: Terrain, elevation: float, azimuth: float) -> PinholeCame
 VIEWS = [(89.9, 0.0), (70.0, 30.0), (45.0, 200.0), (20.0, 290.0)]
 
 
+def scene_views(kind: str, seed: int) -> tuple[Terrain, list[PinholeCamera]]:
+    """The small city and its four views, or a rough map (``seed``) seen from :data:`VIEWS`."""
+    if kind == "city":
+        scene = make_scene("city", size=64)
+        return scene.terrain, list(scene.cameras.values())
+    t = map_terrain(rough(seed))
+    return t, [camera_at(t, e, a) for e, a in VIEWS]
+
+
 @pytest.mark.parametrize(("seed", "size"), [(0, (2.0, 2.0)), (1, (1.0, 4.0)), (2, (3.0, 1.5))])
 @pytest.mark.parametrize(("elevation", "azimuth"), VIEWS)
 def test_a_ray_proved_clear_meets_nothing_beyond_its_reach(
@@ -177,12 +186,7 @@ def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(
     whole occluder mesh (a plain RayCaster, in its own frame: the misses within 1% of a post
     but at crests); a proved post has no miss or eps (NaN), and cast it would not have been
     doubtful; fewer rays are cast."""
-    if scene_kind == "city":
-        scene = make_scene("city", size=64)
-        t, cameras = scene.terrain, list(scene.cameras.values())
-    else:
-        t = map_terrain(rough(5))
-        cameras = [camera_at(t, e, a) for e, a in VIEWS]
+    t, cameras = scene_views(scene_kind, 5)
     occluded = 0
     whole = RayCaster(occluder_mesh(t))
     for cam in cameras:
@@ -317,12 +321,7 @@ def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
 ) -> None:
     """Casting the rays not proved clear on meshes of only the cells they pass over
     (Occluders.cast_from) gives the misses of casting them on the whole mesh, bit for bit."""
-    if scene_kind == "city":
-        scene = make_scene("city", size=64)
-        t, cameras = scene.terrain, list(scene.cameras.values())
-    else:
-        t = map_terrain(rough(8))
-        cameras = [camera_at(t, e, a) for e, a in VIEWS]
+    t, cameras = scene_views(scene_kind, 8)
     monkeypatch.setattr("orthomvp.occluders.PART_BUDGET", 100.0)  # parts, whatever they cost
     monkeypatch.setattr("orthomvp.occluders.TRACK_SAMPLES", 1000)
     whole = Occluders(t)
