@@ -146,8 +146,7 @@ class Occluders:
         rise = centre[2] - points[:, 2]
         if not (rise > 0).all():
             return None
-        S = self.terrain.S
-        back = beyond / min(abs(S[0, 0]), abs(S[1, 1])) + 1  # posts past the point
+        back = beyond / self._post + 1  # posts past the point
         steps = np.maximum(np.abs(dc), np.abs(dr))  # posts to the centre's ground point
         with np.errstate(divide="ignore", invalid="ignore"):
             end = np.clip((top + clearance - points[:, 2]) / rise, 0, 1)  # of the way there
@@ -170,17 +169,31 @@ class Occluders:
         return cv2.dilate(where, np.ones((3, 3), np.uint8)).view(bool)
 
     @cached_property
+    def _extent(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lowest and highest (x, y, height) of the surface's posts, map frame."""
+        v = self.terrain.values
+        rows, cols = v.shape
+        x, y = self.terrain.pixel_to_crs(np.array([0.0, cols - 1.0]), np.array([0.0, rows - 1.0]))
+        return (
+            np.array([x.min(), y.min(), np.nanmin(v)]),
+            np.array([x.max(), y.max(), np.nanmax(v)]),
+        )
+
+    @cached_property
+    def _post(self) -> float:
+        """The smaller post spacing, world units (the map frame's; a grid is never rotated:
+        Terrain refuses it)."""
+        S = self.terrain.S
+        return min(abs(S[0, 0]), abs(S[1, 1]))
+
+    @cached_property
     def _frame(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
         """The origin and local box of every mesh of this surface in the map world frame, so
         that a mesh of part of it casts as the whole does (None elsewhere: each mesh its
         own): the middle and the extent of the grid and its heights."""
         if not self.provable:
             return None
-        v = self.terrain.values
-        rows, cols = v.shape
-        x, y = self.terrain.pixel_to_crs(np.array([0.0, cols - 1.0]), np.array([0.0, rows - 1.0]))
-        low = np.array([x.min(), y.min(), np.nanmin(v)])
-        high = np.array([x.max(), y.max(), np.nanmax(v)])
+        low, high = self._extent
         origin = (low + high) / 2
         return origin, (low - origin, high - origin)
 
@@ -236,9 +249,8 @@ class Occluders:
             grow = 2 * (radius - done) + 1
             boxes.append(cv2.dilate(boxes[-1] if boxes else up, np.ones((grow, grow), np.uint8)))
             done = radius
-        rows, cols = v.shape
-        x, y = self.terrain.pixel_to_crs(np.array([0.0, cols - 1.0]), np.array([0.0, rows - 1.0]))
-        extent = float(np.hypot(np.ptp(x), np.ptp(y))) + float(np.nanmax(np.abs(v), initial=0))
+        low, high = self._extent
+        extent = float(np.hypot(*(high - low)[:2])) + float(np.nanmax(np.abs(v), initial=0))
         return top, boxes, CLEARANCE * extent
 
     def clear(
@@ -262,11 +274,9 @@ class Occluders:
             proven = (slope > 0) & (c > -0.5) & (c < cols - 0.5) & (r > -0.5) & (r < rows - 0.5)
         post = np.where(proven, np.rint(r) * cols + np.rint(c), 0).astype(np.intp)
         start = np.asarray(reach, dtype=np.float64)
-        S = self.terrain.S  # (a grid is never rotated: Terrain refuses it)
-        step = min(abs(S[0, 0]), abs(S[1, 1]))  # world units: the map frame's
         with np.errstate(invalid="ignore"):  # (0 * inf: not proved)
             for radius, box in zip(RADII, boxes, strict=True):
-                end = (radius - 0.5) * step  # the stretch up to here lies over the box
+                end = (radius - 0.5) * self._post  # the stretch up to here lies over the box
                 bound = np.take(box.ravel(), post) + clearance  # (no higher than the top)
                 proven &= (start >= end) | (z + start * slope > bound)
                 start = np.maximum(start, end)

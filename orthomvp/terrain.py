@@ -170,6 +170,14 @@ def parse_crs(value: object, source: str) -> CRS:
         raise InputError(f"{source}: cannot understand CRS {value!r} ({exc})") from exc
 
 
+def as_crs(value: object, source: str) -> CRS | FileCRS:
+    """The horizontal part of a CRS object (pyproj's, or a file's as rasterio reads it, kept
+    so), or the pyproj CRS of anything else pyproj reads (:func:`parse_crs`)."""
+    if isinstance(value, FileCRS) or is_pyproj(value):
+        return horizontal_crs(value, source)
+    return parse_crs(value, source)
+
+
 def is_pyproj(crs: object) -> bool:
     """Whether ``crs`` is a pyproj CRS (never, while pyproj is not imported)."""
     pyproj = sys.modules.get("pyproj")
@@ -239,12 +247,7 @@ class Terrain:
                 f"{self.name}: the transform must be an affine.Affine, got "
                 f"{type(self.transform).__name__}"
             )
-        crs = self.crs
-        if isinstance(crs, FileCRS) or is_pyproj(crs):
-            crs = horizontal_crs(crs, self.name)
-        else:
-            crs = parse_crs(crs, self.name)
-        object.__setattr__(self, "crs", crs)
+        object.__setattr__(self, "crs", as_crs(self.crs, self.name))
         object.__setattr__(self, "world", WorldFrame(self.world))  # InputError on a bad name
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")

@@ -192,32 +192,28 @@ def main_entry() -> None:
     os._exit(code)
 
 
+COMMANDS = {
+    "demo": ("orthomvp.cli.demo", "demo"),
+    "synth": ("orthomvp.cli.synth", "synth"),
+    "mesh": ("orthomvp.cli.mesh", "mesh"),
+    "render": ("orthomvp.cli.render", "render"),
+    "visibility": ("orthomvp.cli.ortho", "visibility"),
+    "ortho": ("orthomvp.cli.ortho", "ortho"),
+    "mosaic": ("orthomvp.cli.ortho", "mosaic"),
+    "explore": ("orthomvp.cli.explore", "explore"),
+    "fit": ("orthomvp.cli.fit", "fit"),
+    "eps-study": ("orthomvp.cli.eps_study", "eps_study"),
+    "check": ("orthomvp.cli.check", "check"),
+    "bench": ("orthomvp.cli.bench", "bench"),
+}
+"""Each command's (module, attribute), in the order --help lists them."""
+
+
 def __getattr__(name: str) -> ModuleType:
     """The command modules (``orthomvp.cli.bench``, ...), imported when first asked for."""
-    if name in _MODULES:
+    if f"{__name__}.{name}" in {module for module, _ in COMMANDS.values()}:
         return importlib.import_module(f"{__name__}.{name}")
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-_MODULES = (
-    *("bench", "check", "demo", "eps_study", "explore", "fit", "mesh", "ortho", "render"),
-    "synth",
-)
-
-# the commands, in the order --help lists them
-cli.commands = LazyCommands(
-    {
-        "demo": ("orthomvp.cli.demo", "demo"),
-        "synth": ("orthomvp.cli.synth", "synth"),
-        "mesh": ("orthomvp.cli.mesh", "mesh"),
-        "render": ("orthomvp.cli.render", "render"),
-        "visibility": ("orthomvp.cli.ortho", "visibility"),
-        "ortho": ("orthomvp.cli.ortho", "ortho"),
-        "mosaic": ("orthomvp.cli.ortho", "mosaic"),
-        "explore": ("orthomvp.cli.explore", "explore"),
-        "fit": ("orthomvp.cli.fit", "fit"),
-        "eps-study": ("orthomvp.cli.eps_study", "eps_study"),
-        "check": ("orthomvp.cli.check", "check"),
-        "bench": ("orthomvp.cli.bench", "bench"),
-    }
-)
+cli.commands = LazyCommands(COMMANDS)

@@ -25,15 +25,7 @@ from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.raster import held_raster, open_raster, read_values
-from orthomvp.terrain import (
-    Terrain,
-    as_pyproj,
-    dem_georeference,
-    horizontal_crs,
-    is_pyproj,
-    parse_crs,
-    warn_infinite,
-)
+from orthomvp.terrain import Terrain, as_crs, as_pyproj, dem_georeference, warn_infinite
 from orthomvp.vectors import nan_median
 
 if TYPE_CHECKING:
@@ -288,12 +280,7 @@ def output_grid(
     DEM's post spacing at its centre measured in it. Posts are placed as by
     :meth:`Terrain.regrid`: ``round(extent / res)`` (at least 2) from the top-left corner.
     """
-    if crs is None:
-        out_crs = dem.crs
-    elif isinstance(crs, FileCRS) or is_pyproj(crs):  # (a grid's: the survey's)
-        out_crs = horizontal_crs(crs, "output CRS")
-    else:
-        out_crs = parse_crs(crs, "output CRS")
+    out_crs = dem.crs if crs is None else as_crs(crs, "output CRS")  # (the survey's: a grid's)
     same_crs = out_crs == dem.crs
     if not same_crs:
         if dem.world == WorldFrame.MAP:
