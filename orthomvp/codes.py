@@ -55,9 +55,9 @@ CODE_RGB = np.array([c.rgb for c in Code], np.uint8)
 
 DOUBT = 0.5
 """A first hit farther than epsilon minus this many DEM posts from its post makes the post
-doubtful for a mosaic (:func:`orthomvp.mosaic.doubtful`), though visible; the visibility test
-calls a post visible without a cast only where its first hit cannot lie that far
-(:mod:`orthomvp.occluders`)."""
+doubtful for a mosaic (:func:`orthomvp.ortho.composite.doubtful`), though visible; the visibility
+test calls a post visible without a cast only where its first hit cannot lie that far
+(:mod:`orthomvp.occlusion.occluders`)."""
 
 
 def classify(miss: np.ndarray, eps: np.ndarray | float) -> np.ndarray:

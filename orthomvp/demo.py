@@ -21,14 +21,15 @@ from scipy import ndimage
 from orthomvp import __version__
 from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
-from orthomvp.mesh import terrain_mesh
+from orthomvp.io.raster import atomic_dir, atomic_path, write_geotiff
 from orthomvp.mvp import FitOptions, fit_dem
-from orthomvp.ortho import mosaic, orthorectify
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.visibility import occluder_caster
+from orthomvp.ortho.orthophoto import mosaic, orthorectify
 from orthomvp.present.export import export_mesh
 from orthomvp.present.figures import height_error_maps, ortho_comparison, scene_overview
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
 from orthomvp.present.webpage import write_index
-from orthomvp.raster import atomic_dir, atomic_path, write_geotiff
 from orthomvp.synthetic import (
     SceneData,
     away_from_boundaries,
@@ -37,7 +38,6 @@ from orthomvp.synthetic import (
     make_scene,
 )
 from orthomvp.synthetic.scoring import HIDDEN
-from orthomvp.visibility import occluder_caster
 
 DEMO_SIZE = 120
 DEMO_SPACING = 50.0

@@ -1,8 +1,9 @@
 """numba compilation of the fused kernels (:mod:`orthomvp.mvp.kernel`,
-:mod:`orthomvp.post_geometry_kernel`, :mod:`orthomvp.mosaic_kernel`): lazily on first call,
-releasing the GIL, cached on disk where numba can write (beside the package, else
-``~/.cache/numba`` or ``NUMBA_CACHE_DIR``). Import this module only where a kernel runs: it
-imports numba (about 0.15 s; the first kernel then loads in about 0.15 s)."""
+:mod:`orthomvp.occlusion.post_geometry_kernel`, :mod:`orthomvp.ortho.composite_kernel`): lazily on
+first call, releasing the GIL, cached on disk in the user's cache folder (:func:`cache_dir`:
+``NUMBA_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/orthomvp/numba`` or
+``~/.cache/orthomvp/numba``), never in the package's own folder. Import this module only where a
+kernel runs: it imports numba (about 0.15 s; the first kernel then loads in about 0.15 s)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,23 @@ import sys
 import warnings
 from collections.abc import Callable
 
-import numba
+
+def cache_dir() -> str:
+    """The folder of numba's cache: ``NUMBA_CACHE_DIR`` when set, else ``orthomvp/numba`` in the
+    user's cache folder (``XDG_CACHE_HOME``, by default ``~/.cache``)."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "orthomvp", "numba")
+
+
+# before numba's import, where this is the first (its configuration reads the environment), and
+# in its configuration, where it is not; child processes inherit the variable
+os.environ["NUMBA_CACHE_DIR"] = cache_dir()
+
+import numba  # noqa: E402
+
+numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
 
 # OpenMP first: the layer numba takes here anyway, and the older TBB that Open3D loads (when
 # its ray caster or the bench ran first) would otherwise print a warning at the first

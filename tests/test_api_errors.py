@@ -23,17 +23,17 @@ from orthomvp.errors import (
     OrthoMVPWarning,
     OutputError,
 )
-from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import terrain_mesh
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.io.raster import read_image
 from orthomvp.mvp import FitOptions, fit_dem
-from orthomvp.ortho import mosaic, orthorectify, sample_image
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import compute_visibility
+from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image
 from orthomvp.present.export import export_mesh
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
-from orthomvp.raster import read_image
-from orthomvp.raycast import RayCaster
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
 
 
 def test_the_family_is_also_the_builtins() -> None:
@@ -207,7 +207,7 @@ def test_sizes_that_cannot_fit_are_refused_before_any_work(view: tuple) -> None:
 
 
 def test_ranges_of_scenes_snapshots_and_studies(crater_dir: Path) -> None:
-    from orthomvp.epsstudy import eps_study
+    from orthomvp.quality.eps_study import eps_study
 
     for kwargs, words in (
         ({"size": 0}, "scene size"),  # 0 no longer means the default

@@ -14,9 +14,9 @@ from orthomvp import bench
 from orthomvp.camera import read_camera
 from orthomvp.cli import main
 from orthomvp.errors import InputError
-from orthomvp.raster import read_image
-from orthomvp.terrain import Terrain
-from orthomvp.world import detect_world
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.world import detect_world
+from orthomvp.io.raster import read_image
 
 
 def require_orthority() -> None:

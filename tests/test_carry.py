@@ -9,11 +9,11 @@ import pytest
 
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.mesh import occluder_mesh
-from orthomvp.raycast import RayCaster
+from orthomvp.occlusion.mesh import occluder_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.truth import visibility_truth
-from orthomvp.visibility import compute_visibility
 
 
 class CountingCaster(RayCaster):

@@ -15,14 +15,14 @@ from affine import Affine
 import orthomvp.engine.grid as engine_grid
 import orthomvp.engine.run as engine_run
 from orthomvp.camera import load_view, sensor_positions, write_tsai
-from orthomvp.check import CheckResult, check_views, local_ncc
 from orthomvp.engine import CheckPlan, dask_client, plan_check, run_check
 from orthomvp.engine.ncc import MEDIAN_BOUND, MISS_BINS, NccTally
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.raster import write_geotiff
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.world import detect_world
+from orthomvp.io.raster import write_geotiff
+from orthomvp.quality.check import CheckResult, check_views, local_ncc
 from orthomvp.synthetic import load_scene
-from orthomvp.terrain import Terrain
-from orthomvp.world import detect_world
 from tests.conftest import shared
 from tests.test_cli import assert_one_line_error, run
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from orthomvp.codes import Code, WorldFrame
+from orthomvp.geometry.world import detect_world
+from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, make_scene
 from orthomvp.synthetic.city import BASE_HEIGHT, ORIGIN, Building, CitySurface, Ground
-from orthomvp.visibility import compute_visibility
-from orthomvp.world import detect_world
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_truth_agrees_with_a_fine_march_against_the_height_field(city) -> None:
 @pytest.mark.slow
 def test_images_show_the_true_radiance(city) -> None:
     """Two views' images sampled at its truth-visible posts is the truth radiance there."""
-    from orthomvp.ortho import sample_image
+    from orthomvp.ortho.orthophoto import sample_image
 
     radiance = city.surface.radiance(*city.post_local())
     for name in ("ne", "sw"):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 from tests.test_cli import assert_one_line_error, run
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from orthomvp.raster import read_image
+from orthomvp.io.raster import read_image
 from orthomvp.synthetic import away_from_boundaries
 from tests.test_cli import assert_one_line_error, run
 

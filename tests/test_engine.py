@@ -32,13 +32,13 @@ from orthomvp.engine import (
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.scale import write_scale_scene
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.mesh import terrain_mesh
-from orthomvp.ortho import mosaic, orthorectify
-from orthomvp.raster import write_geotiff
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import write_geotiff
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import compute_visibility
+from orthomvp.ortho.orthophoto import mosaic, orthorectify
 from orthomvp.synthetic import look_at
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
 from tests.test_cli import assert_one_line_error
 from tests.test_cli import run as cli_run
 
@@ -138,8 +138,8 @@ def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None
     def refuse(*args: object, **kw: object) -> None:
         raise AssertionError("a mesh was built")
 
-    monkeypatch.setattr("orthomvp.occluders.occluder_mesh", refuse)
-    monkeypatch.setattr("orthomvp.visibility.occluder_mesh", refuse)
+    monkeypatch.setattr("orthomvp.occlusion.occluders.occluder_mesh", refuse)
+    monkeypatch.setattr("orthomvp.occlusion.visibility.occluder_mesh", refuse)
     plan = plan_ortho(crater["dem"], [view], tile=16, occlusion=False, progress=False)
     got = run(plan, tmp_path, "naive", kinds=("ortho",))
     image, camera = load_view(*view)
@@ -415,7 +415,7 @@ def test_bad_options(crater: dict) -> None:
 def test_cube_windows_match_the_whole_cube(tmp_path: Path) -> None:
     from test_isis import synthetic_raw, write_cube
 
-    from orthomvp.isis import read_cube
+    from orthomvp.io.isis import read_cube
 
     raw, _ = synthetic_raw("SignedWord", np.random.default_rng(0))
     for tile in (None, (4, 3)):

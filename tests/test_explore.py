@@ -18,10 +18,10 @@ import pytest
 
 from orthomvp.cli import main
 from orthomvp.explore import Explorer
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.plane import normal_from_angles
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
 from tests.conftest import shared
 
 
@@ -117,7 +117,7 @@ def test_fit_converges_and_its_path_is_plotted(planar_dir: Path, tmp_path: Path,
     terrain = Terrain.read(planar_dir / "dem.tif")
     info = json.loads((planar_dir / "scene.json").read_text())
     from orthomvp.camera import read_camera
-    from orthomvp.raster import read_image
+    from orthomvp.io.raster import read_image
 
     views = list(info["views"].values())
     ex = Explorer(

@@ -414,10 +414,12 @@ def test_a_failing_write_is_one_line_naming_the_output(
         f"cannot write {out / 'v.tif'}: no space left on device (needs up to",
     )
     assert line.endswith("kB)")
-    import orthomvp.mesh_stream
+    import orthomvp.present.mesh_stream
 
     monkeypatch.setattr(Path, "write_bytes", full)
-    monkeypatch.setattr(orthomvp.mesh_stream, "open", full, raising=False)  # the streamed PLY
+    monkeypatch.setattr(
+        orthomvp.present.mesh_stream, "open", full, raising=False
+    )  # the streamed PLY
     one_line(
         run("mesh", dem, "-o", out / "m.ply"),
         capfd,
@@ -430,10 +432,10 @@ def test_what_gdal_and_libtiff_print_becomes_the_error(
     tmp_path: Path, capfd: pytest.CaptureFixture
 ) -> None:
     """libtiff prints its I/O errors on file descriptor 2 and GDAL may not raise (a full disk
-    at close): within :func:`orthomvp.raster.writing` they become one OutputError naming the
+    at close): within :func:`orthomvp.io.raster.writing` they become one OutputError naming the
     output and the cause, and nothing reaches stderr; messages of no failure pass through."""
     from orthomvp.errors import OutputError
-    from orthomvp.raster import writing
+    from orthomvp.io.raster import writing
 
     out = tmp_path / "o.tif"
     with pytest.raises(OutputError) as caught:
@@ -560,7 +562,7 @@ def test_stale_temporaries_of_a_killed_run_are_removed(scene: Path, tmp_path: Pa
     """A run killed with SIGKILL in the middle of its write leaves its temporary file; the
     next run writing that output removes it (its process is gone), not one of a live run;
     so are temporary directories (synth, demo)."""
-    from orthomvp.raster import temp_name
+    from orthomvp.io.raster import temp_name
 
     out = tmp_path / "out"
     out.mkdir()
@@ -625,17 +627,17 @@ def signal_at_every_step(
 ) -> int:
     """Run ``write`` again and again with each of ``signals`` (SIGTERM with the CLI's handler, see
     :func:`orthomvp.cli.sigterm_raises`) raised at its first, second, ... traced step in the
-    output writer (``orthomvp.raster`` and contextlib), until a run ends before the step;
-    after an interrupt, :func:`orthomvp.raster.remove_temporaries` runs, as the CLI runs it.
+    output writer (``orthomvp.io.raster`` and contextlib), until a run ends before the step;
+    after an interrupt, :func:`orthomvp.io.raster.remove_temporaries` runs, as the CLI runs it.
     After each: the signal was not lost, the handlers of before still get the signals,
     stderr is the one of before, no temporary file is left, and ``check`` passes. Returns the
     number of steps."""
     import contextlib as ctx
 
-    import orthomvp.raster
+    import orthomvp.io.raster
     from orthomvp.cli import Terminated, sigterm_raises
 
-    files = (orthomvp.raster.__file__, ctx.__file__)
+    files = (orthomvp.io.raster.__file__, ctx.__file__)
     stderr = os.fstat(2)
     kinds = {signal.SIGINT: KeyboardInterrupt, signal.SIGTERM: Terminated}
     for sig in signals:
@@ -648,7 +650,7 @@ def signal_at_every_step(
                     interrupted = False
                 except kind:
                     interrupted = True
-                    orthomvp.raster.remove_temporaries()  # as orthomvp.cli.main does
+                    orthomvp.io.raster.remove_temporaries()  # as orthomvp.cli.main does
                 finally:
                     sys.settrace(None)
                 # the handlers of before still get the signals
@@ -674,7 +676,7 @@ def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: P
     """SIGTERM (with the CLI's handler) arriving at every line of creating, writing, renaming
     and removing a set of two outputs: both or neither are there, and no temporary file
     (SIGINT at every opcode: the slow test below)."""
-    from orthomvp.raster import write_set
+    from orthomvp.io.raster import write_set
 
     out = tmp_path / "out"
     out.mkdir()
@@ -695,13 +697,13 @@ def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: P
 @pytest.mark.slow
 def test_a_signal_at_any_opcode_of_write_geotiff_leaves_nothing_partial(tmp_path: Path) -> None:
     """The race of issue 16: SIGINT at every bytecode instruction of
-    :func:`orthomvp.raster.write_geotiff`'s temporary file handling never leaves
+    :func:`orthomvp.io.raster.write_geotiff`'s temporary file handling never leaves
     ``.o.tif.*.tif``; the output is there complete or not at all."""
     import numpy as np
     import rasterio
     from affine import Affine
 
-    from orthomvp.raster import write_geotiff
+    from orthomvp.io.raster import write_geotiff
 
     out = tmp_path / "out"
     out.mkdir()

@@ -18,6 +18,7 @@ from orthomvp.camera import load_view
 from orthomvp.engine import FitOutputs, dask_client, plan_fit, run_fit
 from orthomvp.engine.median import Median
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.views import (
@@ -28,9 +29,8 @@ from orthomvp.mvp.views import (
     view_statistics,
     window_for,
 )
+from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
 from tests.test_camera import make_camera
 from tests.test_cli import assert_one_line_error, run
 

@@ -20,11 +20,11 @@ import rasterio
 from orthomvp.camera import Camera, PinholeCamera, load_view, sensor_positions
 from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_ortho, run_plan
-from orthomvp.ortho import orthorectify
-from orthomvp.raster import read_image
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
+from orthomvp.occlusion.visibility import compute_visibility
+from orthomvp.ortho.orthophoto import orthorectify
 from orthomvp.synthetic.truth import visibility_truth
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Datasets kept open between reads (orthomvp.raster.held_raster) inside held_rasters blocks
+"""Datasets kept open between reads (orthomvp.io.raster.held_raster) inside held_rasters blocks
 (a run's tiles): the values of a fresh open, one reader at a time per dataset, a changed file
 opened afresh, at most HELD_OPEN kept, all closed when the last block ends, nothing held
 outside one, and a forked child that does not use its parent's datasets."""
@@ -18,10 +18,10 @@ import rasterio.shutil
 from affine import Affine
 from rasterio.windows import Window
 
-from orthomvp import raster
 from orthomvp.engine.images import ImageSource
 from orthomvp.errors import InputError
-from orthomvp.raster import HELD_OPEN, held_raster, held_rasters
+from orthomvp.io import raster
+from orthomvp.io.raster import HELD_OPEN, held_raster, held_rasters
 
 
 def write(path: Path, data: np.ndarray, **options: object) -> None:

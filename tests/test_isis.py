@@ -1,4 +1,4 @@
-"""Tests of orthomvp.isis: ISIS3 cube labels and raw pixels, and read_image's dispatch to them.
+"""Tests of orthomvp.io.isis: ISIS3 cube labels and raw pixels, and read_image's dispatch to them.
 
 Synthetic cubes are written here with hand-made labels in both storage formats and byte orders;
 the real Apollo 15 cube in ../shared/data is compared with its float32 GeoTIFF conversion.
@@ -16,8 +16,8 @@ import rasterio
 from conftest import shared
 
 from orthomvp.errors import FormatError, InputError
-from orthomvp.isis import parse_label, read_cube, read_label
-from orthomvp.raster import read_image
+from orthomvp.io.isis import parse_label, read_cube, read_label
+from orthomvp.io.raster import read_image
 
 # ISIS special pixels (SpecialPixel.h): each type's NULL, LRS, LIS, HIS, HRS raw values, and the
 # edges of its valid range (VALID_MIN, VALID_MAX), which must stay valid

@@ -17,7 +17,8 @@ from orthomvp.camera.csm import LineScanCamera
 from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_ortho, run_plan
-from orthomvp.ortho import orthorectify
+from orthomvp.occlusion.visibility import compute_visibility
+from orthomvp.ortho.orthophoto import orthorectify
 from orthomvp.synthetic import (
     Scene,
     away_from_boundaries,
@@ -25,7 +26,6 @@ from orthomvp.synthetic import (
     load_scene,
     make_scene,
 )
-from orthomvp.visibility import compute_visibility
 
 
 @pytest.fixture(scope="module")

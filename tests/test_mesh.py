@@ -19,12 +19,12 @@ from scipy.spatial import cKDTree
 from orthomvp.cli import main
 from orthomvp.codes import CODE_RGB
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import write_geotiff
+from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.present.colours import NAN_RGB, error_colour_limit
 from orthomvp.present.export import export_mesh
-from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
 
 if TYPE_CHECKING:
     import open3d

@@ -1,5 +1,5 @@
-"""The streamed PLY of a DEM (orthomvp.mesh_stream) is byte for byte the file that the in-memory
-mesh and its PLY writer make, also with holes in the DEM and blocks of a few rows."""
+"""The streamed PLY of a DEM (orthomvp.present.mesh_stream) is byte for byte the file that the
+in-memory mesh and its PLY writer make, also with holes in the DEM and blocks of a few rows."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import rasterio
 
-import orthomvp.mesh_stream as mesh_stream
+import orthomvp.present.mesh_stream as mesh_stream
 from orthomvp.engine.grid import scan_dem
-from orthomvp.mesh import terrain_mesh
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
+from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.present.colours import height_error
 from orthomvp.present.export import export_mesh
-from orthomvp.raster import read_image
-from orthomvp.terrain import Terrain
 
 
 def _holey(crater_dir: Path, tmp_path: Path) -> Path:
@@ -65,13 +65,13 @@ def test_streamed_ply_equals_the_in_memory_file(
 
 def test_the_mesh_command_streams_plys(crater_dir: Path, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
     """`orthomvp mesh -o X.ply` never builds the whole mesh in memory."""
-    import orthomvp.mesh
+    import orthomvp.occlusion.mesh
     from orthomvp.cli import cli
 
     def refuse(*a: object, **k: object) -> None:
         raise AssertionError("the whole mesh was built")
 
-    monkeypatch.setattr(orthomvp.mesh, "terrain_mesh", refuse)
+    monkeypatch.setattr(orthomvp.occlusion.mesh, "terrain_mesh", refuse)
     out = tmp_path / "m.ply"
     from click.testing import CliRunner
 

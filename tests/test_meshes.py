@@ -11,11 +11,11 @@ import trimesh
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.mesh import terrain_mesh
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import SmallBody, look_at, make_scene
-from orthomvp.terrain import Terrain, unit_vector
-from orthomvp.visibility import compute_visibility
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 STEP = 1.0  # degrees between posts of the small body's DEM

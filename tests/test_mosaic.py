@@ -16,7 +16,9 @@ from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
-from orthomvp.mosaic import (
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import write_geotiff
+from orthomvp.ortho.composite import (
     BALANCES,
     FILLS,
     PRIORITIES,
@@ -30,9 +32,7 @@ from orthomvp.mosaic import (
     trusted,
     visible_median,
 )
-from orthomvp.ortho import mosaic, orthorectify
-from orthomvp.raster import write_geotiff
-from orthomvp.terrain import Terrain
+from orthomvp.ortho.orthophoto import mosaic, orthorectify
 
 VIEWS = ("oblique", "nadir", "fore")
 
@@ -439,7 +439,7 @@ def test_seam_labels_take_a_nan_cost_as_zero() -> None:
     place: no cast of NaN to an integer, no cost spread over its neighbours."""
     import warnings
 
-    from orthomvp.mosaic import labels
+    from orthomvp.ortho.composite import labels
 
     rng = np.random.default_rng(2)
     visible = rng.random((3, 30, 40)) < 0.7
@@ -487,7 +487,7 @@ FUSED_CASES = [
 def test_fused_compose_is_numpys_bit_for_bit(views: int, options: MosaicOptions) -> None:
     """The numba kernels give numpy's composition bit for bit: data, labels, flags and
     weights, with ties, NaN samples and angles, doubtful posts and a balance correction."""
-    from orthomvp.mosaic import Correction, compose
+    from orthomvp.ortho.composite import Correction, compose
 
     args = random_stack(views, seed=views)
     rng = np.random.default_rng(views)
@@ -509,7 +509,7 @@ def test_plan_fuses_large_mosaics_and_the_outputs_stay(
     """A mosaic whose tiles with views hold FUSED_POSTS posts composes with the kernels, one
     post fewer with numpy; the engine's outputs and the in-memory mosaic are the same."""
     import orthomvp.engine.plan as plan_module
-    import orthomvp.ortho as ortho_module
+    import orthomvp.ortho.orthophoto as ortho_module
 
     dem = crater_dir / "dem.tif"
     plan = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions())
@@ -542,7 +542,7 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
     import json
 
     import orthomvp.engine.plan as plan_module
-    import orthomvp.post_geometry_kernel as kernel
+    import orthomvp.occlusion.post_geometry_kernel as kernel
 
     calls = []
     classify_tile = kernel.classify_tile
@@ -579,7 +579,7 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
 def test_kernel_box_sums_are_box_sum(shape: tuple[int, int]) -> None:
     """The kernels' box sums (integers and booleans, in place too) equal :func:`box_sum`,
     with radii from 0 to beyond the array."""
-    from orthomvp.mosaic_kernel import _box
+    from orthomvp.ortho.composite_kernel import _box
 
     rng = np.random.default_rng(len(shape) + shape[0])
     a = rng.integers(-50, 3000, shape)
@@ -598,7 +598,7 @@ def test_fused_compose_at_the_edges_of_its_inputs() -> None:
     weighted sum gives it), where finite float32 values overflow the disagreement (NaN as the
     largest disagreement, 1, in both), and where costs are so large that the box sums of
     their quanta need 64 bits (priority "order" over some 3,000 views gives such costs)."""
-    from orthomvp.mosaic import compose, labels
+    from orthomvp.ortho.composite import compose, labels
 
     values = np.ones((2, 1, 3, 3), np.float32)
     values[0, 0, 1, 1] = -0.0

@@ -12,8 +12,8 @@ from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import post_lines
 from orthomvp.mvp.window import Window
+from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import make_scene
-from orthomvp.visibility import compute_visibility
 
 
 @pytest.fixture(scope="module")

@@ -16,12 +16,12 @@ from scipy import ndimage
 from orthomvp.camera import load_view
 from orthomvp.camera.csm import write_isd
 from orthomvp.engine import FitOutputs, plan_fit, run_fit
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.mvp.local import ERROR_BOUND, local_projections
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.cameras import ViewSpec
 from orthomvp.synthetic.linescan import orbital_line_scanner
-from orthomvp.terrain import Terrain
 
 OPTIONS = FitOptions(levels=2)
 """The default patches (hwin 10, whose local matrices stay within the bound here: 0.03 and

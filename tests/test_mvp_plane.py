@@ -10,6 +10,7 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import Terrain, unit_vector
 from orthomvp.mvp.deconvolve import deconvolve, window_plane
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
@@ -24,7 +25,6 @@ from orthomvp.mvp.plane import (
 )
 from orthomvp.mvp.window import Window
 from orthomvp.synthetic import look_at, make_scene
-from orthomvp.terrain import Terrain, unit_vector
 
 RNG = np.random.default_rng(7)
 

@@ -1,5 +1,5 @@
-"""Rays proved clear from the DEM's heights (orthomvp.occluders): the oracle is the first hit
-cast on the whole occluder mesh, for every post, on rough, stepped and city terrain seen from
+"""Rays proved clear from the DEM's heights (orthomvp.occlusion.occluders): the oracle is the first
+hit cast on the whole occluder mesh, for every post, on rough, stepped and city terrain seen from
 low to high elevations; visibility with the proof gives the codes of casting every ray."""
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from orthomvp.camera import PinholeCamera
 from orthomvp.camera.distortion import TsaiDistortion
 from orthomvp.codes import DOUBT, Code, WorldFrame
 from orthomvp.engine import Outputs, plan_ortho, run_plan
-from orthomvp.mesh import TerrainMesh, occluder_mesh
-from orthomvp.mosaic import MosaicOptions, doubtful
-from orthomvp.occluders import RADII, Occluders, _box
-from orthomvp.ortho import mosaic
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion.mesh import TerrainMesh, occluder_mesh
+from orthomvp.occlusion.occluders import RADII, Occluders, _box
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import compute_visibility
+from orthomvp.ortho.composite import MosaicOptions, doubtful
+from orthomvp.ortho.orthophoto import mosaic
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.cameras import look_at
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import compute_visibility
 
 SPACING = 2.0
 
@@ -255,7 +255,7 @@ def test_posts_all_proved_build_no_mesh(monkeypatch: pytest.MonkeyPatch) -> None
     def refuse(*args: object, **kw: object) -> None:
         raise AssertionError("a mesh was built")
 
-    monkeypatch.setattr("orthomvp.occluders.occluder_mesh", refuse)
+    monkeypatch.setattr("orthomvp.occlusion.occluders.occluder_mesh", refuse)
     occluders = Occluders(t)
     proved = compute_visibility(t, cam, caster=occluders, prove=True)
     np.testing.assert_array_equal(proved.codes, every.codes)
@@ -322,8 +322,10 @@ def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
     """Casting the rays not proved clear on meshes of only the cells they pass over
     (Occluders.cast_from) gives the misses of casting them on the whole mesh, bit for bit."""
     t, cameras = scene_views(scene_kind, 8)
-    monkeypatch.setattr("orthomvp.occluders.PART_BUDGET", 100.0)  # parts, whatever they cost
-    monkeypatch.setattr("orthomvp.occluders.TRACK_SAMPLES", 1000)
+    monkeypatch.setattr(
+        "orthomvp.occlusion.occluders.PART_BUDGET", 100.0
+    )  # parts, whatever they cost
+    monkeypatch.setattr("orthomvp.occlusion.occluders.TRACK_SAMPLES", 1000)
     whole = Occluders(t)
     assert whole.caster is not None  # built: every cast on the whole mesh
     parts = 0
@@ -412,7 +414,7 @@ def test_parts_keep_the_walls_that_close_holes(monkeypatch: pytest.MonkeyPatch) 
     """A wall one post thick with a hole in it: the cells around the hole have no triangle of
     their own but the triangles that close the wall's side; meshes of parts keep them, and
     block the same rays as the whole mesh, from every side."""
-    monkeypatch.setattr("orthomvp.occluders.PART_BUDGET", 100.0)
+    monkeypatch.setattr("orthomvp.occlusion.occluders.PART_BUDGET", 100.0)
     values = np.zeros((80, 80))
     values[20:60, 40] = 15.0
     values[40, 40] = np.nan

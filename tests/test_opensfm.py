@@ -34,7 +34,7 @@ from orthomvp.camera import (
 )
 from orthomvp.camera.formats.opensfm import rodrigues, utm_crs
 from orthomvp.errors import FormatError, InputError
-from orthomvp.raster import read_image
+from orthomvp.io.raster import read_image
 from tests.test_cli import assert_one_line_error, run
 
 # reference at 3 E, 0 N: UTM zone 31N's central meridian on the equator, easting 500,000 m,

@@ -8,13 +8,13 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.epsstudy import eps_study, reclassify
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.mosaic import MosaicOptions, doubtful, trusted
-from orthomvp.ortho import mosaic, orthorectify, sample_image
+from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.occlusion.visibility import compute_visibility, default_eps
+from orthomvp.ortho.composite import MosaicOptions, doubtful, trusted
+from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image
+from orthomvp.quality.eps_study import eps_study, reclassify
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
-from orthomvp.terrain import Terrain, unit_vector
-from orthomvp.visibility import compute_visibility, default_eps
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The separable per-post geometry (:func:`orthomvp.post_geometry.separable`) against the
+"""The separable per-post geometry (:func:`orthomvp.occlusion.post_geometry.separable`) against the
 general path: the same codes, misses and epsilons, emission angles and GSDs to the bit,
 positions to the last bits of float64."""
 
@@ -12,9 +12,9 @@ import pytest
 from affine import Affine
 
 from orthomvp.camera import BrownConradyDistortion
-from orthomvp.post_geometry import general, image_window, separable, separable_applies
+from orthomvp.occlusion.post_geometry import general, image_window, separable, separable_applies
+from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
 from orthomvp.synthetic.loader import load_scene
-from orthomvp.visibility import compute_visibility, occluder_caster
 
 
 def assert_same(a, b) -> None:  # noqa: ANN001 - two Visibility results
@@ -132,7 +132,7 @@ def test_fused_kernel_equals_numpy_on_the_city(city_grids: tuple) -> None:
     emission angles and GSDs bit for bit: every view of the city on its grid, with holes,
     without occlusion, and on a grid three times finer with the codes carried from the DEM
     (most posts without a ray), split in tiles of 7 posts (every tile's border)."""
-    import orthomvp.visibility as visibility
+    import orthomvp.occlusion.visibility as visibility
 
     dem, caster, holes, fine, cameras = city_grids
     for cam in cameras:
@@ -172,7 +172,7 @@ def test_fused_kernel_tile_field_by_field(city_dir: Path, flip: bool) -> None:
     """The kernel's geometry of one tile, field by field, equals :func:`separable`'s (pixels
     where inside the image, NaN elsewhere), on the city's grid north-up and south-up, with a
     hole; its first codes are NODATA outside, FACING_AWAY or VISIBLE, rays where visible."""
-    from orthomvp.post_geometry_kernel import classify_tile
+    from orthomvp.occlusion.post_geometry_kernel import classify_tile
 
     scene = load_scene(city_dir)
     dem = scene.terrain
@@ -203,8 +203,8 @@ def test_fused_kernel_tile_field_by_field(city_dir: Path, flip: bool) -> None:
 def test_fused_grid_heights_equal_interpolate_grid() -> None:
     """The kernel's grid heights equal :meth:`Terrain.interpolate_grid` bit for bit: a hole,
     positions beyond every edge and on the last post (a Terrain holds float64 heights)."""
-    from orthomvp.post_geometry_kernel import interpolate_grid
-    from orthomvp.terrain import Terrain
+    from orthomvp.geometry.terrain import Terrain
+    from orthomvp.occlusion.post_geometry_kernel import interpolate_grid
 
     rng = np.random.default_rng(3)
     values = rng.random((60, 70)) * 1000

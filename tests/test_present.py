@@ -14,11 +14,13 @@ import pytest
 from affine import Affine
 from pyproj import CRS
 
-from orthomvp import embree
 from orthomvp.codes import CODE_RGB, Code, Interp
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
-from orthomvp.ortho import orthorectify, sample_image
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion import embree
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.ortho.orthophoto import orthorectify, sample_image
 from orthomvp.present.colours import (
     NAN_RGB,
     error_colours,
@@ -29,8 +31,6 @@ from orthomvp.present.colours import (
 )
 from orthomvp.present.export import export_mesh
 from orthomvp.present.snapshot import snapshot
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
 
 HEAVY = ("trimesh", "scipy.spatial", "open3d", "pyvista")
 MOON = CRS.from_proj4("+proj=longlat +R=1737400 +no_defs")
@@ -44,7 +44,8 @@ def plain_terrain(rows: int = 6, cols: int = 7) -> Terrain:
 
 def test_core_modules_import_no_heavy_library() -> None:
     code = (
-        "import sys; import orthomvp.ortho, orthomvp.visibility, orthomvp.raycast; "
+        "import sys; import orthomvp.ortho.orthophoto, orthomvp.occlusion.visibility, "
+        "orthomvp.occlusion.raycast; "
         f"print([m for m in {HEAVY!r} if m in sys.modules])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -54,7 +55,7 @@ def test_core_modules_import_no_heavy_library() -> None:
 ORTHO_PATH_SPARE = (
     *HEAVY,
     *("scipy", "embreex", "orthomvp.mvp", "orthomvp.engine.fit"),
-    *("orthomvp.camera.csm", "orthomvp.isis", "pvl", "yaml", "tqdm", "multiprocessing"),
+    *("orthomvp.camera.csm", "orthomvp.io.isis", "pvl", "yaml", "tqdm", "multiprocessing"),
 )
 """What a quiet orthophoto or mosaic run from ``.tsai`` cameras never loads: the heavy
 libraries, scipy at all, embreex's Python modules (only its Embree library), the MVP fit, the
@@ -218,9 +219,9 @@ def test_without_libusb_only_decimation_and_the_open3d_backend_fail(
         "    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):\n"
         "        results[name] = [main(['-q', *args]), out.getvalue(), err.getvalue()]\n"
         "from orthomvp.errors import InputError\n"
-        "from orthomvp.mesh import terrain_mesh\n"
-        "from orthomvp.raycast import RayCaster\n"
-        "from orthomvp.terrain import Terrain\n"
+        "from orthomvp.occlusion.mesh import terrain_mesh\n"
+        "from orthomvp.occlusion.raycast import RayCaster\n"
+        "from orthomvp.geometry.terrain import Terrain\n"
         f"tm = terrain_mesh(Terrain.read({str(dem)!r}))\n"
         "try:\n"
         "    RayCaster(tm, 'open3d')\n"

@@ -8,12 +8,12 @@ from affine import Affine
 from conftest import open3d_missing, require_open3d
 from pyproj import CRS
 
-from orthomvp import raycast
-from orthomvp.embree import Scene, _padded, vertex_buffer
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh, terrain_mesh
-from orthomvp.raycast import BACKENDS, RayCaster
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion import raycast
+from orthomvp.occlusion.embree import Scene, _padded, vertex_buffer
+from orthomvp.occlusion.mesh import TerrainMesh, terrain_mesh
+from orthomvp.occlusion.raycast import BACKENDS, RayCaster
 
 R = 1737400.0
 MOON = CRS.from_proj4(f"+proj=longlat +R={R:.0f} +no_defs")

@@ -11,7 +11,7 @@ import rasterio
 from affine import Affine
 from rasterio.windows import Window
 
-from orthomvp.raster import read_values
+from orthomvp.io.raster import read_values
 
 CASES = [
     ("float32", np.nan),

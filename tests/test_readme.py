@@ -27,7 +27,7 @@ def _run_block(marker: str, folder: Path) -> dict:
 
 
 def test_readme_engine_example(tmp_path: Path) -> None:
-    from orthomvp.raster import read_image
+    from orthomvp.io.raster import read_image
     from orthomvp.synthetic import make_scene
 
     make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
@@ -57,8 +57,8 @@ def test_readme_python_example(tmp_path: Path) -> None:
     assert np.median(np.abs(fit.heights - dem.values)[outside]) < 15.0
     assert (tmp_path / "crater.ply").is_file()
     # the engine's fit from files is the in-memory fit's (of the start as written), bit for bit
+    from orthomvp.geometry.terrain import Terrain
     from orthomvp.mvp import FitOptions, fit_dem
-    from orthomvp.terrain import Terrain
 
     n = namespace
     start = Terrain.read(tmp_path / "start.tif")

@@ -15,9 +15,9 @@ from orthomvp.camera import check_image, load_view, read_camera
 from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.ortho import orthorectify
-from orthomvp.raster import read_image
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
+from orthomvp.ortho.orthophoto import orthorectify
 from tests.conftest import shared
 
 

@@ -12,13 +12,13 @@ from PIL import Image
 from orthomvp.cli import main
 from orthomvp.codes import Code, View
 from orthomvp.errors import InputError
+from orthomvp.io.raster import write_geotiff
 from orthomvp.present.snapshot import (
     CROP_MARGIN,
     SnapshotOptions,
     background_image,
     snapshot,
 )
-from orthomvp.raster import write_geotiff
 from orthomvp.synthetic import Scene, make_scene
 
 SIZE = (320, 240)
@@ -269,7 +269,7 @@ def test_cli_bad_inputs_exit_2_without_output(
 
 def _grid(d: Path) -> tuple:
     """Transform and CRS of the scene's DEM."""
-    from orthomvp.terrain import Terrain
+    from orthomvp.geometry.terrain import Terrain
 
     t = Terrain.read(d / "dem.tif")
     return t.transform, t.crs

@@ -36,7 +36,7 @@ from orthomvp.camera import (
 )
 from orthomvp.camera.rpc import COEFFICIENTS, OFFSETS_SCALES, RPC_KEYS
 from orthomvp.errors import FormatError, InputError
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 
 QB = "rpc-quickbird"
 IMAGE = "qb2_basic1b.tif"
@@ -508,7 +508,7 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
 
     from orthomvp.codes import WorldFrame
     from orthomvp.engine import Outputs, plan_ortho, run_plan
-    from orthomvp.visibility import compute_visibility
+    from orthomvp.occlusion.visibility import compute_visibility
 
     dem, image = shared("ngi-aerial", "dem.tif"), shared(QB, IMAGE)
     frame = "3324c_2015_1004_05_0182_RGB"

@@ -13,11 +13,11 @@ from scipy.ndimage import binary_erosion, map_coordinates
 from orthomvp.camera import read_camera
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
-from orthomvp.raster import read_image
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
 
 
 def interior(mask: np.ndarray, width: int = 2) -> np.ndarray:

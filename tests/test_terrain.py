@@ -9,7 +9,7 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.errors import InputError
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 from tests.conftest import shared
 
 MOON = "+proj=longlat +R=1737400 +no_defs"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from orthomvp.vectors import column_range, finite_rows, row_norms
+from orthomvp.geometry.vectors import column_range, finite_rows, row_norms
 
 
 def test_rows_as_numpy() -> None:
@@ -23,7 +23,7 @@ def test_rows_as_numpy() -> None:
 
 
 def test_nan_median_is_numpys_nanmedian() -> None:
-    from orthomvp.vectors import nan_median
+    from orthomvp.geometry.vectors import nan_median
 
     rng = np.random.default_rng(11)
     for n in (1, 2, 3, 10, 11, 1000, 1001):

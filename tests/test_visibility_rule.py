@@ -15,8 +15,10 @@ from scipy.ndimage import binary_dilation
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code, WorldFrame
 from orthomvp.engine import plan_ortho
-from orthomvp.mesh import STEP_SLOPE, occluder_mesh, terrain_mesh
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion.mesh import STEP_SLOPE, occluder_mesh, terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import EPS_FLOOR, compute_visibility
 from orthomvp.synthetic import (
     away_from_boundaries,
     classification_scores,
@@ -24,8 +26,6 @@ from orthomvp.synthetic import (
     look_at,
     make_scene,
 )
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import EPS_FLOOR, compute_visibility
 
 HIDDEN = (Code.OCCLUDED, Code.FACING_AWAY)
 
@@ -206,7 +206,7 @@ def test_occluder_is_closed_conservative_and_bounded_at_holes_and_borders() -> N
 def test_tiled_equals_untiled_on_the_city(city_dir: Path, tmp_path: Path) -> None:
     """Tiles cut through stepped cells: the engine's codes equal the whole DEM's."""
     from orthomvp.engine import Outputs, run_plan
-    from orthomvp.raster import read_image
+    from orthomvp.io.raster import read_image
 
     view = (city_dir / "sw.tif", city_dir / "sw.tsai")
     codes = []

@@ -12,10 +12,10 @@ from pyproj import CRS, Transformer
 from orthomvp.camera import read_camera
 from orthomvp.cli import main
 from orthomvp.errors import InputError
-from orthomvp.raster import write_geotiff
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.world import body_plausible, detect_world, map_plausible
+from orthomvp.io.raster import write_geotiff
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
-from orthomvp.world import body_plausible, detect_world, map_plausible
 from tests.conftest import shared
 
 MOON_EQC = "+proj=eqc +R=1737400 +units=m +no_defs"

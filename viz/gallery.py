@@ -19,11 +19,11 @@ from PIL import Image
 
 from orthomvp.camera import read_camera
 from orthomvp.demo import run_demo
-from orthomvp.epsstudy import eps_study, save
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
-from orthomvp.raster import read_image
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
+from orthomvp.quality.eps_study import eps_study, save
 from orthomvp.synthetic import make_scene
-from orthomvp.terrain import Terrain
 
 HERE = Path(__file__).resolve().parent
 DATA = Path(os.environ.get("ORTHOMVP_DATA") or HERE.parents[1] / "shared" / "data")

@@ -14,9 +14,9 @@ from orthomvp.bench.workload import (
     check_ortho_memory,
 )
 from orthomvp.camera.csm import posts_per_second
-from orthomvp.mesh import terrain_mesh
-from orthomvp.ortho import orthorectify
-from orthomvp.raycast import RayCaster
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.ortho.orthophoto import orthorectify
 
 
 def bench_linescan(size: int = 1000, posts: int = 1_000_000, repeat: int = 3) -> dict:

@@ -16,8 +16,8 @@ from scipy.ndimage import gaussian_filter
 from orthomvp.bench.timing import best_time
 from orthomvp.codes import Code
 from orthomvp.mvp.fit import TILE, FitOptions, fit_dem
+from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
 from orthomvp.synthetic import make_scene
-from orthomvp.visibility import compute_visibility, occluder_caster
 
 CHANNELS = 3
 """Samples per position in the baseline: the fitter's images are stacks of value and c, r

@@ -9,8 +9,8 @@ import numpy as np
 
 from orthomvp.bench.timing import best_time
 from orthomvp.bench.workload import bench_camera, bench_terrain, check_ortho_memory
-from orthomvp.ortho import orthorectify
-from orthomvp.visibility import occluder_caster
+from orthomvp.occlusion.visibility import occluder_caster
+from orthomvp.ortho.orthophoto import orthorectify
 
 
 def bench_ortho(size: int = 2000) -> dict:

@@ -30,8 +30,8 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
-from orthomvp.raster import open_raster, read_image, write_geotiff
-from orthomvp.terrain import horizontal_crs
+from orthomvp.geometry.terrain import horizontal_crs
+from orthomvp.io.raster import open_raster, read_image, write_geotiff
 
 PEER_IMAGE = "3324c_2015_1004_05_0182_RGB"
 """The ngi-aerial frame that ``orthomvp bench --peer orthority`` orthorectifies."""

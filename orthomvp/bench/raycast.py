@@ -1,4 +1,4 @@
-"""Ray-casting benchmark: :meth:`~orthomvp.raycast.RayCaster.first_hit` against the bare
+"""Ray-casting benchmark: :meth:`~orthomvp.occlusion.raycast.RayCaster.first_hit` against the bare
 backend call on the same rays, per backend."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import numpy as np
 from orthomvp.bench.timing import best_time
 from orthomvp.bench.workload import bench_terrain, camera_rays, check_raycast_memory
 from orthomvp.errors import InputError
-from orthomvp.mesh import terrain_mesh
-from orthomvp.raycast import BACKENDS, RayCaster
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import BACKENDS, RayCaster
 
 
 def bench_raycast(size: int = 1000, rays: int = 1_000_000) -> list[dict]:

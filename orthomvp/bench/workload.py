@@ -9,10 +9,10 @@ from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.camera.csm import LineScanCamera
-from orthomvp.memory import check_memory, count_text
+from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.io.preflight import check_memory, count_text
 from orthomvp.synthetic import MOON_CRS, MOON_RADIUS, ViewSpec, orbital_camera
 from orthomvp.synthetic.linescan import orbital_line_scanner
-from orthomvp.terrain import Terrain, unit_vector
 from orthomvp.validate import number
 
 RAYCAST_BYTES_PER_POST = 600

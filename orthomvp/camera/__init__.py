@@ -61,7 +61,7 @@ from orthomvp.camera.model import (
 )
 from orthomvp.camera.rpc import Rpc, RpcCamera, world_crs
 from orthomvp.errors import FormatError
-from orthomvp.raster import read_image
+from orthomvp.io.raster import read_image
 from orthomvp.validate import of_type
 
 __all__ = [
@@ -160,7 +160,7 @@ def _format_of(file: CameraFile) -> CameraFormat:
 
 
 def load_view(image_path: str | Path, camera_path: str | Path) -> tuple[np.ndarray, Camera]:
-    """Read an image (float32 (bands, rows, cols), see :func:`orthomvp.raster.read_image`) and
+    """Read an image (float32 (bands, rows, cols), see :func:`orthomvp.io.raster.read_image`) and
     its camera (:func:`read_camera`, the image's name picking its row in multi-camera files),
     checked against each other; the camera carries the image's size."""
     image = read_image(image_path)

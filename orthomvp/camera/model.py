@@ -27,7 +27,7 @@ import numpy as np
 
 from orthomvp.camera.distortion import Distortion, NullDistortion
 from orthomvp.errors import InputError
-from orthomvp.vectors import row_norms
+from orthomvp.geometry.vectors import row_norms
 
 ORTHONORMAL_TOLERANCE = 1e-6
 """Largest |R^T R - I| entry accepted for a rotation (and for the u, v, w frame)."""
@@ -387,7 +387,7 @@ def require_pinhole(camera: Camera, name: str, needs: str) -> PinholeCamera:
 
 
 def in_world(camera: Camera, terrain: object) -> Camera:
-    """``camera`` in the world frame of ``terrain`` (a :class:`~orthomvp.terrain.Terrain`):
+    """``camera`` in the world frame of ``terrain`` (a :class:`~orthomvp.geometry.terrain.Terrain`):
     models defined on geodetic coordinates (RPC) offer ``bind(terrain)`` and are bound to it;
     the others live in one frame already and come back unchanged."""
     bind = getattr(camera, "bind", None)

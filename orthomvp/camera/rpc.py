@@ -40,7 +40,7 @@ from orthomvp.errors import InputError
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
 
-    from orthomvp.terrain import Terrain
+    from orthomvp.geometry.terrain import Terrain
 
 OFFSETS_SCALES = (
     "line_off",

@@ -108,9 +108,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _remove_temporaries() -> None:
-    """:func:`orthomvp.raster.remove_temporaries`, when that module was imported (``--help``
+    """:func:`orthomvp.io.raster.remove_temporaries`, when that module was imported (``--help``
     and usage errors do not import it)."""
-    raster = sys.modules.get("orthomvp.raster")
+    raster = sys.modules.get("orthomvp.io.raster")
     if raster is not None:
         raster.remove_temporaries()
 

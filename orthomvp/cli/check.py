@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from orthomvp.camera import Camera
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
-"""the epsilons of :data:`orthomvp.check.DEFAULT_EPS` (not imported: --help stays fast)"""
+"""the epsilons of :data:`orthomvp.quality.check.DEFAULT_EPS` (not imported: --help stays fast)"""
 
 
 @click.command(
@@ -72,8 +72,8 @@ def check(
     bounded memory; medians come from a histogram, within 0.00025 of the exact ones. --odm DIR
     takes the DEM, images and cameras of an OpenDroneMap dataset (the cameras in the DEM's
     CRS)."""
-    from orthomvp import check as lib
     from orthomvp.engine import plan_check, run_check
+    from orthomvp.quality import check as lib
 
     if window % 2 == 0:
         raise click.UsageError(f"--window must be odd, got {window}", click.get_current_context())

@@ -51,7 +51,7 @@ def eps_study(
     """Score the visibility test against the marched truth of a scene written by 'orthomvp
     synth', for a range of epsilons (DEM posts) and optional DEM noise: precision, recall
     and F1 per view (CSV) and a plot (PNG)."""
-    from orthomvp import epsstudy
+    from orthomvp.quality import eps_study as epsstudy
 
     csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
     check_outputs([Output("-o", csv, ()), Output("-o", png, ())])

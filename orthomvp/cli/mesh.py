@@ -84,10 +84,10 @@ def mesh(
     """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
     skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
     and GLB an image texture, from --texture or --error-against."""
-    from orthomvp.mesh import terrain_mesh
+    from orthomvp.io.raster import read_image
+    from orthomvp.occlusion.mesh import terrain_mesh
     from orthomvp.present.colours import error_colour_limit, height_error
     from orthomvp.present.export import export_mesh
-    from orthomvp.raster import read_image
 
     kind = colour_by or ("error" if error_against else "image")
     if error_against and kind != "error":
@@ -136,11 +136,11 @@ def _stream(
     error_limit: float | None,
     local_origin: bool,
 ) -> None:
-    """A PLY of any DEM size, block by block (:mod:`orthomvp.mesh_stream`)."""
+    """A PLY of any DEM size, block by block (:mod:`orthomvp.present.mesh_stream`)."""
     from orthomvp.codes import WorldFrame
     from orthomvp.engine.grid import scan_dem
-    from orthomvp.mesh_stream import code_colours, image_stretch, write_ply_stream
-    from orthomvp.mesh_stream import error_against as error_colours_of
+    from orthomvp.present.mesh_stream import code_colours, image_stretch, write_ply_stream
+    from orthomvp.present.mesh_stream import error_against as error_colours_of
 
     world = WorldFrame.BODY if dem.world == "auto" else WorldFrame(dem.world)
     source = scan_dem(dem.path, dem.crs, dem.radius_values, world)

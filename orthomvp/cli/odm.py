@@ -59,7 +59,7 @@ def read_odm_dataset(directory: Path, *, dem_crs: str | None = None) -> OdmDatas
     directory, its DEM, its reconstruction or any image with a camera is missing. Warns on
     stderr when only the terrain model is there, and when images have no camera (left out)."""
     from orthomvp.camera import read_opensfm_cameras
-    from orthomvp.raster import open_raster
+    from orthomvp.io.raster import open_raster
 
     if not directory.is_dir():
         raise InputError(f"{directory}: --odm needs an ODM dataset directory; this is not one")

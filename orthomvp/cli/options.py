@@ -19,7 +19,7 @@ from orthomvp.codes import Interp, WorldFrame
 
 if TYPE_CHECKING:
     from orthomvp.camera import Camera
-    from orthomvp.terrain import Terrain
+    from orthomvp.geometry.terrain import Terrain
 
 F = TypeVar("F", bound=Callable[..., Any])
 PATH = click.Path(path_type=Path)
@@ -118,14 +118,15 @@ class DemInput:
 
     def read(self, cameras: Sequence[Camera] = ()) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
-        :func:`orthomvp.world.detect_world`), body-fixed when there are none. In the body frame
-        every camera must sit above the DEM (:func:`orthomvp.world.check_cameras_above`)."""
+        :func:`orthomvp.geometry.world.detect_world`), body-fixed when there are none. In the body
+        frame every camera must sit above the DEM
+        (:func:`orthomvp.geometry.world.check_cameras_above`)."""
         from dataclasses import replace
 
         import numpy as np
 
-        from orthomvp.terrain import Terrain
-        from orthomvp.world import check_cameras_above, detect_world
+        from orthomvp.geometry.terrain import Terrain
+        from orthomvp.geometry.world import check_cameras_above, detect_world
 
         world = WorldFrame.BODY if self.world == "auto" else WorldFrame(self.world)
         terrain = Terrain.read(
@@ -373,7 +374,7 @@ def check_directory(path: Path, what: str) -> None:
         read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
         cause = "a read-only file system" if read_only else "permission denied"
         raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
-    from orthomvp.raster import check_space
+    from orthomvp.io.raster import check_space
 
     check_space(path)
 

@@ -38,12 +38,12 @@ from orthomvp.codes import Code, Interp
 if TYPE_CHECKING:
     from orthomvp.camera import Camera
     from orthomvp.engine import Outputs, Plan, RunReport
-    from orthomvp.mosaic import MosaicOptions
+    from orthomvp.ortho.composite import MosaicOptions
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 FILLS = ("none", "any-view", "naive")
 BALANCES = ("none", "gain", "gain-offset")
-"""As :data:`orthomvp.mosaic.PRIORITIES`, ``FILLS`` and ``BALANCES`` (not imported: --help
+"""As :data:`orthomvp.ortho.composite.PRIORITIES`, ``FILLS`` and ``BALANCES`` (not imported: --help
 stays fast; a test checks that they agree)."""
 
 
@@ -282,7 +282,7 @@ def mosaic(
     dem, pairs, inputs = command_views(dem, pairs, odm)
     check_outputs(outputs, inputs, overwrite)
     from orthomvp.errors import InputError
-    from orthomvp.mosaic import MosaicOptions
+    from orthomvp.ortho.composite import MosaicOptions
 
     if balance_reference is not None and balance_reference >= len(pairs):
         raise InputError(

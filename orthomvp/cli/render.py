@@ -132,8 +132,8 @@ def render(
     FITTED - TRUTH (metres); cameras drawn as numbered frusta, optionally with rays to their
     first hits."""
     from orthomvp.camera import read_camera
+    from orthomvp.io.raster import read_image
     from orthomvp.present.snapshot import SnapshotOptions, snapshot
-    from orthomvp.raster import read_image
 
     if (heights is None) != (truth is None):
         raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")

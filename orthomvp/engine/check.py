@@ -1,4 +1,4 @@
-"""The truth-free check (:mod:`orthomvp.check`) through the engine, run: each tile of a
+"""The truth-free check (:mod:`orthomvp.quality.check`) through the engine, run: each tile of a
 :class:`~orthomvp.engine.check_plan.CheckPlan` classifies its posts and ``window // 2`` around
 them for every view, samples the naive values, and tallies the NCC of every ordered pair of
 views at its own posts (:func:`run_check_tile`); :func:`run_check` merges the tallies, which
@@ -33,8 +33,8 @@ from orthomvp.engine.tile import (
     sample_view,
 )
 from orthomvp.errors import GeometryError
-from orthomvp.vectors import finite_rows
-from orthomvp.visibility import occluder_caster
+from orthomvp.geometry.vectors import finite_rows
+from orthomvp.occlusion.visibility import occluder_caster
 
 CLASSES = ("visible", "occluded")
 """The classes of posts scored, in the order of the rows: visible in both views; called
@@ -46,7 +46,7 @@ Key = tuple[int, int, int, int]
 
 @dataclass
 class CheckResult:
-    """The check: ``rows`` (dicts with :data:`orthomvp.check.CSV_FIELDS`), the 1-based
+    """The check: ``rows`` (dicts with :data:`orthomvp.quality.check.CSV_FIELDS`), the 1-based
     ``pairs`` of views that overlap and those (``apart``) that do not, and the view
     ``names``."""
 
@@ -222,8 +222,9 @@ def run_check(
     progress: bool = True,
     inflight: int | None = None,
 ) -> CheckResult:
-    """Run every tile of ``plan`` and return the check (as :func:`orthomvp.check.check_views` gives
-    it in memory, medians within :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
+    """Run every tile of ``plan`` and return the check (as
+    :func:`orthomvp.quality.check.check_views` gives it in memory, medians within
+    :data:`~orthomvp.engine.ncc.MEDIAN_BOUND`).
 
     Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes, or
     on the Dask ``client``, at most ``inflight`` (default the workers; see

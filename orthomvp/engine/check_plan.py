@@ -1,5 +1,5 @@
-"""Planning the truth-free check (:mod:`orthomvp.check`) through the engine: tiles of the DEM's
-own grid, each of which computes every view's visibility and naive samples on its posts plus
+"""Planning the truth-free check (:mod:`orthomvp.quality.check`) through the engine: tiles of the
+DEM's own grid, each of which computes every view's visibility and naive samples on its posts plus
 ``window // 2`` posts around them (the NCC box's reach), with the occluder halo of that grown
 window, so that its NCC values are the whole grid's (see :mod:`orthomvp.engine.ncc`).
 
@@ -143,7 +143,7 @@ def plan_check(
     world: WorldFrame | str = "auto",
     progress: bool = True,
 ) -> CheckPlan:
-    """Plan the truth-free check (:func:`orthomvp.check.check_views`) of ``views`` ((image
+    """Plan the truth-free check (:func:`orthomvp.quality.check.check_views`) of ``views`` ((image
     path, camera or camera path) pairs, at least 2, any band counts) on the DEM at path
     ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid (default
     :func:`~orthomvp.engine.plan.auto_tile`): every epsilon of

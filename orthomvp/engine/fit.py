@@ -39,7 +39,7 @@ from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.mvp import fit_dem
 from orthomvp.mvp.views import ViewWindow, covers, exact_masks, union, window_for
-from orthomvp.visibility import compute_visibility, occluder_caster
+from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
 
 
 # ------------------------------------------------------------------------------ per tile

@@ -58,11 +58,11 @@ from orthomvp.engine.plan import (
 )
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import perimeter
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
-from orthomvp.terrain import perimeter
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""

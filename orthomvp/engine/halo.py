@@ -1,8 +1,8 @@
 """The occluder halo: the DEM posts that can hide a tile's posts from a camera.
 
 The bound. An occluder is a point of the surface that visibility casts on (the DEM mesh with
-its steps made walls, :func:`orthomvp.mesh.occluder_mesh`, whose vertices are posts or lie on
-their cells at a post's height or the mean of two), so its height is at most ``h_max``, the
+its steps made walls, :func:`orthomvp.occlusion.mesh.occluder_mesh`, whose vertices are posts or
+lie on their cells at a post's height or the mean of two), so its height is at most ``h_max``, the
 DEM's highest value. The set O of points no higher than ``h_max`` is convex: the half-space
 ``z <= h_max`` in the map frame, the ball of radius ``R + h_max`` on a sphere (``h_max`` itself
 with radius values), and the ellipsoid grown by ``h_max`` (a parallel body of a convex body) on
@@ -35,7 +35,7 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, WindowT
-from orthomvp.terrain import perimeter
+from orthomvp.geometry.terrain import perimeter
 
 TRACK_SAMPLES = 9
 """Points per ground track (from the post to where its line of sight leaves O)."""

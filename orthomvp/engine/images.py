@@ -1,7 +1,7 @@
 """Images read window by window: their size from the header, pixels only where a tile needs
 them. Windows are ``(row0, row1, col0, col1)``, half-open, in image pixels; pixels come back
 float32 ``(bands, rows, cols)`` with NaN at nodata (ISIS special pixels), as
-:func:`orthomvp.raster.read_image` gives them for the whole image."""
+:func:`orthomvp.io.raster.read_image` gives them for the whole image."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
-from orthomvp.raster import held_raster, open_raster, read_values
+from orthomvp.io.raster import held_raster, open_raster, read_values
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     header alone: no pixel is read."""
     path = Path(image)
     if path.suffix.lower() == ".cub":
-        from orthomvp.isis import cube_layout, read_label  # pvl, only for cubes
+        from orthomvp.io.isis import cube_layout, read_label  # pvl, only for cubes
 
         layout = cube_layout(path, read_label(path))
         bands, rows, cols = layout.bands, layout.lines, layout.samples
@@ -64,9 +64,9 @@ def _read_cube_window(
     path: Path, window: tuple[int, int, int, int], band: int | None = None
 ) -> np.ndarray:
     """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
-    map of its pixels (see :func:`orthomvp.isis.read_cube` for the layout and the special
+    map of its pixels (see :func:`orthomvp.io.isis.read_cube` for the layout and the special
     pixels)."""
-    from orthomvp.isis import cube_layout, read_label
+    from orthomvp.io.isis import cube_layout, read_label
 
     layout = cube_layout(path, read_label(path))
     r0, r1, c0, c1 = window

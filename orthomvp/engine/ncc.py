@@ -27,7 +27,7 @@ ROW_EDGES = list(zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)) + [(0.0, np.in
 def check_row(
     eps: float, pair: tuple[str, str], cls: str, edges: tuple[float, float], figures: tuple
 ) -> dict:
-    """One row of the check's CSV (:data:`orthomvp.check.CSV_FIELDS`): ``eps``, the views
+    """One row of the check's CSV (:data:`orthomvp.quality.check.CSV_FIELDS`): ``eps``, the views
     ``pair`` (view, other), the class, the miss ``edges`` and ``figures`` (posts, scored,
     NCC mean, NCC median)."""
     posts, scored, mean, median = figures

@@ -27,11 +27,11 @@ from orthomvp.engine.heap import MMAP_THRESHOLD
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.mosaic import FUSED_POSTS, Correction, MosaicOptions
-from orthomvp.occluders import BOUND_BYTES
-from orthomvp.ortho import INTERPOLATION
-from orthomvp.vectors import nan_median
-from orthomvp.world import check_cameras_above, detect_world
+from orthomvp.geometry.vectors import nan_median
+from orthomvp.geometry.world import check_cameras_above, detect_world
+from orthomvp.occlusion.occluders import BOUND_BYTES
+from orthomvp.ortho.composite import FUSED_POSTS, Correction, MosaicOptions
+from orthomvp.ortho.orthophoto import INTERPOLATION
 
 Box = tuple[float, float, float, float]
 """Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
@@ -140,14 +140,14 @@ class Plan:
     @property
     def margin(self) -> int:
         """Posts computed around every tile for the mosaic's seams and blending
-        (:attr:`orthomvp.mosaic.MosaicOptions.margin`; 0 without a mosaic)."""
+        (:attr:`orthomvp.ortho.composite.MosaicOptions.margin`; 0 without a mosaic)."""
         return self.mosaic.margin if self.mosaic is not None else 0
 
     @cached_property
     def fused(self) -> bool:
         """Whether tiles run the numba kernels (their grid heights, the visibility test's
         geometry and the composition): a mosaic whose tiles with views hold
-        :data:`orthomvp.mosaic.FUSED_POSTS` posts or more."""
+        :data:`orthomvp.ortho.composite.FUSED_POSTS` posts or more."""
         if self.mosaic is None:
             return False
         windows = (job.window for job in self.tiles if job.views)
@@ -330,12 +330,12 @@ def plan_ortho(
     into tiles of ``tile`` x ``tile`` posts (default :func:`auto_tile`: 1024, smaller on a grid
     too small to give every core a tile; for a mosaic at most :func:`mosaic_tile`).
     ``occlusion``, ``eps`` (DEM posts) and ``interp`` are those of
-    :func:`orthomvp.ortho.orthorectify`; ``dem_crs`` overrides the DEM file's
+    :func:`orthomvp.ortho.orthophoto.orthorectify`; ``dem_crs`` overrides the DEM file's
     CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
-    :meth:`orthomvp.terrain.Terrain.read` and :func:`orthomvp.world.detect_world`.
+    :meth:`orthomvp.geometry.terrain.Terrain.read` and :func:`orthomvp.geometry.world.detect_world`.
 
     With two views or more the plan is a mosaic, combined as ``mosaic`` says (default
-    :class:`~orthomvp.mosaic.MosaicOptions`: seamlines and blending on); every tile then
+    :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); every tile then
     computes its posts plus the options' margin, so tiles join as one untiled run would.
 
     Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
@@ -514,7 +514,7 @@ def read_source(
     progress: bool,
 ) -> tuple[DemSource, tuple[ImageSource, ...]]:
     """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
-    its cameras fit, :func:`~orthomvp.world.detect_world`), with every camera above it; and
+    its cameras fit, :func:`~orthomvp.geometry.world.detect_world`), with every camera above it; and
     the views with their cameras in that frame (:func:`~orthomvp.camera.in_world`)."""
     frame = _frame(world)
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])

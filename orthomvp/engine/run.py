@@ -28,9 +28,9 @@ from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
-from orthomvp.mosaic import Correction
+from orthomvp.io.raster import held_rasters
 from orthomvp.optional import require
-from orthomvp.raster import held_rasters
+from orthomvp.ortho.composite import Correction
 
 
 class WorkerError(OrthoMVPError):
@@ -398,7 +398,7 @@ def _add_counts(report: RunReport, result: TileResult) -> None:
 def check_views(views: Any, inside: list[int], seen: list[int]) -> None:
     """GeometryError when a view had no post ``inside`` its image in any tile, or only posts
     facing away (none ``seen``: visible or occluded), as
-    :func:`~orthomvp.visibility.compute_visibility` raises for a whole grid."""
+    :func:`~orthomvp.occlusion.visibility.compute_visibility` raises for a whole grid."""
     for view, n_inside, n_seen in zip(views, inside, seen, strict=True):
         if not n_inside:
             raise GeometryError(

@@ -29,7 +29,7 @@ from rasterio.windows import Window
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import OrthoMVPError
-from orthomvp.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain, unit_vector
 
 SPACING = 20.0
 """Metres between posts of the synthetic DEM."""

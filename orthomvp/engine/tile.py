@@ -22,13 +22,13 @@ from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob, pixel_window
-from orthomvp.mosaic import Correction, compose, doubtful, nadir_angle
-from orthomvp.occluders import Occluders
-from orthomvp.ortho import OUTSIDE, sample_image
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
-from orthomvp.vectors import column_range, finite_rows
-from orthomvp.visibility import Visibility, compute_visibility
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import column_range, finite_rows
+from orthomvp.occlusion.occluders import Occluders
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import Visibility, compute_visibility
+from orthomvp.ortho.composite import Correction, compose, doubtful, nadir_angle
+from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 
 
 @dataclass
@@ -36,7 +36,7 @@ class TileResult:
     """A finished tile: ``window`` on the output grid; ``data`` (bands, rows, cols) float32
     (NaN where empty), ``codes`` (views, rows, cols) uint8, ``source`` (layers, rows, cols):
     the 1-based view of each post (0 = none), and for a mosaic its
-    :class:`~orthomvp.mosaic.Flag` and every view's blend weight in 1/255 (see
+    :class:`~orthomvp.ortho.composite.Flag` and every view's blend weight in 1/255 (see
     :func:`source_layers`), each None unless asked for. ``inside`` and ``seen`` count, per view,
     the posts inside the image and those visible or occluded; ``counts`` per view the posts of
     each :class:`~orthomvp.codes.Code`; ``valid`` the tile's posts with a height (for a tile
@@ -120,7 +120,7 @@ def _grid_tile(
         dc, _ = to_dem(np.arange(ext[2], ext[3], dtype=np.float64), 0.0)
         _, dr = to_dem(0.0, np.arange(ext[0], ext[1], dtype=np.float64))
         if fused:
-            from orthomvp.post_geometry_kernel import interpolate_grid
+            from orthomvp.occlusion.post_geometry_kernel import interpolate_grid
 
             values = interpolate_grid(window, dc - w2, dr - w0)
         else:
@@ -135,7 +135,7 @@ def _grid_tile(
 
 def _read_window(view: ImageSource, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The image pixels around positions ``uv`` (n, 2) and the positions relative to them,
-    shifted in float32 as :func:`~orthomvp.ortho.sample_image` uses them (exact, so every
+    shifted in float32 as :func:`~orthomvp.ortho.orthophoto.sample_image` uses them (exact, so every
     window samples exactly as the whole image would)."""
     window = pixel_window(view, *column_range(uv))
     shifted = uv.astype(np.float32) - np.array([window[2], window[0]], np.float32)
@@ -322,7 +322,8 @@ def _visibility(
     prove: bool | None = None,
 ) -> Visibility:
     """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``), with the
-    optional ``fields`` and ``prove`` of :func:`~orthomvp.visibility.compute_visibility`."""
+    optional ``fields`` and ``prove`` of
+    :func:`~orthomvp.occlusion.visibility.compute_visibility`."""
     return compute_visibility(
         grid,
         plan.views[k].camera,
@@ -357,7 +358,8 @@ def _mosaic_tile(
     threads: int,
 ) -> TileResult:
     """A mosaic tile: every view's samples, codes and angles on the tile grown by the plan's
-    margin (:meth:`Plan.extent`), composed (:func:`orthomvp.mosaic.compose`), cut to the tile."""
+    margin (:meth:`Plan.extent`), composed (:func:`orthomvp.ortho.composite.compose`), cut to the
+    tile."""
     assert plan.mosaic is not None
     ext = plan.extent(job)
     grid, inner = _grid_tile(plan, job, window, ext, plan.fused)

@@ -27,7 +27,7 @@ from orthomvp.engine.overviews import AVERAGE, halve, window_level
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
-from orthomvp.raster import atomic_paths, check_written, scratch_path, writing
+from orthomvp.io.raster import atomic_paths, check_written, scratch_path, writing
 
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
@@ -144,7 +144,7 @@ class Layer:
 
 def source_names(views: int) -> tuple[str, ...]:
     """Band names of a mosaic's source raster: the 1-based view (0 = none), the
-    :class:`~orthomvp.mosaic.Flag` (0 empty, 1 visible, 2 filled from any view, 3 filled
+    :class:`~orthomvp.ortho.composite.Flag` (0 empty, 1 visible, 2 filled from any view, 3 filled
     naive), and each view's blend weight in 1/255."""
     return ("view", "flag", *(f"weight {k}" for k in range(1, views + 1)))
 
@@ -191,7 +191,7 @@ class _Output:
     """One output being written: its dataset open for windowed writes, and for a COG one per
     overview level (``levels``: the file of each level's factor). Every step that writes
     reports a failure as one OutputError naming the output (see
-    :func:`orthomvp.raster.writing`)."""
+    :func:`orthomvp.io.raster.writing`)."""
 
     def __init__(
         self,
@@ -280,7 +280,7 @@ class _Output:
 
     def finish(self) -> None:
         """Overviews, then (COG) the layout of the final temporary file; then the final file is
-        checked to open (see :func:`orthomvp.raster.check_written`)."""
+        checked to open (see :func:`orthomvp.io.raster.check_written`)."""
         with writing(self.layer.path, self.size):
             self._finish()
             check_written(self.final)

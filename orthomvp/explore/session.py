@@ -20,14 +20,14 @@ from scipy.signal import find_peaks
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code, WorldFrame
 from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp.fit import FitOptions
 from orthomvp.mvp.lm import Iterate, fit_planes
 from orthomvp.mvp.patches import Evaluation
 from orthomvp.mvp.plane import angles_from_normal, normal_from_angles
 from orthomvp.mvp.problem import FitProblem
 from orthomvp.mvp.window import Window
-from orthomvp.terrain import Terrain
-from orthomvp.visibility import Visibility
+from orthomvp.occlusion.visibility import Visibility
 
 PROMINENCE = 0.02  # a local minimum counts when this fraction of the curve's range deep
 DEFAULTS = FitOptions()  # the explorer's window, margin and optimiser settings start as the fit's

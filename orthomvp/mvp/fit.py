@@ -29,7 +29,8 @@ import numpy as np
 
 from orthomvp.camera import Camera
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.memory import check_memory
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.preflight import check_memory
 from orthomvp.mvp.deconvolve import deconvolve
 from orthomvp.mvp.lm import LMSettings, fit_planes
 from orthomvp.mvp.model import PlaneModel
@@ -38,9 +39,8 @@ from orthomvp.mvp.plane import angles_from_normal
 from orthomvp.mvp.problem import FitProblem
 from orthomvp.mvp.views import ViewWindow
 from orthomvp.mvp.window import Window
-from orthomvp.terrain import Terrain
+from orthomvp.occlusion.visibility import VISIBILITY_BYTES_PER_POST, run_tiles
 from orthomvp.validate import number, of_type
-from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, run_tiles
 
 TILE = 24  # posts per tile side: B = 576 posts per batch
 MAX_DECONVOLVE = 10
@@ -251,8 +251,8 @@ def fit_dem(
     or (rows, cols); band 1 is used) seen through ``cameras``.
 
     ``visible`` (K, rows, cols) bool overrides the visibility test (codes == 1 of
-    :func:`orthomvp.visibility.compute_visibility` with ``eps`` in DEM posts, on this DEM's
-    mesh); see :class:`~orthomvp.mvp.problem.FitProblem`. ``threads``: tiles fitted at once
+    :func:`orthomvp.occlusion.visibility.compute_visibility` with ``eps`` in DEM posts, on this
+    DEM's mesh); see :class:`~orthomvp.mvp.problem.FitProblem`. ``threads``: tiles fitted at once
     (default: one per core); ``progress``: a progress bar over tiles.
 
     A window of a larger fit (what :mod:`orthomvp.engine.fit` runs per tile): ``terrain`` a

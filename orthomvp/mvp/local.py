@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from orthomvp.camera import Camera
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 
 ERROR_BOUND = 0.1
 """Largest reprojection error of a local projection matrix over its post's finest-level

@@ -10,13 +10,13 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera, as_image, check_image
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import Terrain, grid_normals
 from orthomvp.mvp.local import local_projections
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack
 from orthomvp.mvp.plane import PostLines, post_lines
 from orthomvp.mvp.views import ViewWindow
-from orthomvp.terrain import Terrain, grid_normals
-from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
+from orthomvp.occlusion.visibility import Visibility, compute_visibility, occluder_caster
 
 MIN_LEVEL_SIZE = 16  # pixels: no pyramid level whose smallest image is narrower
 
@@ -107,9 +107,10 @@ class FitProblem:
         """From ``images`` (each (bands, rows, cols) or (rows, cols); band 1 is used) seen
         through ``cameras``, at least ``min_views`` of them; ``levels``: pyramid levels wanted
         (fewer when the images are small, see :func:`pyramid_levels`). ``visible`` (K, rows,
-        cols) bool overrides the visibility test (:func:`orthomvp.visibility.compute_visibility`
-        with ``eps`` in DEM posts, on this DEM's mesh); ``names`` label the views (default
-        "image 1", ...); ``hwin``: the window's half-size in posts (see :mod:`orthomvp.mvp.local`).
+        cols) bool overrides the visibility test
+        (:func:`orthomvp.occlusion.visibility.compute_visibility` with ``eps`` in DEM posts, on
+        this DEM's mesh); ``names`` label the views (default "image 1", ...); ``hwin``: the
+        window's half-size in posts (see :mod:`orthomvp.mvp.local`).
 
         A window of a larger DEM and images: ``windows`` (one per view) say where the images
         lie in the cameras' images (:mod:`orthomvp.mvp.views`; the visibility test needs the

@@ -10,7 +10,7 @@ Three kinds of raster are coloured (:data:`COLOUR_KINDS`):
   :data:`ERROR_CMAP` from ``-limit`` (blue) through 0 (white) to ``+limit`` (red), clipped.
 
 Posts without a value (NaN) are :data:`NAN_RGB` in every kind. Rasters are (rows, cols),
-(rows, cols, bands) or band-first (bands, rows, cols), as :func:`orthomvp.raster.read_image`
+(rows, cols, bands) or band-first (bands, rows, cols), as :func:`orthomvp.io.raster.read_image`
 reads them; colours are RGB uint8.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from orthomvp.codes import CODE_RGB, Code
 from orthomvp.errors import InputError
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.validate import number
 
 COLOUR_KINDS = ("image", "visibility", "error")

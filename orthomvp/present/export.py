@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh
+from orthomvp.io.raster import atomic_path, write_set
+from orthomvp.occlusion.mesh import TerrainMesh
 from orthomvp.optional import require
 from orthomvp.present.colours import NAN_RGB, post_colours
-from orthomvp.raster import atomic_path, write_set
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -44,7 +44,7 @@ def export_mesh(
     ``target_triangles`` the mesh is first decimated with Open3D; the colours then travel as
     vertex colours in every format. Files are written atomically.
     """
-    of_type(tmesh, TerrainMesh, "the mesh", " (orthomvp.mesh.terrain_mesh)")
+    of_type(tmesh, TerrainMesh, "the mesh", " (orthomvp.occlusion.mesh.terrain_mesh)")
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in EXPORT_FORMATS:
@@ -134,7 +134,7 @@ def write_ply(mesh: trimesh.Trimesh, path: str | Path) -> None:
 
 def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
     """OBJ with its material and texture image beside it, atomic as a set: all files are
-    renamed only when all were written (see :func:`orthomvp.raster.write_set`)."""
+    renamed only when all were written (see :func:`orthomvp.io.raster.write_set`)."""
     from trimesh.exchange.obj import export_obj
 
     text, files = export_obj(

@@ -1,10 +1,10 @@
 """Offscreen 3D snapshots of a DEM and its results with pyvista (no display needed).
 
-The scene is built in the *local* frame of :func:`orthomvp.mesh.terrain_mesh`: world metres
-(body-fixed, or the map frame) minus ``Snapshot.origin``, a point near the DEM centre, so that
-VTK's float32 keeps centimetres even at planetary radius. Anything added to ``Snapshot.plotter``
-must be shifted the same way. Vertical exaggeration moves only the DEM surface (and the ray hits
-drawn on it): cameras stay where they are.
+The scene is built in the *local* frame of :func:`orthomvp.occlusion.mesh.terrain_mesh`: world
+metres (body-fixed, or the map frame) minus ``Snapshot.origin``, a point near the DEM centre, so
+that VTK's float32 keeps centimetres even at planetary radius. Anything added to
+``Snapshot.plotter`` must be shifted the same way. Vertical exaggeration moves only the DEM surface
+(and the ray hits drawn on it): cameras stay where they are.
 
 Colouring modes, at most one per snapshot, in the colours of :mod:`orthomvp.present.colours`: a
 draped orthophoto, visibility codes (occluded posts green, as in the occlusion poster's
@@ -27,7 +27,10 @@ import numpy as np
 from orthomvp.camera import Camera, require_pinhole
 from orthomvp.codes import CODE_RGB, Code, View
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh, terrain_mesh
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import atomic_path
+from orthomvp.occlusion.mesh import TerrainMesh, terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.optional import require
 from orthomvp.present.colours import (
     ERROR_CMAP,
@@ -49,9 +52,6 @@ from orthomvp.present.viewpoint import (
     view_dem,
     view_from_camera,
 )
-from orthomvp.raster import atomic_path
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
 from orthomvp.validate import number, of_type
 
 if TYPE_CHECKING:

@@ -16,8 +16,8 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera
 from orthomvp.codes import View
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion.mesh import TerrainMesh
 
 if TYPE_CHECKING:
     import pyvista as pv

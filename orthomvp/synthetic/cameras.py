@@ -9,8 +9,8 @@ import numpy as np
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import WorldFrame
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.synthetic.surface import local_frame
-from orthomvp.terrain import Terrain
 
 ALTITUDE = 110_000.0
 """Default camera altitude above the tile centre, metres (Apollo 15 Metric Camera-like)."""

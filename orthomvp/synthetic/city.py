@@ -34,13 +34,13 @@ from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import WorldFrame
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.synthetic.cameras import ViewSpec, orbital_camera
 from orthomvp.synthetic.kinds import texture
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
 from orthomvp.synthetic.surface import LocalField
 from orthomvp.synthetic.truth import truth_codes
 from orthomvp.synthetic.writer import write_scene
-from orthomvp.terrain import Terrain
 from orthomvp.validate import number
 
 CITY_CRS = "EPSG:32633"

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from orthomvp.geometry.terrain import unit_vector
 from orthomvp.synthetic.surface import MOON_RADIUS, LocalField, local_frame
-from orthomvp.terrain import unit_vector
 
 KINDS = ("planar", "crater", "hills", "city")
 DEFAULTS = {

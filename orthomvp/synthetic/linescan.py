@@ -13,9 +13,9 @@ import numpy as np
 from orthomvp.camera.csm import CsmDistortion, LineScanCamera
 from orthomvp.camera.csm.ephemeris import matrix_wxyz
 from orthomvp.camera.csm.geometry import Ellipsoid, FocalPlane, Trajectory
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.synthetic.cameras import ViewSpec
 from orthomvp.synthetic.surface import MOON_RADIUS, local_frame
-from orthomvp.terrain import Terrain
 
 GM_MOON = 4.9028e12
 """The Moon's gravitational parameter, m^3/s^2 (sets the orbital speed)."""

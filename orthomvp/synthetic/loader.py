@@ -11,8 +11,8 @@ import numpy as np
 
 from orthomvp.camera import Camera, read_camera
 from orthomvp.errors import InputError
-from orthomvp.raster import read_image
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.raster import read_image
 
 
 @dataclass

@@ -7,9 +7,9 @@ import numpy as np
 from affine import Affine
 
 from orthomvp.camera import Camera
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.synthetic.surface import LocalSurface
-from orthomvp.terrain import Terrain
 from orthomvp.validate import number
 
 FINE_FACTOR = 3

@@ -17,9 +17,10 @@ from pyproj import CRS
 
 from orthomvp.camera import Camera
 from orthomvp.errors import InputError
-from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import terrain_mesh
-from orthomvp.raycast import RayCaster
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.occlusion.mesh import terrain_mesh
+from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.synthetic.cameras import VIEWS, ViewSpec, orbital_camera
 from orthomvp.synthetic.city import CityScene, make_city
 from orthomvp.synthetic.kinds import DEFAULTS, KINDS, relief, texture
@@ -29,7 +30,6 @@ from orthomvp.synthetic.rendering import fine_terrain, render_image
 from orthomvp.synthetic.surface import MOON_CRS, MOON_RADIUS, LocalSurface, local_frame
 from orthomvp.synthetic.truth import visibility_truth
 from orthomvp.synthetic.writer import write_scene
-from orthomvp.terrain import Terrain
 from orthomvp.validate import number
 
 SPACING_RANGE = (0.01, 10_000.0)

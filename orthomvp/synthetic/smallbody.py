@@ -12,8 +12,8 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
+from orthomvp.geometry.terrain import Terrain, unit_vector
 from orthomvp.synthetic.truth import visibility_truth
-from orthomvp.terrain import Terrain, unit_vector
 
 SMALL_BODY_RADIUS = 2500.0
 SMALL_BODY_AXES = (1.6, 1.0, 0.85)  # semi-axes of the base ellipsoid, in proportion (x, y, z)

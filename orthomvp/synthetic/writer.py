@@ -21,7 +21,7 @@ from tqdm import tqdm
 from orthomvp.camera import write_tsai
 from orthomvp.camera.csm import LineScanCamera, write_isd
 from orthomvp.codes import Code
-from orthomvp.raster import atomic_path, write_geotiff
+from orthomvp.io.raster import atomic_path, write_geotiff
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
 from orthomvp.validate import number
 

@@ -22,7 +22,7 @@ Exterior (a shot): ``rotation``, an angle-axis vector r (radians), and ``transla
 world-to-camera: X_cam = Rod(r) X + t in OpenCV camera axes (x right, y down, z forward: VW's
 u, v, w), so the centre is C = -Rod(r)^T t and R (camera-to-world) = Rod(r)^T.
 
-World frame (the map frame of :mod:`orthomvp.world`): C + (E, N, h) of the reconstruction's
+World frame (the map frame of :mod:`orthomvp.geometry.world`): C + (E, N, h) of the reconstruction's
 ``reference_lla`` in a projected CRS, default the WGS 84 UTM zone of the reference (zone from
 the longitude alone, north or south from the latitude), R unchanged: Orthority's convention.
 For ODM it is exact: ODM rewrites ``reconstruction.json`` in its DSM's projected CRS minus an

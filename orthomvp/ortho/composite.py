@@ -41,7 +41,7 @@ import numpy as np
 from orthomvp.camera import Camera
 from orthomvp.codes import DOUBT, Code
 from orthomvp.errors import InputError
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 """Which view a post prefers: smallest emission angle (surface normal to camera), finest
@@ -79,9 +79,9 @@ it (:func:`trusted`)."""
 
 FUSED_POSTS = 2_000_000
 """Posts of a mosaic from which it runs the numba kernels: :func:`compose`'s (``fused``) and
-the visibility test's geometry (:func:`orthomvp.visibility.compute_visibility`'s ``fused``).
-Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts of
-the tiles with views: 2.0 M (6 m) 1.32-1.38 s with them against 1.46-1.59 s without; 1.1 M
+the visibility test's geometry (:func:`orthomvp.occlusion.visibility.compute_visibility`'s
+``fused``). Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts
+of the tiles with views: 2.0 M (6 m) 1.32-1.38 s with them against 1.46-1.59 s without; 1.1 M
 (8 m) 1.09-1.16 against 1.03-1.12 s; 0.51 M (12 m) 0.94-0.96 against 0.79-0.80 s."""
 
 
@@ -290,9 +290,9 @@ def labels(
 ) -> np.ndarray:
     """The 0-based view of each post (-1 where none is ``visible``): least priority ``cost``,
     or with ``seamlines`` least seam cost (module docstring); ``fused``: with the numba
-    kernels of :mod:`orthomvp.mosaic_kernel` (the same labels)."""
+    kernels of :mod:`orthomvp.ortho.composite_kernel` (the same labels)."""
     if fused:
-        from orthomvp import mosaic_kernel as kernel
+        from orthomvp.ortho import composite_kernel as kernel
 
         radius = SEAM_RADIUS if seamlines else None
         return kernel.labels(cost, visible, values, radius, QUANT, DISAGREE)
@@ -344,7 +344,7 @@ def compose(
     cols), and the views' ``emission`` and ``nadir`` angles (degrees) and ``gsd`` (metres) at
     each post, following ``options``, after ``correction``; ``doubt`` (views, rows, cols)
     marks the visible posts a view is doubtful at (:func:`doubtful`; None: none). ``fused``:
-    labels and blend with the numba kernels of :mod:`orthomvp.mosaic_kernel` (the same
+    labels and blend with the numba kernels of :mod:`orthomvp.ortho.composite_kernel` (the same
     result, bit for bit; about 3.5x faster, after a load of about 0.3 s a process)."""
     values = np.ascontiguousarray(values if correction is None else correction.apply(values))
     finite = np.isfinite(values).all(axis=1)
@@ -353,7 +353,7 @@ def compose(
     label = labels(cost, visible, values, options.seamlines, fused=fused)
     n, bands, rows, cols = values.shape
     if fused:
-        from orthomvp.mosaic_kernel import blend
+        from orthomvp.ortho.composite_kernel import blend
 
         weights, data = blend(label, visible, values, options.blend // 2)
     else:
@@ -515,8 +515,8 @@ def seam_visibility(data: np.ndarray, source: np.ndarray) -> float:
     between 4-neighbour posts labelled with different views, over the same median between
     neighbours labelled with one view; 1 means seams cannot be told from texture. ``data``
     (bands, rows, cols) with NaN where empty, ``source`` (rows, cols) the 1-based view (0:
-    none), as :class:`~orthomvp.ortho.Mosaic` and the source raster's band 1 give them. NaN
-    when there is no seam or no pair within one view."""
+    none), as :class:`~orthomvp.ortho.orthophoto.Mosaic` and the source raster's band 1 give them.
+    NaN when there is no seam or no pair within one view."""
     data = np.asarray(data, dtype=np.float64)
     source = np.asarray(source)
     if data.ndim != 3 or source.shape != data.shape[1:]:

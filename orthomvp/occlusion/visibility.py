@@ -3,7 +3,7 @@
 For every post: project it into the image, back-project that pixel with the camera's own ray
 (lens distortion included), find the first hit on the DEM's occluder surface (the Cartesian
 DEM mesh with its steep steps made walls halfway between posts,
-:func:`~orthomvp.mesh.occluder_mesh`), map the hit back to the DEM grid, and call the post
+:func:`~orthomvp.occlusion.mesh.occluder_mesh`), map the hit back to the DEM grid, and call the post
 visible when the hit lands within ``eps`` posts of the post's own grid position. Codes (uint8
 raster on the DEM grid) are :class:`orthomvp.codes.Code`: 0 no data / outside the image,
 1 visible, 2 occluded by terrain, 3 facing away.
@@ -26,20 +26,20 @@ import numpy as np
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera, sensor_positions
 from orthomvp.codes import DOUBT, Code, WorldFrame, classify
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.memory import check_memory, count_text
-from orthomvp.mesh import occluder_mesh
-from orthomvp.occluders import Occluders
-from orthomvp.post_geometry import (
+from orthomvp.geometry.terrain import Terrain, perimeter
+from orthomvp.geometry.world import check_cameras_above
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.occlusion.mesh import occluder_mesh
+from orthomvp.occlusion.occluders import Occluders
+from orthomvp.occlusion.post_geometry import (
     PostGeometry,
     general,
     image_window,
     separable,
     separable_applies,
 )
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain, perimeter
+from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.validate import number, of_type
-from orthomvp.world import check_cameras_above
 
 TILE = 512
 VISIBILITY_BYTES_PER_POST = 160
@@ -53,7 +53,7 @@ def default_eps(gsd_posts: np.ndarray) -> np.ndarray:
     """The default epsilon, in DEM posts, for posts whose image ground sample distance (on a
     surface perpendicular to the line of sight) is ``gsd_posts`` DEM posts:
     ``max(EPS_FLOOR, EPS_GSD_FACTOR * gsd_posts)`` = max(3, GSD). Rays are cast on
-    :func:`~orthomvp.mesh.occluder_mesh` (:func:`occluder_caster`), not on the plain mesh.
+    :func:`~orthomvp.occlusion.mesh.occluder_mesh` (:func:`occluder_caster`), not on the plain mesh.
 
     Reasoning. A visible post is a vertex of the mesh and the test back-projects its exact
     (sub-pixel) image position, so in exact geometry its ray comes back to it. What moves the
@@ -85,7 +85,7 @@ def default_eps(gsd_posts: np.ndarray) -> np.ndarray:
 
 def occluder_caster(terrain: Terrain, threads: int | None = None) -> RayCaster:
     """A ray caster (on ``threads``) on the occluder surface of ``terrain``
-    (:func:`~orthomvp.mesh.occluder_mesh`), which :func:`compute_visibility` casts on (see
+    (:func:`~orthomvp.occlusion.mesh.occluder_mesh`), which :func:`compute_visibility` casts on (see
     :func:`default_eps`)."""
     return RayCaster(occluder_mesh(terrain), threads=threads)
 
@@ -177,8 +177,8 @@ def compute_visibility(
     """Classify every post of ``terrain`` for ``camera`` (whose width and height must be set).
 
     ``eps`` in DEM posts overrides :func:`default_eps`. ``caster`` reuses the occluder surface
-    of a DEM (:class:`~orthomvp.occluders.Occluders`, meshed at its first cast) or a ray caster
-    on one (:func:`occluder_caster`); without it, the occluder surface of this terrain (or of
+    of a DEM (:class:`~orthomvp.occlusion.occluders.Occluders`, meshed at its first cast) or a ray
+    caster on one (:func:`occluder_caster`); without it, the occluder surface of this terrain (or of
     ``dem``) is used. When
     ``terrain`` is a resampled output grid and ``caster`` holds the original DEM, ``post_scale``
     is the size of one grid post in DEM posts, so that eps and the reported misses stay in DEM
@@ -202,7 +202,7 @@ def compute_visibility(
 
     ``fast``: where it applies (a frame camera without lens distortion, the map world frame, a
     DEM in the grid's CRS), compute each post's geometry from the grid's row and column terms
-    (:func:`orthomvp.post_geometry.separable`); the codes are those of the general path
+    (:func:`orthomvp.occlusion.post_geometry.separable`); the codes are those of the general path
     (``fast=False``), the positions agree to the last bits of float64.
 
     ``fields``: which of :data:`FIELDS` (``"emission"``, ``"gsd"``, ``"miss"`` with ``eps``)
@@ -210,19 +210,19 @@ def compute_visibility(
     NaN arrays of the grid's shape.
 
     ``fused``: where ``fast`` applies, compute the geometry and the first codes with the numba
-    kernel of :mod:`orthomvp.post_geometry_kernel` (the same results, bit for bit; about 2.5x
-    faster, after a load of about 0.3 s a process).
+    kernel of :mod:`orthomvp.occlusion.post_geometry_kernel` (the same results, bit for bit; about
+    2.5x faster, after a load of about 0.3 s a process).
 
     ``prove`` (default: unless ``fields`` holds ``"miss"``): where ``caster`` is an
-    :class:`~orthomvp.occluders.Occluders` in the map world frame and the camera a frame camera
-    without lens distortion, call a post visible without casting its ray where the DEM's
+    :class:`~orthomvp.occlusion.occluders.Occluders` in the map world frame and the camera a frame
+    camera without lens distortion, call a post visible without casting its ray where the DEM's
     heights prove that the ray meets the surface nowhere farther than its eps minus
     :data:`~orthomvp.codes.DOUBT` posts from the post (:meth:`Occluders.clear
-    <orthomvp.occluders.Occluders.clear>`): its code is the one the cast would give, and the
-    cast's miss could not make it doubtful (:func:`orthomvp.mosaic.doubtful`); its ``miss``
-    and ``eps`` stay NaN. On aerial images of hilly ground about 85% of the posts are proved
-    so, and a tile whose posts all are is never meshed. ``prove=False`` casts every ray (every
-    miss measured, as the misses' statistics and the epsilon study need).
+    <orthomvp.occlusion.occluders.Occluders.clear>`): its code is the one the cast would give, and
+    the cast's miss could not make it doubtful (:func:`orthomvp.ortho.composite.doubtful`); its
+    ``miss`` and ``eps`` stay NaN. On aerial images of hilly ground about 85% of the posts are
+    proved so, and a tile whose posts all are is never meshed. ``prove=False`` casts every ray
+    (every miss measured, as the misses' statistics and the epsilon study need).
     """
     of_type(terrain, Terrain, "terrain")
     of_type(camera, Camera, "camera", " (orthomvp.camera.read_camera)")
@@ -276,7 +276,7 @@ def compute_visibility(
 
     fused = fused and fast
     if fused:
-        from orthomvp.post_geometry_kernel import classify_tile
+        from orthomvp.occlusion.post_geometry_kernel import classify_tile
 
     def work(tile: tuple[slice, slice]) -> None:
         rs, cs = tile
@@ -432,7 +432,7 @@ class _DemCodes:
         return cls(dem, codes, r0, c0)
 
     def kernel_args(self) -> dict[str, object]:
-        """The codes as :func:`orthomvp.post_geometry_kernel.classify_tile` takes them."""
+        """The codes as :func:`orthomvp.occlusion.post_geometry_kernel.classify_tile` takes them."""
         return {"dem_codes": self.codes, "dem": self.dem, "dem_first": (self.r0, self.c0)}
 
     def at(self, grid: Terrain, rs: slice, cs: slice, g: PostGeometry) -> np.ndarray:

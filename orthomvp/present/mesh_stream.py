@@ -1,10 +1,10 @@
 """A DEM of any size as a binary PLY mesh, written block by block of rows in bounded memory.
 
 The file is the one :func:`orthomvp.present.export.write_ply` writes for
-:func:`orthomvp.mesh.terrain_mesh` of the whole DEM: the same vertices (every post of a
+:func:`orthomvp.occlusion.mesh.terrain_mesh` of the whole DEM: the same vertices (every post of a
 triangle, row by row, float64 world metres, or relative to the same local origin), the same
 triangles in the same order (the first triangle of every grid cell, then the second, as
-:func:`orthomvp.mesh.grid_triangles` lists them) and winding, and the same vertex colours.
+:func:`orthomvp.occlusion.mesh.grid_triangles` lists them) and winding, and the same vertex colours.
 Only the colour stretch of a float texture (its 1st to 99th percentile) and the automatic
 error limit (99th percentile of the absolute error) come from a decimated read when the raster
 has more than :data:`STATS_POSTS` posts.
@@ -26,7 +26,8 @@ from rasterio.windows import Window
 
 from orthomvp.engine.grid import DemSource
 from orthomvp.errors import InputError
-from orthomvp.mesh import cell_triangles, grid_triangles, points_down
+from orthomvp.io.raster import atomic_path, open_raster
+from orthomvp.occlusion.mesh import cell_triangles, grid_triangles, points_down
 from orthomvp.present.colours import (
     CODE_RGB,
     error_colour_limit,
@@ -34,7 +35,6 @@ from orthomvp.present.colours import (
     image_colours,
     visibility_codes,
 )
-from orthomvp.raster import atomic_path, open_raster
 
 BLOCK_POSTS = 1 << 22
 """DEM posts (at most) of one block of rows."""
@@ -48,7 +48,7 @@ Colours = Callable[[int, int, np.ndarray], np.ndarray]
 
 def _use(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Posts of ``valid`` (rows, cols) that belong to a triangle of these rows, and the cells'
-    first and second triangles that exist (see :func:`orthomvp.mesh.cell_triangles`)."""
+    first and second triangles that exist (see :func:`orthomvp.occlusion.mesh.cell_triangles`)."""
     t1, t2 = cell_triangles(valid)
     use = np.zeros_like(valid)
     use[:-1, :-1] |= t1
@@ -121,8 +121,8 @@ def _nearest(
 
 def _winding(dem: DemSource, origin: np.ndarray) -> bool:
     """Whether the triangles must be flipped so that their normals point up
-    (:func:`orthomvp.mesh.points_down`), voted on a block of 64 rows at the grid centre, or on
-    the first block of rows with a triangle where the centre has none."""
+    (:func:`orthomvp.occlusion.mesh.points_down`), voted on a block of 64 rows at the grid centre,
+    or on the first block of rows with a triangle where the centre has none."""
     rows, cols = dem.shape
     mid = max(rows // 2 - 32, 0)
     geo = dem.geometry()

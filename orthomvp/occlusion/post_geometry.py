@@ -21,8 +21,8 @@ import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.terrain import Terrain, central_difference, grid_normals, unit_normals
-from orthomvp.vectors import finite_rows
+from orthomvp.geometry.terrain import Terrain, central_difference, grid_normals, unit_normals
+from orthomvp.geometry.vectors import finite_rows
 
 
 @dataclass
@@ -100,8 +100,8 @@ def tile_block(terrain: Terrain, rs: slice, cs: slice) -> tuple[int, int, int, i
 
 def block_axes(terrain: Terrain, block: tuple[int, int, int, int]) -> tuple[np.ndarray, ...]:
     """The eastings (cols,) and northings (rows,) of the posts of ``block`` (r0, r1, c0, c1)
-    of ``terrain``: :meth:`~orthomvp.terrain.Terrain.pixel_to_crs`'s values, since a Terrain
-    is never rotated (S[0, 1] = S[1, 0] = 0, and adding their zero terms is exact)."""
+    of ``terrain``: :meth:`~orthomvp.geometry.terrain.Terrain.pixel_to_crs`'s values, since a
+    Terrain is never rotated (S[0, 1] = S[1, 0] = 0, and adding their zero terms is exact)."""
     r0, r1, c0, c1 = block
     S = terrain.S
     return (

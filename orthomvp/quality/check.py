@@ -3,7 +3,8 @@
 For every ordered pair of overlapping views (A, B) and every epsilon (DEM posts), the local
 normalised cross-correlation (NCC, a ``window`` x ``window`` box of posts) between orthophotos
 on the DEM grid is scored at two classes of posts, binned by A's first-hit miss distance
-(:attr:`orthomvp.visibility.Visibility.miss`, DEM posts; a ray that hits nothing counts as 0):
+(:attr:`orthomvp.occlusion.visibility.Visibility.miss`, DEM posts; a ray that hits nothing counts
+as 0):
 
 - ``visible``: posts visible in A and in B; NCC of A's and B's occlusion-aware orthophotos;
 - ``occluded``: posts A calls occluded and B visible; NCC of A's *naive* orthophoto (what A
@@ -35,13 +36,17 @@ from orthomvp.engine.check import CheckResult, no_overlap
 from orthomvp.engine.check_plan import DEFAULT_EPS, check_options
 from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, check_row, local_ncc
 from orthomvp.errors import GeometryError
-from orthomvp.memory import check_memory, count_text
-from orthomvp.ortho import sample_image
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import (
+    VISIBILITY_BYTES_PER_POST,
+    compute_visibility,
+    occluder_caster,
+)
+from orthomvp.ortho.orthophoto import sample_image
 from orthomvp.present.figures import save_with_table
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
-from orthomvp.visibility import VISIBILITY_BYTES_PER_POST, compute_visibility, occluder_caster
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -559,11 +559,11 @@ def held_raster(path: Path) -> Iterator[rasterio.DatasetReader]:
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image as float32 ``(bands, rows, cols)``; nodata -> NaN.
 
-    ISIS3 cubes (``.cub``) are read by :func:`orthomvp.isis.read_cube` (special pixels -> NaN);
+    ISIS3 cubes (``.cub``) are read by :func:`orthomvp.io.isis.read_cube` (special pixels -> NaN);
     everything else (GeoTIFF/TIFF of any dtype and band count, PNG, JPEG, ...) by rasterio.
     """
     if isinstance(path, (str, os.PathLike)) and Path(path).suffix.lower() == ".cub":
-        from orthomvp.isis import read_cube  # pvl, only for cubes
+        from orthomvp.io.isis import read_cube  # pvl, only for cubes
 
         return read_cube(path)
     with open_raster(path) as src:

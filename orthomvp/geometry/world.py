@@ -1,8 +1,8 @@
 """Which world frame the cameras live in, judged from their centres and the DEM.
 
-Two frames are possible (see :mod:`orthomvp.terrain`): body-fixed Cartesian metres (``"body"``,
-planetary data, ASP's convention) and the DEM's projected CRS taken as Cartesian (easting,
-northing, height; ``"map"``, aerial data, Orthority's convention). A camera centre is
+Two frames are possible (see :mod:`orthomvp.geometry.terrain`): body-fixed Cartesian metres
+(``"body"``, planetary data, ASP's convention) and the DEM's projected CRS taken as Cartesian
+(easting, northing, height; ``"map"``, aerial data, Orthority's convention). A camera centre is
 
 - *body-plausible* when it lies above the tangent plane of at least one DEM post in body-fixed
   coordinates (an orbiter, or an aircraft given in Earth-centred coordinates, is; map
@@ -23,7 +23,7 @@ import numpy as np
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
 
 MAP_EXTENTS = 3.0
 """How far beyond the DEM's map extent a map-frame camera may lie, in DEM extents (per axis)."""

@@ -1,5 +1,5 @@
-"""The labels and the blend of :func:`orthomvp.mosaic.compose` as numba kernels: the seam cost
-of every view at a post (median of the visible views, disagreement, quantised total), its box
+"""The labels and the blend of :func:`orthomvp.ortho.composite.compose` as numba kernels: the seam
+cost of every view at a post (median of the visible views, disagreement, quantised total), its box
 sums, the label (least averaged cost), the blend votes (box sums of the labels) and the
 weighted values, without the numpy path's temporaries.
 
@@ -9,7 +9,7 @@ costs in float64, no fused multiply-add), and box sums of integers, exact in any
 runs on one thread without the GIL (the engine's tiles run in parallel).
 
 This module imports numba (through :mod:`orthomvp.jit`): it is imported only when a mosaic
-large enough to pay for it composes (:data:`orthomvp.mosaic.FUSED_POSTS`); loading the
+large enough to pay for it composes (:data:`orthomvp.ortho.composite.FUSED_POSTS`); loading the
 compiled kernels from numba's cache takes about 0.3 s a process with numba's import,
 compiling them the first time a few seconds."""
 
@@ -27,8 +27,8 @@ _TWO = np.float32(2.0)
 def _box(a: np.ndarray, radius: int, out: np.ndarray, tmp: np.ndarray) -> None:
     """Into ``out`` (rows, cols; integers): the sums of ``a`` (rows, cols; integers or
     booleans) over the (2 ``radius`` + 1)^2 box around each post, zero beyond the array (as
-    :func:`orthomvp.mosaic.box_sum`); ``tmp`` (rows, cols; integers) is scratch. ``out`` may
-    be ``a`` itself."""
+    :func:`orthomvp.ortho.composite.box_sum`); ``tmp`` (rows, cols; integers) is scratch. ``out``
+    may be ``a`` itself."""
     rows, cols = a.shape
     for c in range(cols):  # the column sums of the first row's box
         tmp[0, c] = 0
@@ -76,9 +76,9 @@ def _seam_labels(
     tmp: np.ndarray,
 ) -> None:
     """Into ``label`` (rows, cols) int64: the visible view of least seam cost at each post (the
-    first on ties, -1 where none is visible), as :func:`orthomvp.mosaic.labels` with seamlines:
-    each view's priority ``cost`` (NaN as 0), plus the share of the posts within ``radius``
-    that it does not see, plus its disagreement with the median of the visible views'
+    first on ties, -1 where none is visible), as :func:`orthomvp.ortho.composite.labels` with
+    seamlines: each view's priority ``cost`` (NaN as 0), plus the share of the posts within
+    ``radius`` that it does not see, plus its disagreement with the median of the visible views'
     ``values`` (times ``disagree``, at most 1), in steps of 1 / ``quant``, summed over the
     visible posts within ``radius`` and divided by their number. ``seen`` and ``quanta``
     (views, rows, cols) and ``tmp`` (rows, cols), integers, are scratch."""
@@ -223,9 +223,10 @@ def labels(
     """The 0-based view of each post (rows, cols) int64, -1 where none is ``visible``: least
     priority ``cost``, or least seam cost over ``radius`` (None: no seamlines) with the
     disagreement's scale ``disagree`` and ``quant`` steps per unit of cost
-    (:data:`orthomvp.mosaic.DISAGREE`, :data:`orthomvp.mosaic.QUANT`). The labels of
-    :func:`orthomvp.mosaic.labels` for what :func:`~orthomvp.mosaic.compose` gives it: finite
-    costs and values where visible."""
+    (:data:`orthomvp.ortho.composite.DISAGREE`, :data:`orthomvp.ortho.composite.QUANT`). The labels
+    of
+    :func:`orthomvp.ortho.composite.labels` for what :func:`~orthomvp.ortho.composite.compose`
+    gives it: finite costs and values where visible."""
     out = np.empty(visible.shape[1:], np.int64)
     if radius is None:
         _least(cost, np.empty((0, 0, 0), np.int64), visible, out)

@@ -1,9 +1,9 @@
 """First-hit ray casting against a terrain mesh: Embree (default; the library bundled with
-embreex, through :mod:`orthomvp.embree`) or Open3D.
+embreex, through :mod:`orthomvp.occlusion.embree`) or Open3D.
 
 The backend's library is loaded when a caster is built. Both backends work
 in float32, so the scene is built in the mesh's local frame (see
-:mod:`orthomvp.mesh`) and each ray origin is first moved, in float64, along its ray to the
+:mod:`orthomvp.occlusion.mesh`) and each ray origin is first moved, in float64, along its ray to the
 near side of the mesh's bounding sphere. The float32 cast then spans only the scene's own size:
 for a tile of tens of kilometres the hit points keep millimetres, even 100 km and more from the
 camera at lunar radius (tested against exact float64 intersections).
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.embree import Scene, vertex_buffer
 from orthomvp.errors import InputError
-from orthomvp.mesh import TerrainMesh
+from orthomvp.geometry.vectors import column_range
+from orthomvp.occlusion.embree import Scene, vertex_buffer
+from orthomvp.occlusion.mesh import TerrainMesh
 from orthomvp.optional import require
-from orthomvp.vectors import column_range
 
 BACKENDS = ("embree", "open3d")
 CHUNK = 1 << 17
@@ -55,7 +55,7 @@ class Hits:
 
 
 class RayCaster:
-    """First-hit queries against a :class:`~orthomvp.mesh.TerrainMesh`. ``bounds``: a box
+    """First-hit queries against a :class:`~orthomvp.occlusion.mesh.TerrainMesh`. ``bounds``: a box
     (low, high corners, local frame) holding the mesh, whose bounding sphere rays start at;
     default the mesh's own. Meshes of parts of one surface, with its origin and box, cast as
     the whole does (to an ulp of the hits' distances; a ray through a vertex may meet it on
@@ -73,7 +73,7 @@ class RayCaster:
             raise InputError(f"ray-casting backend must be one of {BACKENDS}, not {backend!r}")
         if not isinstance(tmesh, TerrainMesh):
             raise InputError(
-                f"a ray caster needs a TerrainMesh (orthomvp.mesh.terrain_mesh), got "
+                f"a ray caster needs a TerrainMesh (orthomvp.occlusion.mesh.terrain_mesh), got "
                 f"{type(tmesh).__name__}"
             )
         self.tmesh = tmesh

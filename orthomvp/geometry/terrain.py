@@ -31,9 +31,9 @@ from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
-from orthomvp.memory import check_memory, count_text
-from orthomvp.raster import open_raster, read_values, write_geotiff
-from orthomvp.vectors import nan_median, row_norms
+from orthomvp.geometry.vectors import nan_median, row_norms
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.io.raster import open_raster, read_values, write_geotiff
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -511,7 +511,7 @@ class Terrain:
         """DEM values at fractional pixel positions, linear on the mesh's own triangles.
 
         Each cell splits along the diagonal from (c+1, r) to (c, r+1), as in
-        :func:`orthomvp.mesh.grid_triangles`; NaN outside the grid or next to a hole.
+        :func:`orthomvp.occlusion.mesh.grid_triangles`; NaN outside the grid or next to a hole.
         """
         rows, cols = self.shape
         c = np.asarray(c, dtype=np.float64)

@@ -2,9 +2,9 @@
 
 For each epsilon (in DEM posts) and each view, the visibility test is scored against the marched
 truth on posts farther than one post from a truth class boundary: precision, recall and F1 of
-'visible' and of 'hidden'. The default rule of :func:`orthomvp.visibility.default_eps` is scored
-too. Optional Gaussian noise on the DEM heights imitates a real DEM that is an imperfect model
-of the true surface (the truth stays that of the true surface).
+'visible' and of 'hidden'. The default rule of :func:`orthomvp.occlusion.visibility.default_eps` is
+scored too. Optional Gaussian noise on the DEM heights imitates a real DEM that is an imperfect
+model of the true surface (the truth stays that of the true surface).
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import numpy as np
 
 from orthomvp.codes import classify
 from orthomvp.errors import InputError
+from orthomvp.occlusion.visibility import Visibility, compute_visibility, occluder_caster
 from orthomvp.present.figures import save_with_table
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene
 from orthomvp.validate import number
-from orthomvp.visibility import Visibility, compute_visibility, occluder_caster
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import row_norms
 from orthomvp.optional import require
-from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
-from orthomvp.vectors import row_norms
 
 if TYPE_CHECKING:
     import trimesh
@@ -186,7 +186,7 @@ def occluder_mesh(
     2 cols - 1) points (posts, edge midpoints, cell centres). ``where`` (rows - 1, cols - 1)
     bool keeps only those cells' triangles: the same triangles as in the whole mesh, but on
     the grid's edge, where a cell's split depends on its neighbours. Why: see
-    :func:`orthomvp.visibility.default_eps`."""
+    :func:`orthomvp.occlusion.visibility.default_eps`."""
     of_type(terrain, Terrain, "terrain")
     v = terrain.values
     rows, cols = v.shape

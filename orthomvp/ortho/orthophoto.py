@@ -5,7 +5,7 @@ float32 with NaN as nodata. With occlusion on (the default) only posts whose vis
 1 (visible) get a value; ``occlusion=False`` gives the naive orthophoto of other tools, which
 paints the occluder's pixels again onto every post hidden behind it (ghosts).
 
-Mosaics combine views as :mod:`orthomvp.mosaic` describes: by default each post prefers the
+Mosaics combine views as :mod:`orthomvp.ortho.composite` describes: by default each post prefers the
 visible view with the smallest emission angle (the angle between the DEM's surface normal and
 the direction to the camera, the least foreshortening), seamlines keep away from occlusion
 boundaries and disagreement, seams are feathered over 8 posts, and posts visible in no view
@@ -24,8 +24,17 @@ from affine import Affine
 from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
 from orthomvp.errors import InputError
-from orthomvp.memory import check_memory, count_text
-from orthomvp.mosaic import (
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import finite_rows
+from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.occlusion.raycast import RayCaster
+from orthomvp.occlusion.visibility import (
+    VISIBILITY_BYTES_PER_POST,
+    Visibility,
+    compute_visibility,
+    occluder_caster,
+)
+from orthomvp.ortho.composite import (
     FUSED_POSTS,
     Correction,
     MosaicOptions,
@@ -37,16 +46,7 @@ from orthomvp.mosaic import (
     pair_stats,
     solve_balance,
 )
-from orthomvp.raycast import RayCaster
-from orthomvp.terrain import Terrain
 from orthomvp.validate import of_type
-from orthomvp.vectors import finite_rows
-from orthomvp.visibility import (
-    VISIBILITY_BYTES_PER_POST,
-    Visibility,
-    compute_visibility,
-    occluder_caster,
-)
 
 if TYPE_CHECKING:
     from pyproj import CRS
@@ -85,7 +85,7 @@ class Ortho:
 class Mosaic:
     """A mosaic: ``data`` as in :class:`Ortho`; ``source`` (rows, cols) uint8, the 1-based index
     of the view each post is labelled with (0 where none); ``visibilities`` per view;
-    ``flags`` (rows, cols) :class:`~orthomvp.mosaic.Flag`; ``weights`` (views, rows, cols)
+    ``flags`` (rows, cols) :class:`~orthomvp.ortho.composite.Flag`; ``weights`` (views, rows, cols)
     each view's blend weight; ``correction`` the radiometric balance applied (or None)."""
 
     data: np.ndarray
@@ -182,7 +182,7 @@ def orthorectify(
     projects inside the image does (the naive orthophoto, facing-away and occluded included).
     ``interp`` is an :class:`~orthomvp.codes.Interp` or its name. ``visibility`` reuses a
     visibility of this camera on this grid; otherwise it is computed (see
-    :func:`~orthomvp.visibility.compute_visibility` for ``eps``, ``caster``, ``progress``,
+    :func:`~orthomvp.occlusion.visibility.compute_visibility` for ``eps``, ``caster``, ``progress``,
     ``post_scale`` and ``dem``).
 
     ``image`` may also be (rows, cols) (one band); integer images are taken as float32 with
@@ -223,9 +223,9 @@ def mosaic(
     options: MosaicOptions | None = None,
 ) -> Mosaic:
     """One orthophoto from several (image, camera) views, combined as ``options`` say
-    (default :class:`~orthomvp.mosaic.MosaicOptions`: emission priority, seamlines, blending
-    over 8 posts, no balance, holes left empty; see :mod:`orthomvp.mosaic`), as the engine's
-    mosaic does. The balance's statistics come from the whole grid (the engine's from a
+    (default :class:`~orthomvp.ortho.composite.MosaicOptions`: emission priority, seamlines,
+    blending over 8 posts, no balance, holes left empty; see :mod:`orthomvp.ortho.composite`), as
+    the engine's mosaic does. The balance's statistics come from the whole grid (the engine's from a
     decimated one), and the blend width is clamped to the widest overlap (BlendWarning).
     All images must have the same number of bands. ``eps`` and ``interp`` as in
     :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's occluder surface
@@ -301,7 +301,7 @@ def orthophoto_bytes(shape: tuple[int, int], bands: int) -> float:
 
 def check_orthophoto_memory(shape: tuple[int, int], bands: int, advice: str) -> None:
     """InputError, before any work, when an orthophoto on ``shape`` posts cannot fit in
-    memory (see :mod:`orthomvp.memory`)."""
+    memory (see :mod:`orthomvp.io.preflight`)."""
     rows, cols = shape
     check_memory(
         f"this grid is {count_text(float(rows) * cols)} posts ({cols:,} x {rows:,})",

@@ -1,4 +1,4 @@
-""":func:`orthomvp.post_geometry.separable` and the first classification of the visibility
+""":func:`orthomvp.occlusion.post_geometry.separable` and the first classification of the visibility
 test (inside the image, facing the camera, the codes carried from the DEM's posts) as one numba
 kernel over a tile's posts, without the numpy path's (rows, cols) float64 temporaries.
 
@@ -16,9 +16,9 @@ import numpy as np
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.codes import Code
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.jit import cached_jit
-from orthomvp.post_geometry import PostGeometry, block_axes, tile_block
-from orthomvp.terrain import Terrain
+from orthomvp.occlusion.post_geometry import PostGeometry, block_axes, tile_block
 
 _VISIBLE, _OCCLUDED = np.uint8(Code.VISIBLE), np.uint8(Code.OCCLUDED)
 _FACING_AWAY, _NODATA = np.uint8(Code.FACING_AWAY), np.uint8(Code.NODATA)
@@ -26,7 +26,7 @@ _FACING_AWAY, _NODATA = np.uint8(Code.FACING_AWAY), np.uint8(Code.NODATA)
 
 def _difference(v: np.ndarray, i: int) -> float:
     """The central difference of ``v`` (1-D) at ``i``, one-sided at the two ends (as
-    :func:`orthomvp.terrain.central_difference`), in float64."""
+    :func:`orthomvp.geometry.terrain.central_difference`), in float64."""
     n = len(v)
     if i == 0:
         return np.float64(v[1]) - np.float64(v[0])
@@ -76,7 +76,7 @@ def _classify(
     ``z`` (the tile with one post around, within the grid) whose eastings are ``bx`` and
     northings ``by``, seen by the pinhole ``cam`` (centre, the 3 x 3 world-to-image axes, fu,
     fv, cu, cv, pitch, width, height): into ``ok``, ``inside``, ``uv`` (NaN outside the
-    image), ``cos_e`` and ``facing_gsd`` as :class:`~orthomvp.post_geometry.PostGeometry`;
+    image), ``cos_e`` and ``facing_gsd`` as :class:`~orthomvp.occlusion.post_geometry.PostGeometry`;
     into ``codes`` NODATA
     outside the image, FACING_AWAY, or VISIBLE, or the code that the four DEM posts around
     agree on (``dem_codes``, VISIBLE or OCCLUDED; ``to_dem``: the DEM column's scale and offset
@@ -166,9 +166,10 @@ def _interpolate_grid(
     r_in: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Into ``out`` (rows, cols) float64: :meth:`orthomvp.terrain.Terrain.interpolate_grid` of
-    the heights ``v`` from each column's cell ``c0``, fraction ``fx`` and whether it is inside,
-    and each row's (``r0``, ``fy``, ``r_in``), with the same operations in the same order."""
+    """Into ``out`` (rows, cols) float64:
+    :meth:`orthomvp.geometry.terrain.Terrain.interpolate_grid` of the heights ``v`` from each
+    column's cell ``c0``, fraction ``fx`` and whether it is inside, and each row's (``r0``, ``fy``,
+    ``r_in``), with the same operations in the same order."""
     for i in range(len(r0)):
         a_row, b_row, y = r0[i], r0[i] + 1, fy[i]
         for j in range(len(c0)):
@@ -188,8 +189,8 @@ _interpolate_grid = cached_jit(_interpolate_grid, fastmath=False, error_model="n
 
 
 def interpolate_grid(terrain: Terrain, c: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """:meth:`orthomvp.terrain.Terrain.interpolate_grid` (the same values, bit for bit) as a
-    kernel: the heights of ``terrain`` at every pair of fractional columns ``c`` (n,) and rows
+    """:meth:`orthomvp.geometry.terrain.Terrain.interpolate_grid` (the same values, bit for bit) as
+    a kernel: the heights of ``terrain`` at every pair of fractional columns ``c`` (n,) and rows
     ``r`` (m,), (m, n) float64."""
     cells = terrain.grid_cells(c, r)
     out = np.empty((len(cells[3]), len(cells[0])))
@@ -211,8 +212,8 @@ def classify_tile(
     codes: np.ndarray | None = None,
 ) -> tuple[PostGeometry, np.ndarray, np.ndarray]:
     """The geometry of the posts of tile (``rs``, ``cs``) of ``terrain`` (a case
-    :func:`~orthomvp.post_geometry.separable_applies` to; pixels NaN outside the image), their
-    first codes (uint8) and where rays are still needed (bool), as the visibility test makes
+    :func:`~orthomvp.occlusion.post_geometry.separable_applies` to; pixels NaN outside the image),
+    their first codes (uint8) and where rays are still needed (bool), as the visibility test makes
     them: the codes of the DEM's posts ``dem_codes`` (of ``dem``, in the grid's CRS, its first
     post ``dem_first`` (row, col) of the DEM) carried where the four around a post agree.
     Pixels and codes go into ``uv`` (rows, cols, 2) and ``codes`` (rows, cols) when given."""

@@ -1,6 +1,7 @@
 """The occluder surface of a DEM as the visibility test meets it: a ray caster on
-:func:`~orthomvp.mesh.occluder_mesh`, built on first need, and a proof from the DEM's heights
-alone that a ray meets the surface nowhere far from its post, so that most posts need no ray.
+:func:`~orthomvp.occlusion.mesh.occluder_mesh`, built on first need, and a proof from the DEM's
+heights alone that a ray meets the surface nowhere far from its post, so that most posts need no
+ray.
 
 The proof (map world frame, a ray straight from a camera centre C to a post P; heights along
 z). Along the ground track from P towards C, at horizontal distance s, the ray stands at
@@ -29,9 +30,9 @@ import numpy as np
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.mesh import occluder_mesh
-from orthomvp.raycast import Hits, RayCaster
-from orthomvp.terrain import Terrain
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.occlusion.mesh import occluder_mesh
+from orthomvp.occlusion.raycast import Hits, RayCaster
 
 RADII = (4, 8, 16, 32, 64)
 """Half-widths, in posts, of the boxes whose highest posts bound the track's stretches."""
@@ -56,7 +57,7 @@ sampling costs less than meshing below about 15 a cell)."""
 
 def _box(where: np.ndarray) -> tuple[int, int, int, int] | None:
     """The cells (r0, r1, c0, c1) around the True cells of ``where``, grown by one (a cell's
-    split depends on its neighbours': :func:`~orthomvp.mesh.occluder_mesh`); None without
+    split depends on its neighbours': :func:`~orthomvp.occlusion.mesh.occluder_mesh`); None without
     one."""
     rows = np.flatnonzero(where.any(axis=1))
     if not rows.size:
@@ -78,8 +79,9 @@ def _area(box: tuple[int, int, int, int]) -> int:
 
 class Occluders:
     """The occluder surface of ``terrain`` (a DEM or a window of one): :meth:`first_hit` casts
-    on its :func:`~orthomvp.mesh.occluder_mesh` (built, with its ray caster on ``threads``, at
-    the first cast), :meth:`cast_from` on the cells that rays from a camera centre can meet,
+    on its :func:`~orthomvp.occlusion.mesh.occluder_mesh` (built, with its ray caster on
+    ``threads``, at the first cast), :meth:`cast_from` on the cells that rays from a camera centre
+    can meet,
     :meth:`clear` proves rays clear without a mesh. ``mesh_seconds`` is the time spent
     meshing."""
 
@@ -103,7 +105,7 @@ class Occluders:
             return self._caster
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """:meth:`orthomvp.raycast.RayCaster.first_hit` on the occluder mesh."""
+        """:meth:`orthomvp.occlusion.raycast.RayCaster.first_hit` on the occluder mesh."""
         return self.caster.first_hit(origins, directions)
 
     def cast_from(self, centre: np.ndarray, points: np.ndarray, beyond: float) -> Hits:
