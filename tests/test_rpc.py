@@ -34,7 +34,7 @@ from orthomvp.camera import (
     read_camera,
     world_crs,
 )
-from orthomvp.camera.rpc import COEFFICIENTS, OFFSETS_SCALES, RPC_KEYS
+from orthomvp.camera.rpc_model import COEFFICIENTS, OFFSETS_SCALES, RPC_KEYS
 from orthomvp.errors import FormatError, InputError
 from orthomvp.geometry.terrain import Terrain
 

@@ -30,7 +30,7 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
-from orthomvp.geometry.terrain import horizontal_crs
+from orthomvp.geometry.crs import horizontal_crs
 from orthomvp.io.raster import open_raster, read_image, write_geotiff
 
 PEER_IMAGE = "3324c_2015_1004_05_0182_RGB"

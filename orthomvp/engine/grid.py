@@ -24,7 +24,8 @@ from rasterio.windows import Window
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
-from orthomvp.geometry.terrain import Terrain, as_crs, as_pyproj, dem_georeference, warn_infinite
+from orthomvp.geometry.crs import as_crs, as_pyproj
+from orthomvp.geometry.terrain import Terrain, dem_georeference, warn_infinite
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import held_raster, open_raster, read_values
 

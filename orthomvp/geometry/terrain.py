@@ -17,8 +17,6 @@ Conventions (see ARCHITECTURE.md):
 from __future__ import annotations
 
 import os
-import re
-import sys
 import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -31,15 +29,21 @@ from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
+from orthomvp.geometry.crs import (
+    as_crs,
+    as_pyproj,
+    file_radii,
+    horizontal_crs,
+    is_pyproj,
+    parse_crs,
+)
+from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
 from orthomvp.io.raster import open_raster, read_values, write_geotiff
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
-
-Triple = tuple[np.ndarray | float, np.ndarray | float, np.ndarray | float]
-"""Three components of vectors (x, y, z), arrays that broadcast together or numbers."""
 
 
 def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
@@ -56,62 +60,6 @@ def perimeter(window: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray
     c = np.concatenate([cols, cols, np.full(len(rows), c0), np.full(len(rows), c1 - 1)])
     r = np.concatenate([np.full(len(cols), r0), np.full(len(cols), r1 - 1), rows, rows])
     return c, r
-
-
-def central_difference(v: np.ndarray, axis: int) -> np.ndarray:
-    """Per-step difference of ``v`` along ``axis``: central, one-sided at the two ends; zero
-    along an axis of length 1 (a broadcast array, constant along it)."""
-    if v.shape[axis] == 1:
-        return np.zeros_like(v)
-    v = np.moveaxis(v, axis, 0)
-    d = np.empty_like(v)
-    d[1:-1] = (v[2:] - v[:-2]) * 0.5
-    d[0] = v[1] - v[0]
-    d[-1] = v[-1] - v[-2]
-    return np.moveaxis(d, 0, axis)
-
-
-def _difference(p: np.ndarray, axis: int) -> np.ndarray:
-    """Per-step difference of grid points along ``axis``: central, else one-sided where a
-    neighbour is a hole or beyond the border; NaN only for posts with no valid neighbour."""
-    d = np.moveaxis(central_difference(p, axis), axis, 0)
-    p = np.moveaxis(p, axis, 0)
-    bad = np.isnan(d[..., 0])
-    if bad.any():
-        step = p[1:] - p[:-1]
-        fwd = np.full_like(p, np.nan)
-        fwd[:-1] = step
-        bwd = np.full_like(p, np.nan)
-        bwd[1:] = step
-        d[bad] = np.where(np.isnan(fwd[bad]), bwd[bad], fwd[bad])
-    return np.moveaxis(d, 0, axis)
-
-
-def unit_normals(a: Triple, b: Triple, up: Triple) -> Triple:
-    """The components of the unit normals a x b, oriented to agree with ``up`` (each of
-    ``a``, ``b``, ``up`` three arrays or numbers that broadcast together); NaN where the
-    cross product is not finite or zero. Component by component: einsum and masked updates
-    over a last axis of 3 cost 5x more."""
-    n0 = a[1] * b[2] - a[2] * b[1]
-    n1 = a[2] * b[0] - a[0] * b[2]
-    n2 = a[0] * b[1] - a[1] * b[0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        outward = n0 * up[0] + n1 * up[1] + n2 * up[2] >= 0
-        scale = np.where(outward, 1.0, -1.0) / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        return n0 * scale, n1 * scale, n2 * scale
-
-
-def grid_normals(p: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """Unit outward normals (rows, cols, 3) of a grid of world points ``p`` (rows, cols, 3):
-    the cross product of the differences along columns and rows (central differences, one-sided
-    at borders and next to holes), oriented to agree with ``up``. NaN at holes."""
-    a, b = _difference(p, 1), _difference(p, 0)
-    return np.stack(unit_normals(_components(a), _components(b), _components(up)), axis=-1)
-
-
-def _components(v: np.ndarray) -> Triple:
-    """The x, y and z components of vectors ``v`` (..., 3)."""
-    return v[..., 0], v[..., 1], v[..., 2]
 
 
 def _heights(values: object, name: str) -> np.ndarray:
@@ -147,64 +95,6 @@ def warn_infinite(path: str | Path, count: int) -> None:
             OrthoMVPWarning,
             stacklevel=3,
         )
-
-
-def horizontal_crs(crs: CRS | FileCRS, source: str = "CRS") -> CRS | FileCRS:
-    """The horizontal part of a (possibly compound) CRS: a pyproj CRS's own, a file's (not
-    compound: itself) through pyproj."""
-    if is_pyproj(crs):
-        return crs.sub_crs_list[0] if crs.is_compound else crs
-    if crs.to_wkt().startswith(("COMPD_CS", "COMPOUNDCRS")):
-        return parse_crs(crs.to_wkt(), source)
-    return crs
-
-
-def parse_crs(value: object, source: str) -> CRS:
-    """A pyproj CRS from anything pyproj accepts (WKT, PROJ string, 'IAU_2015:30100', ...)."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    try:
-        return horizontal_crs(CRS.from_user_input(value))
-    except CRSError as exc:
-        raise InputError(f"{source}: cannot understand CRS {value!r} ({exc})") from exc
-
-
-def as_crs(value: object, source: str) -> CRS | FileCRS:
-    """The horizontal part of a CRS object (pyproj's, or a file's as rasterio reads it, kept
-    so), or the pyproj CRS of anything else pyproj reads (:func:`parse_crs`)."""
-    if isinstance(value, FileCRS) or is_pyproj(value):
-        return horizontal_crs(value, source)
-    return parse_crs(value, source)
-
-
-def is_pyproj(crs: object) -> bool:
-    """Whether ``crs`` is a pyproj CRS (never, while pyproj is not imported)."""
-    pyproj = sys.modules.get("pyproj")
-    return pyproj is not None and isinstance(crs, pyproj.CRS)
-
-
-def as_pyproj(crs: CRS | FileCRS) -> CRS:
-    """``crs`` as a pyproj CRS: itself, or a file's read from its WKT (as :func:`parse_crs`
-    reads it)."""
-    return crs if is_pyproj(crs) else parse_crs(crs.to_wkt(), "CRS")
-
-
-_SPHEROID = re.compile(r'SPHEROID\["[^"]*",\s*([^,\]]+),\s*([^,\]]+)')
-
-
-def _file_radii(crs: FileCRS) -> tuple[float, float] | None:
-    """(semi-major, semi-minor) axes of a file CRS's ellipsoid from its WKT 1 (metres; the
-    semi-minor as PROJ computes it from the inverse flattening, 0 for a sphere); None when the
-    WKT does not say them plainly."""
-    found = _SPHEROID.search(crs.to_wkt())
-    if found is None:
-        return None
-    try:
-        a, rf = float(found[1]), float(found[2])
-    except ValueError:
-        return None
-    return a, (a if rf == 0 else (1.0 - 1.0 / rf) * a)
 
 
 REGRID_BYTES_PER_POST = 160
@@ -382,7 +272,7 @@ class Terrain:
     def radii(self) -> tuple[float, float]:
         """(semi-major, semi-minor) axes of the body's reference ellipsoid, metres; of a
         file's CRS from its WKT, without pyproj, when the WKT says them plainly."""
-        if not is_pyproj(self.crs) and (radii := _file_radii(self.crs)) is not None:
+        if not is_pyproj(self.crs) and (radii := file_radii(self.crs)) is not None:
             return radii
         ell = self.geodetic_crs.ellipsoid
         return float(ell.semi_major_metre), float(ell.semi_minor_metre)

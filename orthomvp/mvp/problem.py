@@ -10,7 +10,8 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera, as_image, check_image
 from orthomvp.codes import Code
 from orthomvp.errors import InputError
-from orthomvp.geometry.terrain import Terrain, grid_normals
+from orthomvp.geometry.normals import grid_normals
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp.local import local_projections
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack

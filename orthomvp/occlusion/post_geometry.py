@@ -21,7 +21,8 @@ import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.geometry.terrain import Terrain, central_difference, grid_normals, unit_normals
+from orthomvp.geometry.normals import central_difference, grid_normals, unit_normals
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 
 

@@ -30,7 +30,8 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
 from orthomvp.camera.formats._common import CameraFile, CameraFormat, number
 from orthomvp.camera.model import FieldError
-from orthomvp.camera.rpc import COEFFICIENTS, RPC_KEYS, Rpc, RpcCamera
+from orthomvp.camera.rpc import RpcCamera
+from orthomvp.camera.rpc_model import COEFFICIENTS, RPC_KEYS, Rpc
 from orthomvp.errors import FormatError, InputError
 
 _RPB_NAMES = dict(

@@ -1,0 +1,77 @@
+"""CRS helpers: a DEM's CRS as pyproj or rasterio gives it, its horizontal part, its radii.
+
+A file's CRS is kept as rasterio reads it (GDAL) where that is enough, because pyproj's import
+takes about 45 ms; pyproj is imported only where a transformation, a compound CRS or a CRS the
+user gives needs it.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from typing import TYPE_CHECKING
+
+from rasterio.crs import CRS as FileCRS
+
+from orthomvp.errors import InputError
+
+if TYPE_CHECKING:
+    from pyproj import CRS
+
+
+def horizontal_crs(crs: CRS | FileCRS, source: str = "CRS") -> CRS | FileCRS:
+    """The horizontal part of a (possibly compound) CRS: a pyproj CRS's own, a file's (not
+    compound: itself) through pyproj."""
+    if is_pyproj(crs):
+        return crs.sub_crs_list[0] if crs.is_compound else crs
+    if crs.to_wkt().startswith(("COMPD_CS", "COMPOUNDCRS")):
+        return parse_crs(crs.to_wkt(), source)
+    return crs
+
+
+def parse_crs(value: object, source: str) -> CRS:
+    """A pyproj CRS from anything pyproj accepts (WKT, PROJ string, 'IAU_2015:30100', ...)."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        return horizontal_crs(CRS.from_user_input(value))
+    except CRSError as exc:
+        raise InputError(f"{source}: cannot understand CRS {value!r} ({exc})") from exc
+
+
+def as_crs(value: object, source: str) -> CRS | FileCRS:
+    """The horizontal part of a CRS object (pyproj's, or a file's as rasterio reads it, kept
+    so), or the pyproj CRS of anything else pyproj reads (:func:`parse_crs`)."""
+    if isinstance(value, FileCRS) or is_pyproj(value):
+        return horizontal_crs(value, source)
+    return parse_crs(value, source)
+
+
+def is_pyproj(crs: object) -> bool:
+    """Whether ``crs`` is a pyproj CRS (never, while pyproj is not imported)."""
+    pyproj = sys.modules.get("pyproj")
+    return pyproj is not None and isinstance(crs, pyproj.CRS)
+
+
+def as_pyproj(crs: CRS | FileCRS) -> CRS:
+    """``crs`` as a pyproj CRS: itself, or a file's read from its WKT (as :func:`parse_crs`
+    reads it)."""
+    return crs if is_pyproj(crs) else parse_crs(crs.to_wkt(), "CRS")
+
+
+_SPHEROID = re.compile(r'SPHEROID\["[^"]*",\s*([^,\]]+),\s*([^,\]]+)')
+
+
+def file_radii(crs: FileCRS) -> tuple[float, float] | None:
+    """(semi-major, semi-minor) axes of a file CRS's ellipsoid from its WKT 1 (metres; the
+    semi-minor as PROJ computes it from the inverse flattening, 0 for a sphere); None when the
+    WKT does not say them plainly."""
+    found = _SPHEROID.search(crs.to_wkt())
+    if found is None:
+        return None
+    try:
+        a, rf = float(found[1]), float(found[2])
+    except ValueError:
+        return None
+    return a, (a if rf == 0 else (1.0 - 1.0 / rf) * a)
