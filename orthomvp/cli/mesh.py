@@ -138,15 +138,18 @@ def _stream(
 ) -> None:
     """A PLY of any DEM size, block by block (:mod:`orthomvp.present.mesh_stream`)."""
     from orthomvp.codes import WorldFrame
-    from orthomvp.engine.grid import scan_dem
+    from orthomvp.engine.grid import scan_dem, with_world
+    from orthomvp.geometry.datum import HeightOptions
     from orthomvp.present.mesh_stream import code_colours, image_stretch, write_ply_stream
     from orthomvp.present.mesh_stream import error_against as error_colours_of
 
     world = WorldFrame.BODY if dem.world == "auto" else WorldFrame(dem.world)
-    source = scan_dem(dem.path, dem.crs, dem.radius_values, world)
+    heights = HeightOptions(dem.vertical_datum, dem.height_offset)
+    source = with_world(scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights), world)
     colours, limit = None, None
     if error_against:
-        truth = scan_dem(error_against, dem.crs, dem.radius_values, world)
+        truth = scan_dem(error_against, dem.crs, dem.radius_values, heights=heights)
+        truth = with_world(truth, world)
         colours, limit = error_colours_of(truth, source, error_limit)
     elif texture and kind == "visibility":
         colours = code_colours(texture, source.shape)

@@ -110,36 +110,53 @@ class DemInput:
     crs: str | None = None
     world: str = "auto"
     """"auto", or a :class:`WorldFrame` value"""
+    vertical_datum: str = "auto"
+    """"auto" or "ignore" (:mod:`orthomvp.geometry.datum`)"""
+    height_offset: float | None = None
+    """metres added to the DEM's heights, or None"""
 
     def plan_options(self) -> dict[str, object]:
         """How the engine's plans (``plan_ortho``, ``plan_check``, ``plan_fit``) read the DEM:
-        their ``dem_crs``, ``radius_values`` and ``world``."""
-        return {"dem_crs": self.crs, "radius_values": self.radius_values, "world": self.world}
+        their ``dem_crs``, ``radius_values``, ``world``, ``vertical_datum`` and
+        ``height_offset``."""
+        return {
+            "dem_crs": self.crs,
+            "radius_values": self.radius_values,
+            "world": self.world,
+            "vertical_datum": self.vertical_datum,
+            "height_offset": self.height_offset,
+        }
 
     def read(self, cameras: Sequence[Camera] = ()) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
         :func:`orthomvp.geometry.world.detect_world`), body-fixed when there are none. In the body
         frame every camera must sit above the DEM
         (:func:`orthomvp.geometry.world.check_cameras_above`)."""
-        from dataclasses import replace
-
-        import numpy as np
-
         from orthomvp.geometry.terrain import Terrain
         from orthomvp.geometry.world import check_cameras_above, detect_world
 
         world = WorldFrame.BODY if self.world == "auto" else WorldFrame(self.world)
-        terrain = Terrain.read(
-            self.path, radius_values=self.radius_values, world=world, crs=self.crs
-        )
+        heights = {"vertical_datum": self.vertical_datum, "height_offset": self.height_offset}
+        if self.world == "auto" and cameras:  # the frame first, from heights as they are
+            raw = Terrain.read(self.path, self.radius_values, world, self.crs, **_AS_READ)
+            world = detect_world(raw, _centres(cameras))
+        terrain = Terrain.read(self.path, self.radius_values, world, self.crs, **heights)
         if cameras:
-            from orthomvp.camera import sensor_positions
-
-            centres = np.concatenate([sensor_positions(camera) for camera in cameras])
-            if self.world == "auto":
-                terrain = replace(terrain, world=detect_world(terrain, centres))
-            check_cameras_above(terrain, centres)
+            check_cameras_above(terrain, _centres(cameras))
         return terrain
+
+
+_AS_READ: dict[str, Any] = {"vertical_datum": "ignore", "height_offset": None}
+"""Terrain.read's options for heights as the file holds them."""
+
+
+def _centres(cameras: Sequence[Camera]) -> Any:
+    """The cameras' sensor positions, (n, 3) world metres."""
+    import numpy as np
+
+    from orthomvp.camera import sensor_positions
+
+    return np.concatenate([sensor_positions(camera) for camera in cameras])
 
 
 DEM_HELP = (
@@ -154,8 +171,8 @@ optional_dem_argument = click.argument(
 
 
 def dem_options(f: F) -> F:
-    """--radius-values, --dem-crs and --world; the command receives them with its ``dem``
-    argument as one :class:`DemInput` named ``dem``."""
+    """--radius-values, --dem-crs, --world, --vertical-datum and --height-offset; the command
+    receives them with its ``dem`` argument as one :class:`DemInput` named ``dem``."""
 
     @functools.wraps(f)
     def command(**kwargs: Any) -> Any:
@@ -164,7 +181,11 @@ def dem_options(f: F) -> F:
             radius_values=kwargs.pop("radius_values"),
             crs=kwargs.pop("dem_crs"),
             world=kwargs.pop("world"),
+            vertical_datum=kwargs.pop("vertical_datum"),
+            height_offset=kwargs.pop("height_offset"),
         )
+        if dem.height_offset is not None and dem.vertical_datum == "ignore":
+            raise usage_error("give --height-offset or --vertical-datum ignore, not both")
         return f(dem=dem, **kwargs)
 
     options = (
@@ -188,6 +209,25 @@ def dem_options(f: F) -> F:
             "projected CRS taken as Cartesian (easting, northing, height); auto picks it from "
             "the camera centres and the DEM (body for geographic CRSs and when no camera is "
             "given) and asks for body or map when that is ambiguous",
+        ),
+        click.option(
+            "--vertical-datum",
+            type=click.Choice(["auto", "ignore"]),
+            default="auto",
+            show_default=True,
+            help="heights of a DEM whose CRS has a vertical part (e.g. WGS84 + EGM2008 height): "
+            "auto converts them with PROJ and the geoid's grid to the heights above the "
+            "ellipsoid that RPCs and body-fixed cameras want, and refuses, naming the grid, "
+            "when PROJ lacks it; cameras in the DEM's map frame take its heights as they are. "
+            "ignore: use the heights as they are",
+        ),
+        click.option(
+            "--height-offset",
+            type=FINITE,
+            metavar="METRES",
+            help="metres added to every DEM height instead of the vertical datum's conversion, "
+            "for any camera, RPCs included: e.g. the local geoid undulation (about 28 on the "
+            "EGM2008 heights of the ngi-aerial DEM) when PROJ lacks the geoid's grid",
         ),
     )
     for option in reversed(options):

@@ -30,6 +30,7 @@ from orthomvp.engine.plan import (
     tile_grid,
 )
 from orthomvp.errors import InputError
+from orthomvp.geometry.datum import HeightOptions
 from orthomvp.validate import number
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
@@ -142,14 +143,16 @@ def plan_check(
     radius_values: bool = False,
     world: WorldFrame | str = "auto",
     progress: bool = True,
+    vertical_datum: str = "auto",
+    height_offset: float | None = None,
 ) -> CheckPlan:
     """Plan the truth-free check (:func:`orthomvp.quality.check.check_views`) of ``views`` ((image
     path, camera or camera path) pairs, at least 2, any band counts) on the DEM at path
     ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid (default
     :func:`~orthomvp.engine.plan.auto_tile`): every epsilon of
     ``eps_values`` (DEM posts), NCC boxes of ``window`` posts (odd, 3..51), views labelled
-    ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values`` and ``world`` as for
-    :func:`~orthomvp.engine.plan_ortho`.
+    ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values``, ``world``,
+    ``vertical_datum`` and ``height_offset`` as for :func:`~orthomvp.engine.plan_ortho`.
 
     Reads the DEM once in blocks and the images' headers. Raises InputError for bad options,
     GeometryError when an image sees none of the DEM; warns
@@ -169,6 +172,7 @@ def plan_check(
         radius_values=radius_values,
         world=world,
         progress=progress,
+        heights=HeightOptions(vertical_datum, height_offset),
     )
     jobs = [
         job if len(job.views) > 1 else replace(job, views=(), dem=None, image_windows=())

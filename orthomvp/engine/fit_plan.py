@@ -58,6 +58,7 @@ from orthomvp.engine.plan import (
 )
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
+from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.terrain import perimeter
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
@@ -273,12 +274,16 @@ def plan_fit(
     radius_values: bool = False,
     world: WorldFrame | str = "auto",
     progress: bool = True,
+    vertical_datum: str = "auto",
+    height_offset: float | None = None,
 ) -> FitPlan:
     """Plan the MVP fit (:func:`orthomvp.mvp.fit_dem` with ``options``) of the DEM at path
     ``dem`` from ``views`` ((image path, camera or camera path) pairs, at least 2), in tiles
     of ``tile`` x ``tile`` posts of the DEM's grid (default :data:`~orthomvp.engine.plan.TILE`:
     a fit tile's margin is too wide for smaller ones); ``eps`` (DEM posts), ``dem_crs``,
-    ``radius_values`` and ``world`` as for :func:`~orthomvp.engine.plan_ortho`.
+    ``radius_values``, ``world``, ``vertical_datum`` and ``height_offset`` as for
+    :func:`~orthomvp.engine.plan_ortho`. The fitted heights are written as the cameras need
+    them (above the ellipsoid in the body frame), under the DEM's horizontal CRS.
 
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
     cameras. Raises InputError for bad options and GeometryError when an image sees none of
@@ -298,7 +303,8 @@ def plan_fit(
             "each with its camera"
         )
     sources = tuple(image_source(image, camera) for image, camera in views)
-    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    heights = HeightOptions(vertical_datum, height_offset)
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     grid = output_grid(source)
     levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)
     opts = replace(opts, levels=levels)

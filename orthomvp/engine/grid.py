@@ -25,6 +25,7 @@ from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj
+from orthomvp.geometry.datum import TOLERANCE, HeightOptions, HeightShift, height_shift
 from orthomvp.geometry.terrain import Terrain, dem_georeference, warn_infinite
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import held_raster, open_raster, read_values
@@ -81,9 +82,19 @@ class DemSource:
     preview: Terrain
     stride: int
     held: np.ndarray | None = field(default=None, compare=False, repr=False)
+    file_crs: object | None = field(default=None, compare=False, repr=False)
+    heights: HeightOptions = field(default=HeightOptions(), compare=False, repr=False)
+    shift: HeightShift | None = field(default=None, compare=False, repr=False)
+    raw: tuple[np.ndarray, float, float] | None = field(default=None, compare=False, repr=False)
 
     def read(self, window: WindowT) -> np.ndarray:
-        """The DEM values in ``window`` as float64 (rows, cols), NaN at nodata."""
+        """The DEM values in ``window`` as float64 (rows, cols), NaN at nodata, shifted to the
+        heights the cameras need (``shift``, :mod:`orthomvp.geometry.datum`)."""
+        values = self._read(window)
+        return values if self.shift is None else values + self.shift.window(window)
+
+    def _read(self, window: WindowT) -> np.ndarray:
+        """The DEM values in ``window`` as the file holds them."""
         r0, r1, c0, c1 = window
         if self.held is not None:
             return self.held[r0:r1, c0:c1].copy()
@@ -159,10 +170,15 @@ def scan_dem(
     radius_values: bool = False,
     world: WorldFrame | str = WorldFrame.BODY,
     progress: Progress | None = None,
+    *,
+    heights: HeightOptions | None = None,
 ) -> DemSource:
     """Read a DEM once, block by block (peak memory :data:`SCAN_POSTS` float64 posts), for its
     height range and a preview; ``crs`` overrides the file's CRS. ``progress`` counts rows.
-    InputError for a DEM without CRS, georeference or valid heights."""
+    Heights stay as the file holds them until :func:`with_world` shifts them for the cameras'
+    frame as ``heights`` says.
+    InputError for a DEM without CRS, georeference or valid heights, or whose vertical datum
+    cannot be converted."""
     path = Path(path)
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), open_raster(path) as src:
         rows, cols = src.height, src.width
@@ -203,7 +219,7 @@ def scan_dem(
     if not np.isfinite(values).any():  # valid posts exist, but none on the preview lattice
         values = np.full_like(values, (lo + hi) / 2)
     preview = Terrain(values, preview_transform, the_crs, radius_values, world, name=str(path))
-    return DemSource(
+    source = DemSource(
         path,
         (rows, cols),
         transform,
@@ -215,12 +231,44 @@ def scan_dem(
         preview,
         stride,
         held,
+        file_crs if crs is None else crs,
+        heights or HeightOptions(),
     )
+    return source
 
 
 def with_world(dem: DemSource, world: WorldFrame) -> DemSource:
-    """The same DEM with cameras in another world frame."""
-    return replace(dem, world=world, preview=replace(dem.preview, world=world))
+    """The same DEM with cameras in another world frame, its heights shifted to what they need
+    (:func:`~orthomvp.geometry.datum.height_shift`): the preview and the height range at once
+    (the range widened by the largest shift between neighbouring preview posts, a bound for the
+    shift between them), each window as :meth:`DemSource.read` reads it."""
+    values, lo, hi = dem.raw or (dem.preview.values, dem.h_min, dem.h_max)
+    shift = height_shift(
+        dem.file_crs,
+        dem.transform,
+        dem.shape,
+        world=world,
+        vertical_datum=dem.heights.vertical_datum,
+        height_offset=dem.heights.height_offset,
+        name=str(dem.path),
+    )
+    if shift is not None:
+        r, c = np.mgrid[0 : values.shape[0], 0 : values.shape[1]] * dem.stride
+        n = shift.at(c, r)
+        steps = [np.abs(np.diff(n, axis=k)).max(initial=0.0) for k in (0, 1)]
+        margin = max(steps) + TOLERANCE
+        lo, hi = lo + n.min() - margin, hi + n.max() + margin
+        values = values + n
+    preview = replace(dem.preview, world=world, values=values)
+    return replace(
+        dem,
+        world=world,
+        preview=preview,
+        h_min=lo,
+        h_max=hi,
+        shift=shift,
+        raw=dem.raw or (dem.preview.values, dem.h_min, dem.h_max),
+    )
 
 
 @dataclass(frozen=True)

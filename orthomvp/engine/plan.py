@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from orthomvp.camera import Camera, in_world, sensor_positions
+from orthomvp.camera import Camera, RpcCamera, in_world, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
@@ -27,6 +27,7 @@ from orthomvp.engine.heap import MMAP_THRESHOLD
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.geometry.datum import HeightOptions, vertical_part
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
@@ -321,6 +322,8 @@ def plan_ortho(
     world: WorldFrame | str = "auto",
     progress: bool = True,
     mosaic: MosaicOptions | None = None,
+    vertical_datum: str = "auto",
+    height_offset: float | None = None,
 ) -> Plan:
     """Plan orthophotos, visibility codes or a mosaic of ``views`` ((image path, camera or
     camera path) pairs) on the DEM at path ``dem``.
@@ -332,7 +335,9 @@ def plan_ortho(
     ``occlusion``, ``eps`` (DEM posts) and ``interp`` are those of
     :func:`orthomvp.ortho.orthophoto.orthorectify`; ``dem_crs`` overrides the DEM file's
     CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
-    :meth:`orthomvp.geometry.terrain.Terrain.read` and :func:`orthomvp.geometry.world.detect_world`.
+    :meth:`orthomvp.geometry.terrain.Terrain.read` and :func:`orthomvp.geometry.world.detect_world`;
+    ``vertical_datum`` ("auto", "ignore") and ``height_offset`` (metres added to the DEM's
+    heights) say how its heights become the cameras' (:mod:`orthomvp.geometry.datum`).
 
     With two views or more the plan is a mosaic, combined as ``mosaic`` says (default
     :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); every tile then
@@ -371,6 +376,7 @@ def plan_ortho(
         crs=crs,
         largest=largest,
         smallest=smallest,
+        heights=HeightOptions(vertical_datum, height_offset),
     )
     spacing = source.post_spacing()
     post_scale = 1.0 if grid.on_dem else _grid_spacing(grid, source) / spacing
@@ -484,13 +490,14 @@ def tile_grid(
     crs: object | None = None,
     largest: int = TILE,
     smallest: int = SMALL_TILE,
+    heights: HeightOptions | None = None,
 ) -> TiledGrid:
     """What every engine plan starts with: the DEM and views (:func:`read_source`), the output
     grid (the DEM's, or ``res``, ``bounds``, ``crs``), and its tiles of ``tile`` posts (None:
     :func:`auto_tile`, from ``smallest`` to ``largest``), each with ``margin`` posts around it,
     its DEM window (with the occluder halo when ``occlusion``) and its image boxes
     (:func:`plan_tiles`), checked (:func:`check_plan`)."""
-    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress)
+    source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     grid = output_grid(source, res, bounds, crs)
     tile = auto_tile(grid.shape, largest=largest, smallest=smallest) if tile is None else tile
     to_dem = grid_to_dem(grid, source)
@@ -512,17 +519,35 @@ def read_source(
     radius_values: bool,
     world: WorldFrame | str,
     progress: bool,
+    heights: HeightOptions | None = None,
 ) -> tuple[DemSource, tuple[ImageSource, ...]]:
     """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
-    its cameras fit, :func:`~orthomvp.geometry.world.detect_world`), with every camera above it; and
-    the views with their cameras in that frame (:func:`~orthomvp.camera.in_world`)."""
+    its cameras fit, :func:`~orthomvp.geometry.world.detect_world`), its heights shifted to what
+    that frame's cameras need as ``heights`` says (:mod:`orthomvp.geometry.datum`), with every
+    camera above it; and the views with their cameras in that frame
+    (:func:`~orthomvp.camera.in_world`). InputError for an RPC camera among map-frame cameras
+    on a DEM with a vertical datum (the RPC wants ellipsoidal heights, they the DEM's)."""
     frame = _frame(world)
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
-        source = scan_dem(dem, dem_crs, radius_values, progress=bar)
+        source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
     if frame is None:
         frame = detect_world(source.preview, centres)
     source = dem_with_world(source, frame)
+    rpc = [v for v in sources if isinstance(v.camera, RpcCamera)]
+    if (
+        rpc
+        and frame == WorldFrame.MAP
+        and source.shift is None
+        and source.heights.vertical_datum == "auto"
+        and vertical_part(source.file_crs) is not None
+    ):
+        raise InputError(
+            f"{rpc[0].path}: an RPC camera wants heights above the WGS84 ellipsoid, but with "
+            f"cameras in the DEM's map frame the DEM's heights stay in its vertical datum "
+            f"({vertical_part(source.file_crs).name!r}): give --height-offset METRES (the geoid "
+            "undulation, added to the DEM's heights for every camera) or --vertical-datum ignore"
+        )
     sources = tuple(replace(v, camera=in_world(v.camera, source.preview)) for v in sources)
     check_cameras_above(
         source.preview, np.concatenate([sensor_positions(v.camera) for v in sources])

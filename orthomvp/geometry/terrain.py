@@ -37,6 +37,7 @@ from orthomvp.geometry.crs import (
     is_pyproj,
     parse_crs,
 )
+from orthomvp.geometry.datum import height_shift
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
@@ -156,10 +157,16 @@ class Terrain:
         radius_values: bool = False,
         world: WorldFrame | str = WorldFrame.BODY,
         crs: object | None = None,
+        *,
+        vertical_datum: str = "auto",
+        height_offset: float | None = None,
     ) -> Terrain:
         """Read band 1 of a GeoTIFF DEM; nodata posts become NaN, and so do infinite values
         (with an :class:`~orthomvp.errors.OrthoMVPWarning` that counts them). ``crs``
-        overrides the file's."""
+        overrides the file's. Heights become those the cameras of ``world`` need
+        (:mod:`orthomvp.geometry.datum`): in the body frame a compound CRS's vertical datum is
+        converted to heights above its ellipsoid (``vertical_datum="ignore"``: not); a
+        ``height_offset`` (metres) is added instead, in either frame."""
         if not isinstance(path, (str, os.PathLike)):
             raise InputError(f"a DEM file name is a str or a Path, got {type(path).__name__}")
         with open_raster(path) as src:
@@ -171,6 +178,17 @@ class Terrain:
             transform = src.transform
         the_crs = dem_georeference(path, file_crs, transform, crs)
         warn_infinite(path, int(np.isinf(values).sum()))
+        shift = height_shift(
+            file_crs if crs is None else crs,
+            transform,
+            values.shape,
+            world=world,
+            vertical_datum=vertical_datum,
+            height_offset=height_offset,
+            name=str(path),
+        )
+        if shift is not None:
+            values = values + shift.window((0, values.shape[0], 0, values.shape[1]))
         terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
         terrain.check_convention()
         return terrain
