@@ -132,18 +132,20 @@ class DemInput:
         :func:`orthomvp.geometry.world.detect_world`), body-fixed when there are none. In the body
         frame every camera must sit above the DEM
         (:func:`orthomvp.geometry.world.check_cameras_above`)."""
+        from dataclasses import replace
+
         from orthomvp.geometry.terrain import Terrain
         from orthomvp.geometry.world import check_cameras_above, detect_world
 
         world = WorldFrame.BODY if self.world == "auto" else WorldFrame(self.world)
         heights = {"vertical_datum": self.vertical_datum, "height_offset": self.height_offset}
-        if self.world == "auto" and cameras:  # the frame first, from heights as they are
+        if cameras:  # the frame and "above" from the heights as the file holds them
             raw = Terrain.read(self.path, self.radius_values, world, self.crs, **_AS_READ)
-            world = detect_world(raw, _centres(cameras))
-        terrain = Terrain.read(self.path, self.radius_values, world, self.crs, **heights)
-        if cameras:
-            check_cameras_above(terrain, _centres(cameras))
-        return terrain
+            centres = _centres(cameras)
+            if self.world == "auto":
+                world = detect_world(raw, centres)
+            check_cameras_above(replace(raw, world=world), centres)
+        return Terrain.read(self.path, self.radius_values, world, self.crs, **heights)
 
 
 _AS_READ: dict[str, Any] = {"vertical_datum": "ignore", "height_offset": None}

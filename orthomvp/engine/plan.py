@@ -533,6 +533,9 @@ def read_source(
         source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
     if frame is None:
         frame = detect_world(source.preview, centres)
+    preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough
+    sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
+    check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
     source = dem_with_world(source, frame)
     rpc = [v for v in sources if isinstance(v.camera, RpcCamera)]
     if (
@@ -548,10 +551,6 @@ def read_source(
             f"({vertical_part(source.file_crs).name!r}): give --height-offset METRES (the geoid "
             "undulation, added to the DEM's heights for every camera) or --vertical-datum ignore"
         )
-    sources = tuple(replace(v, camera=in_world(v.camera, source.preview)) for v in sources)
-    check_cameras_above(
-        source.preview, np.concatenate([sensor_positions(v.camera) for v in sources])
-    )
     return source, sources
 
 

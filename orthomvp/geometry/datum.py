@@ -169,13 +169,13 @@ def _transformer(wkt: str, name: str) -> Transformer:
     to = f"heights above the {target.ellipsoid.name} ellipsoid"
     grids = [g for op in group.unavailable_operations for g in op.grids if not g.available]
     grids.sort(key=lambda g: not g.url)  # a grid PROJ can download first
-    escape = "or give --height-offset METRES (added to its heights) or --vertical-datum ignore"
+    escape = "give --height-offset METRES (added to its heights) or --vertical-datum ignore"
     if grids:
         grid = grids[0].short_name
         raise InputError(
             f"{what}, and PROJ lacks the geoid grid {grid} that converts them to {to}: get it "
             f"with `projsync --file {grid}` (or `pyproj sync --file {grid}`; or let PROJ "
-            f"download it, PROJ_NETWORK=ON), {escape}"
+            f"download it, PROJ_NETWORK=ON), or {escape}"
         )
     raise InputError(f"{what}, and PROJ knows no transformation from them to {to}: {escape}")
 
@@ -234,7 +234,7 @@ class HeightShift:
         """The shift at DEM pixel positions ``(c, r)`` from PROJ itself (no lattice)."""
         if self.wkt is None:
             return np.full(np.broadcast(c, r).shape, self.offset)
-        x, y = (self.transform * Affine.translation(0.5, 0.5)) * (c, r)
+        x, y = (self.transform @ Affine.translation(0.5, 0.5)) @ (np.asarray(c), np.asarray(r))
         return self.offset + undulation(self.wkt, x, y, self.name)
 
     def _nodes(self, c: np.ndarray, r: np.ndarray) -> np.ndarray:
