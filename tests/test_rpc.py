@@ -336,7 +336,9 @@ def test_map_and_body_frames() -> None:
     _, camera = quickbird()
     posts = {}
     for frame in ("map", "body"):
-        terrain = Terrain.read(shared("ngi-aerial", "dem.tif"), world=frame, vertical_datum="ignore")
+        terrain = Terrain.read(
+            shared("ngi-aerial", "dem.tif"), world=frame, vertical_datum="ignore"
+        )
         bound = replace_offset(camera.bind(terrain), UNDULATION)  # the camera takes the geoid
         assert bound.crs == world_crs(terrain)
         r, c = np.mgrid[0 : terrain.shape[0] : 25, 0 : terrain.shape[1] : 25]
@@ -503,7 +505,11 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
     """The QuickBird image through its RPCs onto the NGI DEM, tiled by the engine: the codes
     equal the in-memory visibility of the bound camera, and the orthophoto lines up with the
     NGI aerial frame's orthophoto of the same grid (a 2015 aerial frame against a 2003
-    satellite image: phase correlation within half a 24 m post, positive correlation)."""
+    satellite image: phase correlation within 0.6 of a 24 m post, positive correlation).
+    The DEM's EGM2008 heights take the undulation (--height-offset), and the raw RPC its bias
+    measured on the GCPs (an image offset, as RPC refinement does): without either the two
+    errors, about 8 m and 12 m on the ground, cancelled in part (0.24 posts, r 0.47); with the
+    bias alone 0.86 posts, r 0.48."""
     import cv2
 
     from orthomvp.codes import WorldFrame
@@ -513,7 +519,16 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
     dem, image = shared("ngi-aerial", "dem.tif"), shared(QB, IMAGE)
     frame = "3324c_2015_1004_05_0182_RGB"
     aerial = (shared("ngi-aerial", f"{frame}.tif"), shared("ngi-aerial", f"{frame}.converted.tsai"))
-    plan = plan_ortho(dem, [(image, image)], tile=128, progress=False, height_offset=UNDULATION)
+    from dataclasses import replace
+
+    _, raw = quickbird()
+    features = json.loads(shared(QB, "gcps.geojson").read_text())["features"]
+    lon, lat, h = np.array([f["geometry"]["coordinates"] for f in features]).T
+    measured = np.array([f["properties"]["ji"] for f in features])
+    bias = (raw.project(raw.to_world(lon, lat, h))[0] - measured).mean(axis=0)
+    rpc = replace(raw.rpc, samp_off=raw.rpc.samp_off - bias[0], line_off=raw.rpc.line_off - bias[1])
+    refined = replace(raw, rpc=rpc)
+    plan = plan_ortho(dem, [(image, refined)], tile=128, progress=False, height_offset=UNDULATION)
     assert plan.dem.world == WorldFrame.BODY
     run_plan(
         plan, Outputs(ortho=tmp_path / "qb.tif", visibility=tmp_path / "v.tif"), progress=False
@@ -524,7 +539,7 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
         progress=False,
     )
     terrain = Terrain.read(dem, world=WorldFrame.BODY, height_offset=UNDULATION)
-    camera = read_camera(image).bind(terrain).with_image_size(850, 1450)
+    camera = refined.bind(terrain).with_image_size(850, 1450)
     with rasterio.open(tmp_path / "v.tif") as src:
         np.testing.assert_array_equal(src.read(1), compute_visibility(terrain, camera).codes)
     q, a = _grey(tmp_path / "qb.tif"), _grey(tmp_path / "ngi.tif")
@@ -539,6 +554,5 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
 
     window = cv2.createHanningWindow(m.shape[::-1], cv2.CV_32F)
     (dx, dy), _ = cv2.phaseCorrelate(norm(a[box]), norm(q[box]), window=window)
-    print(f"QuickBird against NGI: shift ({dx:.2f}, {dy:.2f}) posts, r {np.corrcoef(q[ok], a[ok])[0, 1]:.3f}")
-    assert np.hypot(dx, dy) < 0.5  # posts (measured: 0.24)
-    assert np.corrcoef(q[ok], a[ok])[0, 1] > 0.3  # measured: 0.47
+    assert np.hypot(dx, dy) < 0.6  # posts (measured: 0.47)
+    assert np.corrcoef(q[ok], a[ok])[0, 1] > 0.3  # measured: 0.515
