@@ -173,3 +173,28 @@ def test_lattice_interpolation_is_exact_for_a_plane() -> None:
     r, c = np.mgrid[3:41, 5:30].astype(np.float64)
     np.testing.assert_allclose(shift.window((3, 41, 5, 30)), shift.exact(c, r), atol=1e-12)
     np.testing.assert_allclose(shift.window((0, 9, 0, 9)), shift.exact(*np.mgrid[0:9, 0:9][::-1]))
+
+
+@pytest.mark.parametrize(
+    ("place", "origin", "post"),
+    [
+        ("Himalaya", (85.0, 30.0), 3.0),
+        ("Andes", (-72.0, -30.0), 1.0),
+        ("Indonesia", (120.0, 0.0), 3.0),
+    ],
+)
+def test_chosen_lattice_within_tolerance_where_the_geoid_is_rough(
+    place: str, origin: tuple[float, float], post: float
+) -> None:
+    """Where EGM96 is steepest, the chosen lattice keeps the interpolated undulation within
+    TOLERANCE of PROJ's at every post of windows across the DEM (arc-second posts)."""
+    needs_egm96()
+    crs = CompoundCRS("WGS84 + EGM96 height", [CRS.from_epsg(4326), CRS.from_epsg(EGM96)])
+    deg = post / 3600
+    grid = Affine(deg, 0, origin[0], 0, -deg, origin[1])
+    shift = height_shift(crs, grid, (8000, 8000), world="body", name=place)
+    assert shift is not None and shift.step > 1
+    for r0, c0 in [(0, 0), (2711, 5123), (7600, 400)]:
+        window = (r0, r0 + 300, c0, c0 + 300)
+        r, c = np.mgrid[r0 : r0 + 300, c0 : c0 + 300].astype(np.float64)
+        assert np.abs(shift.window(window) - shift.exact(c, r)).max() < TOLERANCE, window

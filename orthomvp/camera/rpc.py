@@ -9,12 +9,11 @@ Conventions:
 - An :class:`RpcCamera` lives in a Cartesian world frame named by a pyproj CRS: geocentric
   (orthomvp's body frame; default WGS84, EPSG:4978) or projected, (easting, northing, height)
   taken as Cartesian (the map frame). A compound CRS's vertical part is ignored: world heights
-  are ellipsoidal heights minus ``height_offset``, so that a DEM of orthometric heights is
-  served by ``height_offset`` = the geoid undulation N (ellipsoidal = orthometric + N), taken
-  constant over the scene. (PROJ applies a geoid only with its grid, e.g. EGM2008's
-  ``us_nga_egm08_25.tif``, which pyproj's wheels do not ship; without it PROJ falls back to a
-  "ballpark" transformation that leaves heights unchanged, so this model never asks PROJ for
-  one.)
+  are ellipsoidal heights minus ``height_offset`` (0 by default). A DEM whose heights are
+  orthometric (a compound CRS with a geoid) has them converted to ellipsoidal ones before they
+  reach the camera (:mod:`orthomvp.geometry.datum`, with PROJ and the geoid's grid), or shifted
+  by the DEM's own ``height_offset``; ``height_offset`` here serves a camera given points of
+  orthometric heights through the API (the undulation N: ellipsoidal = orthometric + N).
 - Rays are straight lines in the world frame between the ground points of a pixel at two
   ellipsoidal heights, ``top`` (the ray's origin; default height_off + height_scale, which must
   lie above all terrain the camera sees) and ``bottom`` (default height_off - height_scale).
