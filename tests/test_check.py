@@ -296,7 +296,7 @@ def test_ngi_aerial_tiled_check_equals_in_memory() -> None:
     views = [(name, name.removesuffix(".tif") + ".converted.tsai") for name in names]
     got = run_check(plan_check(d / "dem.tif", views, names=names, tile=128, progress=False))
     loaded = [load_view(*v) for v in views]
-    terrain = Terrain.read(d / "dem.tif")
+    terrain = Terrain.read(d / "dem.tif", world="map")  # EGM2008 heights: the map frame's own
     centres = np.concatenate([sensor_positions(camera) for _, camera in loaded])
     terrain = replace(terrain, world=detect_world(terrain, centres))
     compare(got, check_views(terrain, loaded, names=names))

@@ -32,7 +32,8 @@ def ngi() -> tuple[Terrain, np.ndarray]:
     d = shared("ngi-aerial")
     exterior = d / "orthority-format" / "ngi_xyz_opk.csv"
     images = sorted(d.glob("*_RGB.tif"))
-    return Terrain.read(d / "dem.tif"), np.array([read_camera(exterior, f).center for f in images])
+    dem = Terrain.read(d / "dem.tif", vertical_datum="ignore")  # EGM2008 heights, no grid here
+    return dem, np.array([read_camera(exterior, f).center for f in images])
 
 
 def ambiguous() -> tuple[Terrain, np.ndarray]:
