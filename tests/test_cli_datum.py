@@ -175,3 +175,22 @@ def test_every_dem_command_takes_the_options(capsys: pytest.CaptureFixture[str])
         text = " ".join(capsys.readouterr().out.split())
         assert "--height-offset METRES" in text and "metres added to every DEM height" in text
         assert "--vertical-datum [auto|ignore]" in text, command
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_fit_in_the_map_frame_keeps_the_vertical_datum(tmp_path: Path) -> None:
+    """A fit with Orthority-format cameras writes the DEM's own (EGM2008) heights, and says so
+    in its CRS, so that reading it back converts it as the input would be."""
+    d, exterior = shared("ngi-aerial"), shared("ngi-aerial", "orthority-format", "ngi_xyz_opk.csv")
+    views = [
+        str(v)
+        for f in ("05_0182", "05_0184")
+        for v in (d / f"3324c_2015_1004_{f}_RGB.tif", exterior)
+    ]
+    out = tmp_path / "fit.tif"
+    assert main(["-q", "fit", str(NGI_DEM), *views, "-o", str(out), "--levels", "1"]) == 0
+    with rasterio.open(out) as fitted, rasterio.open(NGI_DEM) as dem:
+        assert CRS.from_wkt(fitted.crs.to_wkt()) == CRS.from_wkt(dem.crs.to_wkt())
+        change = fitted.read(1) - dem.read(1)
+    assert abs(np.nanmedian(change)) < 3.0  # metres: the same datum, not 28 m apart

@@ -198,3 +198,17 @@ def test_chosen_lattice_within_tolerance_where_the_geoid_is_rough(
         window = (r0, r0 + 300, c0, c0 + 300)
         r, c = np.mgrid[r0 : r0 + 300, c0 : c0 + 300].astype(np.float64)
         assert np.abs(shift.window(window) - shift.exact(c, r)).max() < TOLERANCE, window
+
+
+@pytest.mark.realdata
+def test_the_crs_a_dem_written_from_the_values_carries(tmp_path: Path) -> None:
+    """The file's heights keep the DEM's whole CRS (vertical part included); converted or
+    offset heights its horizontal CRS (heights above its ellipsoid)."""
+    source = scan_dem(shared(*NGI), heights=HeightOptions())
+    assert vertical_part(with_world(source, "map").heights_crs()).name == "EGM2008 height"
+    offset = scan_dem(shared(*NGI), heights=HeightOptions(height_offset=28.0))
+    assert vertical_part(with_world(offset, "map").heights_crs()) is None
+    if grid_missing(EGM96) is None:
+        egm96 = with_world(scan_dem(retagged(tmp_path, EGM96)), "body")
+        assert egm96.shift is not None and vertical_part(egm96.heights_crs()) is None
+        assert egm96.heights_crs() == egm96.crs

@@ -109,7 +109,8 @@ def fit(
     """Fit a plane (height, normal) at every DEM post to the images in which the post is
     visible, so that the images projected onto it agree (MVP paper eqs. 11-21; coarse to
     fine, Levenberg-Marquardt, outlier views dropped). Writes the refined DEM (heights in the
-    input's convention, NaN where fewer than 2 views see a post) and, on request, the other
+    input's convention, above the ellipsoid where its vertical datum was converted, its CRS
+    saying which; NaN where fewer than 2 views see a post) and, on request, the other
     per-post results, all on the DEM grid, tile by tile in bounded memory (the same results as
     in one piece)."""
     from orthomvp.engine import FitOutputs, plan_fit, run_fit

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -351,6 +351,7 @@ def run_fit(
     squares = 0.0
     pool = executor(plan, run_fit_tile, workers, processes, client)
     folder = Path(outputs.heights).parent
+    heights_grid = replace(plan.grid, crs=plan.dem.heights_crs())  # the heights' vertical datum
     with (
         Progress("fitting tiles", progress, len(plan.tiles)) as bar,
         pool as (submit, wait),
@@ -362,7 +363,7 @@ def run_fit(
         args = (inner, bool(progress and local and at_once == 1))
         with (
             rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE),
-            output_files(plan.grid, outputs.layers(), outputs) as writer,
+            output_files(heights_grid, outputs.layers(), outputs) as writer,
         ):
             for job in plan.tiles:
                 if not job.views:

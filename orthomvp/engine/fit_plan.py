@@ -282,8 +282,9 @@ def plan_fit(
     of ``tile`` x ``tile`` posts of the DEM's grid (default :data:`~orthomvp.engine.plan.TILE`:
     a fit tile's margin is too wide for smaller ones); ``eps`` (DEM posts), ``dem_crs``,
     ``radius_values``, ``world``, ``vertical_datum`` and ``height_offset`` as for
-    :func:`~orthomvp.engine.plan_ortho`. The fitted heights are written as the cameras need
-    them (above the ellipsoid in the body frame), under the DEM's horizontal CRS.
+    :func:`~orthomvp.engine.plan_ortho`. The fitted heights are those the cameras need: in
+    the DEM's vertical datum, written under its whole CRS, when they are the file's (the map
+    frame), else under its horizontal CRS (:meth:`~orthomvp.engine.grid.DemSource.heights_crs`).
 
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
     cameras. Raises InputError for bad options and GeometryError when an image sees none of

@@ -25,7 +25,14 @@ from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj
-from orthomvp.geometry.datum import TOLERANCE, HeightOptions, HeightShift, height_shift
+from orthomvp.geometry.datum import (
+    TOLERANCE,
+    HeightOptions,
+    HeightShift,
+    height_shift,
+    vertical_part,
+    whole_crs,
+)
 from orthomvp.geometry.terrain import Terrain, dem_georeference, warn_infinite
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import held_raster, open_raster, read_values
@@ -92,6 +99,15 @@ class DemSource:
         heights the cameras need (``shift``, :mod:`orthomvp.geometry.datum`)."""
         values = self._read(window)
         return values if self.shift is None else values + self.shift.window(window)
+
+    def heights_crs(self) -> CRS | FileCRS:
+        """The CRS that says what :meth:`read`'s values are, for a DEM written from them: the
+        DEM's whole CRS, its vertical part included, when they are the file's heights (no
+        ``shift``), else its horizontal CRS (heights above its ellipsoid, or moved by an
+        offset the user gave for that)."""
+        if self.shift is None and vertical_part(self.file_crs) is not None:
+            return whole_crs(self.file_crs, str(self.path))
+        return self.crs
 
     def _read(self, window: WindowT) -> np.ndarray:
         """The DEM values in ``window`` as the file holds them."""

@@ -112,14 +112,14 @@ def vertical_part(crs: object) -> CRS | None:
     if not is_pyproj(crs):
         if hasattr(crs, "to_wkt") and not crs.to_wkt().startswith(("COMPD_CS", "COMPOUNDCRS")):
             return None  # a file's CRS that is not compound, told without pyproj
-        crs = _whole_crs(crs, "CRS")
+        crs = whole_crs(crs, "CRS")
     if not crs.is_compound:
         return None
     vertical = [sub for sub in crs.sub_crs_list if sub.is_vertical]
     return vertical[0] if vertical else None
 
 
-def _whole_crs(crs: object, name: str) -> CRS:
+def whole_crs(crs: object, name: str) -> CRS:
     """``crs`` as a pyproj CRS with its vertical part (pyproj's, a file's, or anything pyproj
     reads); InputError when pyproj cannot read it."""
     from pyproj import CRS
@@ -297,10 +297,10 @@ def height_shift(
         return HeightShift(float(height_offset), name=name) if height_offset else None
     if vertical_datum == "ignore" or WorldFrame(world) == WorldFrame.MAP:
         return None
-    vertical = vertical_part(_whole_crs(crs, name))
+    vertical = vertical_part(whole_crs(crs, name))
     if vertical is None:
         return None
-    wkt = _whole_crs(crs, name).to_wkt()
+    wkt = whole_crs(crs, name).to_wkt()
     _transformer(wkt, name)  # refuses now, with the grid's name, when PROJ lacks it
     shift = HeightShift(0.0, wkt, transform, 1, name)
     return HeightShift(0.0, wkt, transform, choose_step(shift, shape), name)
