@@ -87,6 +87,9 @@ def test_missing_grid_refused_in_one_line(tmp_path: Path, capsys: pytest.Capture
     map_frame = ["-o", str(out), "--world", "map"]
     assert main(["-q", "ortho", str(NGI_DEM), str(QB), str(QB), *map_frame]) == 2
     assert "an RPC camera wants heights above the WGS84 ellipsoid" in one_line_error(capsys)
+    render = ["-q", "render", str(NGI_DEM), "--camera", str(QB), "--world", "map", "-o"]
+    assert main([*render, str(tmp_path / "r.png")]) == 2  # the in-memory DEM says so too
+    assert "an RPC camera wants heights above" in one_line_error(capsys)
     both = ["--height-offset", "28", "--vertical-datum", "ignore"]
     assert main(["-q", "ortho", str(NGI_DEM), str(QB), str(QB), "-o", str(out), *both]) == 2
     assert "not both" in one_line_error(capsys) and not out.exists()

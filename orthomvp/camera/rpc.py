@@ -21,6 +21,7 @@ Conventions:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from functools import cached_property
 from types import ModuleType
@@ -32,6 +33,7 @@ from orthomvp.camera.model import FieldError, _points, check_crop, image_size
 from orthomvp.camera.rpc_model import GEODETIC, Rpc, _number
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
+from orthomvp.geometry.datum import vertical_part
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -272,3 +274,21 @@ class RpcCamera:
         if uv.shape[-1:] != (2,):
             raise InputError(f"{what} needs pixels of shape (..., 2), got {uv.shape}")
         return uv
+
+
+def check_map_frame_heights(
+    cameras: Sequence[tuple[str, object]], world: WorldFrame, dem_crs: object, as_read: bool
+) -> None:
+    """InputError for an RPC camera among ``cameras`` ((name, camera) pairs) in the map frame
+    ``world`` of a DEM whose CRS ``dem_crs`` has a vertical part and whose heights are used
+    ``as_read`` (the map frame's rule, :mod:`orthomvp.geometry.datum`): the RPC wants heights
+    above the WGS84 ellipsoid, which those are not."""
+    rpc = [name for name, camera in cameras if isinstance(camera, RpcCamera)]
+    vertical = vertical_part(dem_crs) if rpc and as_read and world == WorldFrame.MAP else None
+    if vertical is not None:
+        raise InputError(
+            f"{rpc[0]}: an RPC camera wants heights above the WGS84 ellipsoid, but with cameras "
+            f"in the DEM's map frame the DEM's heights stay in its vertical datum "
+            f"({vertical.name!r}): give --height-offset METRES (the geoid undulation, added to "
+            "the DEM's heights for every camera) or --vertical-datum ignore"
+        )

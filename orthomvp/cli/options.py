@@ -145,6 +145,14 @@ class DemInput:
             if self.world == "auto":
                 world = detect_world(raw, centres)
             check_cameras_above(replace(raw, world=world), centres)
+            if self.height_offset is None and self.vertical_datum == "auto":
+                from orthomvp.camera.rpc import check_map_frame_heights
+                from orthomvp.io.raster import open_raster
+
+                with open_raster(self.path) as src:
+                    crs = self.crs or src.crs
+                named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
+                check_map_frame_heights(named, world, crs, as_read=True)
         return Terrain.read(self.path, self.radius_values, world, self.crs, **heights)
 
 

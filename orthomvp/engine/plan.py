@@ -18,7 +18,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from orthomvp.camera import Camera, RpcCamera, in_world, sensor_positions
+from orthomvp.camera import Camera, in_world, sensor_positions
+from orthomvp.camera.rpc import check_map_frame_heights
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
@@ -27,7 +28,7 @@ from orthomvp.engine.heap import MMAP_THRESHOLD
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.geometry.datum import HeightOptions, vertical_part
+from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
@@ -537,20 +538,10 @@ def read_source(
     sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
     check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
     source = dem_with_world(source, frame)
-    rpc = [v for v in sources if isinstance(v.camera, RpcCamera)]
-    if (
-        rpc
-        and frame == WorldFrame.MAP
-        and source.shift is None
-        and source.heights.vertical_datum == "auto"
-        and vertical_part(source.file_crs) is not None
-    ):
-        raise InputError(
-            f"{rpc[0].path}: an RPC camera wants heights above the WGS84 ellipsoid, but with "
-            f"cameras in the DEM's map frame the DEM's heights stay in its vertical datum "
-            f"({vertical_part(source.file_crs).name!r}): give --height-offset METRES (the geoid "
-            "undulation, added to the DEM's heights for every camera) or --vertical-datum ignore"
-        )
+    as_read = source.heights == HeightOptions()  # auto, no offset: the map frame's rule
+    check_map_frame_heights(
+        [(str(v.path), v.camera) for v in sources], frame, source.file_crs, as_read
+    )
     return source, sources
 
 
