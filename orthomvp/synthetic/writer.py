@@ -21,7 +21,8 @@ from tqdm import tqdm
 from orthomvp.camera import write_tsai
 from orthomvp.camera.csm import LineScanCamera, write_isd
 from orthomvp.codes import Code
-from orthomvp.io.raster import atomic_path, write_geotiff
+from orthomvp.io.outputs import atomic_path
+from orthomvp.io.raster import write_geotiff
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
 from orthomvp.validate import number
 
