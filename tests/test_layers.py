@@ -32,7 +32,12 @@ LAYERS = [
     ("orthomvp.occlusion", "orthomvp.occlusion.mesh", "orthomvp.occlusion.embree"),
     ("orthomvp.occlusion.raycast", "orthomvp.occlusion.post_geometry"),
     ("orthomvp.occlusion.post_geometry_kernel", "orthomvp.occlusion.occluders"),
-    ("orthomvp.occlusion.visibility", "orthomvp.ortho", "orthomvp.ortho.composite_kernel"),
+    (
+        "orthomvp.occlusion.visibility",
+        "orthomvp.ortho",
+        "orthomvp.ortho.composite_kernel",
+        "orthomvp.ortho.balance",
+    ),
     ("orthomvp.ortho.composite",),
     ("orthomvp.ortho.orthophoto", "orthomvp.mvp"),
     ("orthomvp.engine", "orthomvp.explore", "orthomvp.synthetic"),
