@@ -21,7 +21,8 @@ from scipy import ndimage
 from orthomvp import __version__
 from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
-from orthomvp.io.raster import atomic_dir, atomic_path, write_geotiff
+from orthomvp.io.outputs import atomic_dir, atomic_path
+from orthomvp.io.raster import write_geotiff
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.occlusion.visibility import occluder_caster

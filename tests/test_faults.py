@@ -432,10 +432,11 @@ def test_what_gdal_and_libtiff_print_becomes_the_error(
     tmp_path: Path, capfd: pytest.CaptureFixture
 ) -> None:
     """libtiff prints its I/O errors on file descriptor 2 and GDAL may not raise (a full disk
-    at close): within :func:`orthomvp.io.raster.writing` they become one OutputError naming the
-    output and the cause, and nothing reaches stderr; messages of no failure pass through."""
+    at close): within :func:`orthomvp.io.write_errors.writing` they become one OutputError
+    naming the output and the cause, and nothing reaches stderr; messages of no failure pass
+    through."""
     from orthomvp.errors import OutputError
-    from orthomvp.io.raster import writing
+    from orthomvp.io.write_errors import writing
 
     out = tmp_path / "o.tif"
     with pytest.raises(OutputError) as caught:
@@ -562,7 +563,7 @@ def test_stale_temporaries_of_a_killed_run_are_removed(scene: Path, tmp_path: Pa
     """A run killed with SIGKILL in the middle of its write leaves its temporary file; the
     next run writing that output removes it (its process is gone), not one of a live run;
     so are temporary directories (synth, demo)."""
-    from orthomvp.io.raster import temp_name
+    from orthomvp.io.outputs import temp_name
 
     out = tmp_path / "out"
     out.mkdir()
@@ -627,17 +628,20 @@ def signal_at_every_step(
 ) -> int:
     """Run ``write`` again and again with each of ``signals`` (SIGTERM with the CLI's handler, see
     :func:`orthomvp.cli.sigterm_raises`) raised at its first, second, ... traced step in the
-    output writer (``orthomvp.io.raster`` and contextlib), until a run ends before the step;
-    after an interrupt, :func:`orthomvp.io.raster.remove_temporaries` runs, as the CLI runs it.
+    output writer (``orthomvp.io``'s outputs, signals, write_errors, preflight and raster, and
+    contextlib), until a run ends before the step; after an interrupt,
+    :func:`orthomvp.io.outputs.remove_temporaries` runs, as the CLI runs it.
     After each: the signal was not lost, the handlers of before still get the signals,
     stderr is the one of before, no temporary file is left, and ``check`` passes. Returns the
     number of steps."""
     import contextlib as ctx
 
-    import orthomvp.io.raster
     from orthomvp.cli import Terminated, sigterm_raises
+    from orthomvp.io import outputs, preflight, raster, write_errors
+    from orthomvp.io import signals as holding  # (``signals`` is the argument)
 
-    files = (orthomvp.io.raster.__file__, ctx.__file__)
+    writer = (outputs, holding, write_errors, preflight, raster)
+    files = (*(m.__file__ for m in writer), ctx.__file__)
     stderr = os.fstat(2)
     kinds = {signal.SIGINT: KeyboardInterrupt, signal.SIGTERM: Terminated}
     for sig in signals:
@@ -650,7 +654,7 @@ def signal_at_every_step(
                     interrupted = False
                 except kind:
                     interrupted = True
-                    orthomvp.io.raster.remove_temporaries()  # as orthomvp.cli.main does
+                    outputs.remove_temporaries()  # as orthomvp.cli.main does
                 finally:
                     sys.settrace(None)
                 # the handlers of before still get the signals
@@ -676,7 +680,7 @@ def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: P
     """SIGTERM (with the CLI's handler) arriving at every line of creating, writing, renaming
     and removing a set of two outputs: both or neither are there, and no temporary file
     (SIGINT at every opcode: the slow test below)."""
-    from orthomvp.io.raster import write_set
+    from orthomvp.io.outputs import write_set
 
     out = tmp_path / "out"
     out.mkdir()

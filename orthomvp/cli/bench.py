@@ -140,7 +140,7 @@ def bench(
     Orthority time. --scale runs instead the engine's scale benchmark (threads = cores)."""
     from orthomvp import bench as b
     from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
-    from orthomvp.io.raster import atomic_path
+    from orthomvp.io.outputs import atomic_path
     from orthomvp.synthetic.scene import check_scene_memory
 
     check_outputs([Output("--json", json_path, ())])

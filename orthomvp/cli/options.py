@@ -374,7 +374,7 @@ def check_directory(path: Path, what: str) -> None:
         read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
         cause = "a read-only file system" if read_only else "permission denied"
         raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
-    from orthomvp.io.raster import check_space
+    from orthomvp.io.preflight import check_space
 
     check_space(path)
 

@@ -43,8 +43,9 @@ if TYPE_CHECKING:
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 FILLS = ("none", "any-view", "naive")
 BALANCES = ("none", "gain", "gain-offset")
-"""As :data:`orthomvp.ortho.composite.PRIORITIES`, ``FILLS`` and ``BALANCES`` (not imported: --help
-stays fast; a test checks that they agree)."""
+"""As :data:`orthomvp.ortho.composite.PRIORITIES` and ``FILLS``, and
+:data:`orthomvp.ortho.balance.BALANCES` (not imported: --help stays fast; a test checks that they
+agree)."""
 
 
 def _reference(ctx: click.Context, param: click.Parameter, value: str) -> int | None:

@@ -92,7 +92,7 @@ def synth(
     TIFF), cameras (.tsai, or ISD .json for --sensor linescan: each line rendered from its own
     sensor position), truth rasters (radiance, per-camera visibility: 0 outside image, 1
     visible, 2 occluded, 3 facing away) and scene.json."""
-    from orthomvp.io.raster import atomic_dir
+    from orthomvp.io.outputs import atomic_dir
     from orthomvp.synthetic import make_scene
     from orthomvp.synthetic.kinds import DEFAULTS
     from orthomvp.synthetic.scene import check_scene_memory

@@ -30,7 +30,8 @@ from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
-from orthomvp.ortho.composite import FUSED_POSTS, Correction, MosaicOptions
+from orthomvp.ortho.balance import Correction
+from orthomvp.ortho.composite import FUSED_POSTS, MosaicOptions
 from orthomvp.ortho.orthophoto import INTERPOLATION
 
 Box = tuple[float, float, float, float]

@@ -30,7 +30,7 @@ from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
 from orthomvp.io.raster import held_rasters
 from orthomvp.optional import require
-from orthomvp.ortho.composite import Correction
+from orthomvp.ortho.balance import Correction
 
 
 class WorkerError(OrthoMVPError):

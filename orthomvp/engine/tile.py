@@ -27,7 +27,8 @@ from orthomvp.geometry.vectors import column_range, finite_rows
 from orthomvp.occlusion.occluders import Occluders
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import Visibility, compute_visibility
-from orthomvp.ortho.composite import Correction, compose, doubtful, nadir_angle
+from orthomvp.ortho.balance import Correction
+from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 
 

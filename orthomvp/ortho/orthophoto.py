@@ -34,17 +34,15 @@ from orthomvp.occlusion.visibility import (
     compute_visibility,
     occluder_caster,
 )
+from orthomvp.ortho.balance import Correction, pair_stats, solve_balance
 from orthomvp.ortho.composite import (
     FUSED_POSTS,
-    Correction,
     MosaicOptions,
     clamp_blend,
     compose,
     doubtful,
     nadir_angle,
     overlap_width,
-    pair_stats,
-    solve_balance,
 )
 from orthomvp.validate import of_type
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.errors import InputError
-from orthomvp.io.raster import atomic_path, write_set
+from orthomvp.io.outputs import atomic_path, write_set
 from orthomvp.occlusion.mesh import TerrainMesh
 from orthomvp.optional import require
 from orthomvp.present.colours import NAN_RGB, post_colours
@@ -134,7 +134,7 @@ def write_ply(mesh: trimesh.Trimesh, path: str | Path) -> None:
 
 def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
     """OBJ with its material and texture image beside it, atomic as a set: all files are
-    renamed only when all were written (see :func:`orthomvp.io.raster.write_set`)."""
+    renamed only when all were written (see :func:`orthomvp.io.outputs.write_set`)."""
     from trimesh.exchange.obj import export_obj
 
     text, files = export_obj(

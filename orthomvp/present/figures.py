@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from orthomvp.codes import Code
-from orthomvp.io.raster import atomic_path, write_set
+from orthomvp.io.outputs import atomic_path, write_set
 from orthomvp.present.colours import ERROR_CMAP, error_colour_limit
 
 CODE_COLOURS = [tuple(v / 255 for v in code.rgb) for code in Code]
@@ -41,7 +41,7 @@ def save_with_table(
 ) -> None:
     """Write ``rows`` (dicts with keys ``fields``; floats to 6 significant digits) as CSV to
     ``table`` and the figure ``fig`` to ``figure`` (the format by its suffix, PNG without one),
-    atomically as one set (:func:`orthomvp.io.raster.write_set`); the figure is closed."""
+    atomically as one set (:func:`orthomvp.io.outputs.write_set`); the figure is closed."""
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(fields))
     writer.writeheader()

@@ -26,7 +26,8 @@ from rasterio.windows import Window
 
 from orthomvp.engine.grid import DemSource
 from orthomvp.errors import InputError
-from orthomvp.io.raster import atomic_path, open_raster
+from orthomvp.io.outputs import atomic_path
+from orthomvp.io.raster import open_raster
 from orthomvp.occlusion.mesh import cell_triangles, grid_triangles, points_down
 from orthomvp.present.colours import (
     CODE_RGB,

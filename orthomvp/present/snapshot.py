@@ -28,7 +28,7 @@ from orthomvp.camera import Camera, require_pinhole
 from orthomvp.codes import CODE_RGB, Code, View
 from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
-from orthomvp.io.raster import atomic_path
+from orthomvp.io.outputs import atomic_path
 from orthomvp.occlusion.mesh import TerrainMesh, terrain_mesh
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.optional import require

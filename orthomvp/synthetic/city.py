@@ -402,7 +402,8 @@ class CityScene:
     frame, :data:`CITY_CRS`, the true heights at its posts), the ``views`` and their
     ``cameras`` (map frame, with image sizes) of ground sample distance ``gsd`` metres at the
     tile centre, the post ``spacing`` in metres, the ``seed`` and the ``facts`` recorded in the
-    summary. Duck-types :class:`~orthomvp.synthetic.scene.Scene` for the writer."""
+    summary. A :class:`~orthomvp.synthetic.writer.WritableScene`, as
+    :class:`~orthomvp.synthetic.scene.Scene` is."""
 
     kind: str
     surface: CitySurface
