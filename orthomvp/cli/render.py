@@ -21,7 +21,8 @@ from orthomvp.cli.options import (
     enum_choice,
     error_limit_option,
     output_option,
-    overwrite_option,
+    overwrite_options,
+    say,
     usage_error,
 )
 from orthomvp.codes import View
@@ -104,7 +105,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
     is_flag=True,
     help="cut the empty background around the scene (the image gets smaller than --size)",
 )
-@overwrite_option
+@overwrite_options
 @dem_options
 def render(
     dem: DemInput,
@@ -126,6 +127,7 @@ def render(
     no_legend: bool,
     crop: bool,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
     orthophoto, or coloured by visibility codes (occluded posts green) or by the height error
@@ -140,7 +142,9 @@ def render(
     given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
     inputs = [("DEM", dem.path)] + [(f"--{key}", path) for key, path in given.items()]
     inputs += [(f"--camera {k}", path) for k, path in enumerate(cameras, start=1)]
-    check_outputs([Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite)
+    check_outputs(
+        [Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite, replace_input
+    )
     models = [read_camera(path) for path in cameras]
     if view == View.FROM_CAMERA and not camera_index <= len(models):
         raise usage_error(
@@ -173,4 +177,4 @@ def render(
         snap.close()
     height, width = snap.image.shape[:2]
     shown = next((k for k in ("ortho", "visibility", "heights") if k in rasters), "relief")
-    print(f"wrote {output}: {width} x {height} {view} view, {shown}, {len(models)} camera(s)")
+    say(f"wrote {output}: {width} x {height} px {view} view, {shown}, {len(models)} camera(s)")
