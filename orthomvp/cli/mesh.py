@@ -88,11 +88,10 @@ def mesh(
     """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
     skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
     and GLB an image texture of one texel per post, from --texture or --error-against."""
-    from orthomvp.io.raster import read_image
     from orthomvp.occlusion.mesh import terrain_mesh
     from orthomvp.present.colours import error_colour_limit, height_error
     from orthomvp.present.export import export_mesh
-    from orthomvp.present.texture import TextureSampler
+    from orthomvp.present.texture import on_dem_grid
 
     kind = colour_by or ("error" if error_against else "image")
     if error_against and kind != "error":
@@ -112,11 +111,8 @@ def mesh(
     if error_against:
         truth = replace(dem, path=error_against, world=terrain.world).read()
         colours = height_error(terrain, truth)
-    elif texture:
-        sampler = TextureSampler(texture, terrain.shape, terrain.transform, terrain.crs)
-        colours = read_image(texture) if sampler.on_grid else sampler.grid()
     else:
-        colours = None
+        colours = on_dem_grid(texture, terrain) if texture else None
     export_mesh(
         tmesh,
         output,

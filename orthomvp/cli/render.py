@@ -132,10 +132,12 @@ def render(
     """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
     orthophoto, or coloured by visibility codes (occluded posts green) or by the height error
     FITTED - TRUTH (metres); cameras drawn as numbered frusta, optionally with rays to their
-    first hits."""
+    first hits. A raster on the DEM grid is draped as it is; any other georeferenced raster
+    (finer, coarser, another extent or CRS) is sampled at the posts (the texel under each
+    post; posts outside it have no value)."""
     from orthomvp.camera import read_camera
-    from orthomvp.io.raster import read_image
     from orthomvp.present.snapshot import SnapshotOptions, snapshot
+    from orthomvp.present.texture import on_dem_grid
 
     if (heights is None) != (truth is None):
         raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")
@@ -152,7 +154,11 @@ def render(
             f"files ({len(models)}), got {camera_index}"
         )
     terrain = dem.read(models)
-    rasters = {key: read_image(path) for key, path in given.items() if path is not None}
+    rasters = {
+        key: on_dem_grid(path, terrain, f"--{key} raster")
+        for key, path in given.items()
+        if path is not None
+    }
     snap = snapshot(
         terrain,
         **rasters,

@@ -20,7 +20,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from rasterio.windows import Window
 
 from orthomvp.errors import InputError
-from orthomvp.io.raster import open_raster, read_values
+from orthomvp.io.raster import open_raster, read_image, read_values
 
 WINDOW_TEXELS = 1 << 24
 """Texels (at most, unless one post needs more) of one read of a sampled raster."""
@@ -95,6 +95,15 @@ class TextureSampler:
     def grid(self) -> np.ndarray:
         """Every band at every post: float32 (count, rows, cols)."""
         return self.read(0, self.shape[0], list(range(1, self.count + 1)))
+
+
+def on_dem_grid(path: str | Path, terrain: Any, what: str = "texture raster") -> np.ndarray:
+    """The raster at ``path`` on the grid of ``terrain`` (a
+    :class:`~orthomvp.geometry.terrain.Terrain`): read as it is when it is on it
+    (:func:`~orthomvp.io.raster.read_image`), else sampled at the posts
+    (:class:`TextureSampler`); float32 (bands, rows, cols), NaN where it has no value."""
+    sampler = TextureSampler(path, terrain.shape, terrain.transform, terrain.crs, what)
+    return read_image(path) if sampler.on_grid else sampler.grid()
 
 
 def _gather(
