@@ -74,6 +74,21 @@ def test_an_existing_output_is_refused(crater_dir: Path, tmp_path: Path, command
     assert sorted(tmp_path.iterdir()) == [existing]  # nothing else written
 
 
+def test_an_obj_mesh_refuses_an_existing_texture_image(crater_dir: Path, tmp_path: Path) -> None:
+    """The OBJ's texture image and material, written beside it, count as outputs too."""
+    dem, texture = crater_dir / "dem.tif", crater_dir / "truth_radiance.tif"
+    for name in ("m.png", "m.mtl"):
+        (tmp_path / name).write_bytes(SENTINEL)
+        proc = run("mesh", str(dem), "-o", str(tmp_path / "m.obj"), "--texture", str(texture))
+        assert_one_line_error(proc, str(tmp_path / name), "exists", "--overwrite")
+        assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+        (tmp_path / name).unlink()
+    proc = run(
+        "mesh", str(dem), "-o", str(tmp_path / "m.obj"), "--texture", str(tmp_path / "m.png")
+    )
+    assert_one_line_error(proc, "would replace the input --texture")
+
+
 @pytest.mark.parametrize("command", ["ortho", "mesh", "check"])
 def test_overwrite_replaces_an_existing_output(
     crater_dir: Path, tmp_path: Path, command: str

@@ -101,8 +101,13 @@ def mesh(
     if error_limit is not None and kind != "error":
         raise usage_error("--error-limit applies to error colours only (--colour-by error)")
     inputs = [("DEM", dem.path), ("--texture", texture), ("--error-against", error_against)]
-    mesh_output = Output("-o", output, MESH_SUFFIXES, "a mesh")
-    check_outputs([mesh_output], inputs, overwrite, replace_input)
+    outputs = [Output("-o", output, MESH_SUFFIXES, "a mesh")]
+    if output.suffix.lower() == ".obj" and (texture or error_against) and decimate is None:
+        outputs += [  # its material and texture image, beside it
+            Output("-o", output.with_suffix(".mtl"), (".mtl",), "its material"),
+            Output("-o", output.with_suffix(".png"), (".png",), "its texture image"),
+        ]
+    check_outputs(outputs, inputs, overwrite, replace_input)
     if output.suffix.lower() == ".ply" and decimate is None:
         _stream(dem, output, texture, error_against, kind, error_limit, local_origin)
         return
