@@ -183,6 +183,19 @@ def test_every_line_starts_with_orthomvp(crater_dir: Path, tmp_path: Path, monke
     assert sum(x.startswith("orthomvp: wrote ") for x in seen) == 5
 
 
+def test_the_mosaic_summary_stays_short_for_many_images() -> None:
+    from orthomvp.cli.ortho import NAMED_IMAGES, taken_text
+
+    images = [Path(f"img{k}.tif") for k in range(64)]
+    taken = [1000 + 10 * k if k % 9 else 0 for k in range(64)]
+    text = taken_text(taken, images)
+    assert text == f"{sum(taken):,} posts from 56 of 64 images (from 0 to 1,620 posts each)"
+    few = taken_text(taken[:NAMED_IMAGES], images[:NAMED_IMAGES])
+    assert few == "0 posts from img0.tif, 1,010 posts from img1.tif, 1,020 posts from " + (
+        "img2.tif, 1,030 posts from img3.tif"
+    )
+
+
 @pytest.mark.slow
 def test_fit_speaks_in_metres(crater_dir: Path, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
     """fit's lines start with orthomvp:, and its summary's figures, in metres, are those of its
