@@ -312,14 +312,10 @@ def _write(path: Path, values: np.ndarray, transform: Affine | None, crs: object
     return path
 
 
-def _expected(dem: Path, texture: Path, table: np.ndarray, outside: tuple) -> np.ndarray:
-    """The colour of each vertex of the DEM's mesh: ``table`` of the texture's value at the
-    vertex's post (rasterio's ``rowcol`` of the post centre's map coordinates, the texel that
-    ``index`` and ``sample`` pick), ``outside`` beyond the texture."""
-    terrain = Terrain.read(dem)
-    posts = terrain_mesh(terrain).vertex_post
-    r, c = np.divmod(posts, terrain.shape[1])
-    x, y = terrain.transform @ (c + 0.5, r + 0.5)
+def _sampled(texture: Path, x: np.ndarray, y: np.ndarray, table: np.ndarray, outside: tuple):  # noqa: ANN202
+    """``table`` of the texture's values at the map points (``x``, ``y``): the texel of
+    rasterio's ``rowcol`` (the one that ``index`` and ``sample`` pick), ``outside`` beyond the
+    texture."""
     with rasterio.open(texture) as src:
         values = src.read(1)
         rows, cols = rasterio.transform.rowcol(src.transform, x, y)  # what index gives
@@ -327,47 +323,79 @@ def _expected(dem: Path, texture: Path, table: np.ndarray, outside: tuple) -> np
         inside = (rows >= 0) & (rows < src.height) & (cols >= 0) & (cols < src.width)
         sampled = np.array([v[0] for v in src.sample(zip(x[inside], y[inside], strict=True))])
     assert (sampled == values[rows[inside], cols[inside]]).all()  # index and sample agree
-    out = np.tile(np.asarray(outside, np.uint8), (len(posts), 1))
+    out = np.tile(np.asarray(outside, np.uint8), (len(x), 1))
     out[inside] = table[sampled.astype(np.int64)]
     return out
 
 
-@pytest.mark.parametrize("fmt", ["ply", "obj"])
-@pytest.mark.parametrize("kind", ["visibility", "image"])
-def test_mesh_samples_a_finer_texture_at_the_posts(
-    crater_dir: Path, tmp_path: Path, kind: str, fmt: str
-) -> None:
+def _finer_texture(crater_dir: Path, tmp_path: Path, kind: str) -> tuple[Path, np.ndarray, tuple]:
     """A texture at twice the DEM's resolution, shifted by a fraction of its pixel, reaching
-    past the DEM's top edge and leaving posts outside it on the other three sides: every
-    vertex gets the texel under its post, the posts outside it the no-data colour."""
-    dem = crater_dir / "dem.tif"
-    with rasterio.open(dem) as src:
+    past the DEM's top edge and leaving posts outside it on the other three sides: visibility
+    codes or an image of 0 and 100 (colours 0 and 255 once stretched); with the colour table
+    of its values and the colour outside it."""
+    with rasterio.open(crater_dir / "dem.tif") as src:
         transform, crs, (rows, cols) = src.transform, src.crs, src.shape
     fine = transform @ Affine.translation(5.3, -3.7) @ Affine.scale(0.5)
     size = (2 * rows - 4, 2 * cols - 30)
     rng = np.random.default_rng(5)
     if kind == "visibility":
         codes = rng.integers(1, 4, size).astype(np.uint8)
-        texture = _write(tmp_path / "t.tif", codes, fine, crs, nodata=0)
-        table, outside = CODE_RGB, CODE_RGB[0]
-    else:
-        values = np.where(rng.random(size) < 0.5, 0.0, 100.0).astype(np.float32)
-        texture = _write(tmp_path / "t.tif", values, fine, crs)
-        table = np.zeros((101, 3), np.uint8)
-        table[100] = 255
-        outside = NAN_RGB
-    expected = _expected(dem, texture, table, outside)
+        return _write(tmp_path / "t.tif", codes, fine, crs, nodata=0), CODE_RGB, CODE_RGB[0]
+    values = np.where(rng.random(size) < 0.5, 0.0, 100.0).astype(np.float32)
+    table = np.zeros((101, 3), np.uint8)
+    table[100] = 255
+    return _write(tmp_path / "t.tif", values, fine, crs), table, NAN_RGB
+
+
+@pytest.mark.parametrize("kind", ["visibility", "image"])
+def test_mesh_samples_a_finer_texture_at_the_posts(
+    crater_dir: Path, tmp_path: Path, kind: str
+) -> None:
+    """PLY: every vertex gets the texel under its post, the posts outside the texture the
+    no-data colour."""
+    dem = crater_dir / "dem.tif"
+    texture, table, outside = _finer_texture(crater_dir, tmp_path, kind)
+    terrain = Terrain.read(dem)
+    r, c = np.divmod(terrain_mesh(terrain).vertex_post, terrain.shape[1])
+    expected = _sampled(texture, *(terrain.transform @ (c + 0.5, r + 0.5)), table, outside)
     assert (expected == np.asarray(outside)).all(axis=1).mean() > 0.1  # some posts outside
+    out = tmp_path / "m.ply"
+    args = ["mesh", str(dem), "-o", str(out), "--texture", str(texture)]
+    proc = run(*args, *(["--colour-by", "visibility"] if kind == "visibility" else []))
+    assert proc.returncode == 0, proc.stderr
+    got = trimesh.load(out, process=False).visual.vertex_colors[:, :3]
+    np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("fmt", ["obj", "glb"])
+@pytest.mark.parametrize("kind", ["visibility", "image"])
+def test_mesh_images_keep_a_finer_texture_resolution(
+    crater_dir: Path, tmp_path: Path, kind: str, fmt: str
+) -> None:
+    """OBJ and GLB: the image texture is the texture at its own resolution over the DEM
+    grid's extent (2 x 2 texels a post, each the texel under its centre), and the UVs put
+    each vertex at its post's place in it."""
+    dem = crater_dir / "dem.tif"
+    texture, table, outside = _finer_texture(crater_dir, tmp_path, kind)
+    terrain = Terrain.read(dem)
+    rows, cols = terrain.shape
+    i, j = np.mgrid[0 : 2 * rows, 0 : 2 * cols]
+    centres = (terrain.transform @ Affine.scale(0.5)) @ (j.ravel() + 0.5, i.ravel() + 0.5)
+    expected = _sampled(texture, *centres, table, outside).reshape(2 * rows, 2 * cols, 3)
     out = tmp_path / f"m.{fmt}"
     args = ["mesh", str(dem), "-o", str(out), "--texture", str(texture)]
     proc = run(*args, *(["--colour-by", "visibility"] if kind == "visibility" else []))
     assert proc.returncode == 0, proc.stderr
-    if fmt == "ply":
-        got = trimesh.load(out, process=False).visual.vertex_colors[:, :3]
-    else:  # OBJ: a texture image of one texel per post
-        posts = terrain_mesh(Terrain.read(dem)).vertex_post
-        got = np.asarray(Image.open(tmp_path / "m.png").convert("RGB")).reshape(-1, 3)[posts]
-    np.testing.assert_array_equal(got, expected)
+    if fmt == "obj":
+        image = np.asarray(Image.open(tmp_path / "m.png").convert("RGB"))
+        mesh = trimesh.load(out, process=False)
+    else:
+        mesh = trimesh.load(out, force="mesh", process=False)
+        image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+    np.testing.assert_array_equal(image, expected)
+    r, c = np.divmod(terrain_mesh(terrain).vertex_post, cols)  # the UVs: the posts' centres
+    uv = np.column_stack([(c + 0.5) / cols, 1 - (r + 0.5) / rows])
+    np.testing.assert_allclose(mesh.visual.uv, uv, atol=1e-6)
 
 
 def test_mesh_samples_a_coarser_texture_in_another_crs(crater_dir: Path, tmp_path: Path) -> None:

@@ -87,11 +87,13 @@ def mesh(
 ) -> None:
     """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
     skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
-    and GLB an image texture of one texel per post, from --texture or --error-against."""
+    and GLB an image texture, from --texture or --error-against: one texel per post, or at a
+    finer --texture's own resolution (an integer number of texels per post, at most 4096 a
+    side)."""
     from orthomvp.occlusion.mesh import terrain_mesh
     from orthomvp.present.colours import error_colour_limit, height_error
     from orthomvp.present.export import export_mesh
-    from orthomvp.present.texture import on_dem_grid
+    from orthomvp.present.texture import finer_grid, on_dem_grid
 
     kind = colour_by or ("error" if error_against else "image")
     if error_against and kind != "error":
@@ -118,6 +120,9 @@ def mesh(
         colours = height_error(terrain, truth)
     else:
         colours = on_dem_grid(texture, terrain) if texture else None
+    image = None  # OBJ and GLB: an image texture at a finer texture's own resolution
+    if texture and decimate is None:
+        image = finer_grid(texture, terrain)
     export_mesh(
         tmesh,
         output,
@@ -126,6 +131,7 @@ def mesh(
         target_triangles=decimate,
         colour_kind=kind,
         error_limit=error_limit,
+        texture_image=image,
     )
     note = f", decimated to about {decimate:,} triangles" if decimate else ""
     say(f"wrote {output}: {len(tmesh.vertices):,} vertices, {len(tmesh.faces):,} triangles{note}")

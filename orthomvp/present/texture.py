@@ -24,6 +24,8 @@ from orthomvp.io.raster import open_raster, read_image, read_values
 
 WINDOW_TEXELS = 1 << 24
 """Texels (at most, unless one post needs more) of one read of a sampled raster."""
+IMAGE_SIDE = 4096
+"""Texels a side (at most) of a mesh's image texture at a texture raster's own resolution."""
 
 
 class TextureSampler:
@@ -96,6 +98,21 @@ class TextureSampler:
         """Every band at every post: float32 (count, rows, cols)."""
         return self.read(0, self.shape[0], list(range(1, self.count + 1)))
 
+    def texels_per_post(self) -> float:
+        """The raster's texels along one post spacing of the DEM grid, at the grid's centre
+        (the mean of both directions): 1 on the DEM grid, 2 for a raster twice as fine."""
+        if self.on_grid:
+            return 1.0
+        r, c = self.shape[0] // 2, self.shape[1] // 2
+        x, y = (self.transform @ Affine.translation(0.5, 0.5)) @ (
+            np.array([c, c + 1, c], np.float64),
+            np.array([r, r, r + 1], np.float64),
+        )
+        if self._to_own is not None:
+            x, y = self._to_own.transform(x, y)
+        tc, tr = self._inverse @ (np.asarray(x), np.asarray(y))
+        return float(np.mean(np.hypot(tc[1:] - tc[0], tr[1:] - tr[0])))
+
 
 def on_dem_grid(path: str | Path, terrain: Any, what: str = "texture raster") -> np.ndarray:
     """The raster at ``path`` on the grid of ``terrain`` (a
@@ -104,6 +121,22 @@ def on_dem_grid(path: str | Path, terrain: Any, what: str = "texture raster") ->
     (:class:`TextureSampler`); float32 (bands, rows, cols), NaN where it has no value."""
     sampler = TextureSampler(path, terrain.shape, terrain.transform, terrain.crs, what)
     return read_image(path) if sampler.on_grid else sampler.grid()
+
+
+def finer_grid(path: str | Path, terrain: Any) -> np.ndarray | None:
+    """The raster at ``path`` sampled on the grid of ``terrain`` refined ``k`` times (each
+    post's cell cut into k x k texels, over the DEM grid's extent), ``k`` its texels per post
+    rounded and at most :data:`IMAGE_SIDE` texels a side: float32 (bands, k * rows, k * cols)
+    of its first 3 bands,
+    NaN where it has no value; None when ``k`` < 2 (a raster no finer than the DEM)."""
+    rows, cols = terrain.shape
+    sampler = TextureSampler(path, terrain.shape, terrain.transform, terrain.crs)
+    k = min(round(sampler.texels_per_post()), IMAGE_SIDE // max(rows, cols))
+    if k < 2:
+        return None
+    fine = terrain.transform @ Affine.scale(1 / k)
+    bands = list(range(1, min(sampler.count, 3) + 1))  # what the colours take
+    return TextureSampler(path, (k * rows, k * cols), fine, terrain.crs).read(0, k * rows, bands)
 
 
 def _gather(
