@@ -470,3 +470,14 @@ def test_render_drapes_a_texture_off_the_dem_grid(crater_dir: Path, tmp_path: Pa
         assert proc.returncode == 0, proc.stderr
         images.append(np.asarray(Image.open(out)))
     np.testing.assert_array_equal(images[0], images[1])
+
+
+def test_a_texture_on_another_body_is_refused(crater_dir: Path, tmp_path: Path) -> None:
+    """A texture in an Earth CRS over the lunar DEM: one line naming it, nothing written."""
+    texture = _write(
+        tmp_path / "t.tif", np.ones((8, 8), np.uint8), Affine(30, 0, 5e5, 0, -30, 4e6), "EPSG:32633"
+    )
+    out = tmp_path / "m.ply"
+    proc = run("mesh", str(crater_dir / "dem.tif"), "-o", str(out), "--texture", str(texture))
+    assert_one_line_error(proc, "t.tif", "UTM zone 33N", "cannot be reached", "celestial body")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.tif"]

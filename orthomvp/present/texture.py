@@ -60,7 +60,28 @@ class TextureSampler:
             )
         self._inverse = ~own_transform
         self._own_shape = own_shape
-        self._to_own = None if own_crs is None else _transformer(crs, own_crs)
+        self._to_own = None if own_crs is None else self._transformer(crs, own_crs)
+
+    def _transformer(self, dem_crs: Any, own_crs: Any) -> Any:
+        """A pyproj transformer from the DEM's CRS to the raster's (x, y order), or None when
+        they are the same (horizontally); InputError when pyproj has none (another body)."""
+        if dem_crs is None or own_crs == dem_crs:
+            return None
+        from pyproj import CRS, Transformer
+        from pyproj.exceptions import ProjError
+
+        source = CRS.from_user_input(dem_crs.to_wkt())
+        target = CRS.from_user_input(own_crs.to_wkt())
+        source, target = (c.sub_crs_list[0] if c.is_compound else c for c in (source, target))
+        if source.equals(target, ignore_axis_order=True):
+            return None
+        try:
+            return Transformer.from_crs(source, target, always_xy=True)
+        except ProjError as exc:
+            raise InputError(
+                f"{self.path}: the {self.what}'s CRS ({target.name}) cannot be reached from "
+                f"the DEM's ({source.name}): {' '.join(str(exc).split())}"
+            ) from exc
 
     def read(self, r0: int, r1: int, bands: list[int]) -> np.ndarray:
         """``bands`` (1-based) at the posts of DEM rows ``r0`` to ``r1`` (all columns):
@@ -153,20 +174,3 @@ def _gather(
         return
     data = read_values(src, bands, Window(c0, r0, c1 - c0, r1 - r0), np.float32)
     out[:, where] = data[:, ri - r0, ci - c0]
-
-
-def _transformer(dem_crs: Any, own_crs: Any) -> Any:
-    """A pyproj transformer from the DEM's CRS to the raster's (x, y order), or None when
-    they are the same."""
-    if dem_crs is None or own_crs == dem_crs:
-        return None
-    from pyproj import CRS, Transformer
-
-    source, target = CRS.from_user_input(dem_crs.to_wkt()), CRS.from_user_input(own_crs.to_wkt())
-    if source.is_compound:
-        source = source.sub_crs_list[0]
-    if target.is_compound:
-        target = target.sub_crs_list[0]
-    if source.equals(target, ignore_axis_order=True):
-        return None
-    return Transformer.from_crs(source, target, always_xy=True)
