@@ -62,7 +62,7 @@ imported: --help stays fast)"""
 @click.option(
     "--local-origin",
     is_flag=True,
-    help="write vertices relative to the mesh's local origin (printed) instead of "
+    help="write vertices relative to the mesh's local origin (printed, except with -q) instead of "
     "body-fixed coordinates",
 )
 @click.option(
