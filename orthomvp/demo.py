@@ -51,8 +51,8 @@ SNAP_SIZE = (900, 640)
 
 
 def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
-    """Run everything into ``outdir`` (written atomically) and print a summary. Returns the
-    measured figures."""
+    """Run everything into ``outdir`` (written atomically) and print a summary, each line
+    starting ``orthomvp:`` (nothing when ``quiet``). Returns the measured figures."""
     outdir = Path(outdir)
     t0 = time.perf_counter()
     with atomic_dir(outdir) as tmp:
@@ -73,8 +73,9 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
         write_index(
             tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES, about
         )
-    for line in lines:
-        print(line)
+    if not quiet:
+        for line in lines:
+            print(f"orthomvp: {line.removeprefix('orthomvp ')}")
     return figures
 
 

@@ -47,6 +47,7 @@ def test_demo_outputs_and_figures(demo: tuple[Path, str]) -> None:
     assert summary["fit_rmse"] < 0.6 * summary["fit_rmse_start"]
     assert summary["fit_resolved"] > 0.95
     assert "ghosts among" in stdout and "orthomvp 0" in stdout and "MVP fit" in stdout
+    assert all(line.startswith("orthomvp: ") for line in stdout.splitlines())
     for name in ("objective-rplot.csv", "objective-llplot.csv"):
         assert len((out / name).read_text().splitlines()) > 50
     for name in ("snap-visibility.png", "snap-mosaic.png", "snap-error-fitted.png"):

@@ -98,7 +98,7 @@ def test_two_outputs_on_one_path_are_refused_before_any_work(scene: Path, tmp_pa
 
 
 # -------------------------------------------------------------- an output over an input
-def test_an_output_over_an_input_needs_overwrite(scene: Path, tmp_path: Path) -> None:
+def test_an_output_over_an_input_needs_replace_input(scene: Path, tmp_path: Path) -> None:
     dem, (image, camera, image2, _) = scene / "dem.tif", views(scene)
     hard = tmp_path / "hardlink.tif"
     os.link(dem, hard)  # another name for the DEM
@@ -120,9 +120,12 @@ def test_an_output_over_an_input_needs_overwrite(scene: Path, tmp_path: Path) ->
     for args, path, label in cases:
         assert_refused(run(*args), 2, path, f"the input {label}", "--overwrite")
     assert state(tmp_path) == before
-    # --overwrite lets it happen (the inputs are read in full first)
-    code, out, err = run("visibility", dem, image, camera, "-o", image, "--overwrite")
-    assert code == 0 and f"wrote {image}" in out, err
+    # --overwrite alone does not; with --replace-input it happens (inputs are read in full first)
+    args = ["visibility", dem, image, camera, "-o", image, "--overwrite"]
+    assert_refused(run(*args), 2, image, "the input IMAGE", "--overwrite --replace-input")
+    assert state(tmp_path) == before
+    code, out, err = run(*args, "--replace-input")
+    assert code == 0 and f"orthomvp: wrote {image}" in out, err
     assert state(tmp_path)["in/oblique.tif"] != before["in/oblique.tif"]
 
 

@@ -422,8 +422,8 @@ def test_cli_reports_the_posts_taken_from_each_image(
     args = [str(p) for pair in views for p in pair]
     assert main(["mosaic", str(crater_dir / "dem.tif"), *args, "-o", str(out)]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    parts = line.split(": ", 1)[1].rsplit("; ", 1)
-    taken = [int(part.split(" from ")[0].replace(",", "")) for part in parts[0].split(", ")]
+    parts = line.split(": ", 2)[2].rsplit("; ", 1)
+    taken = [int(part.split(" posts from ")[0].replace(",", "")) for part in parts[0].split(", ")]
     none = int(parts[1].split()[0].replace(",", ""))
     data = read(out)
     filled = int(np.isfinite(data).all(axis=0).sum())

@@ -3,16 +3,17 @@ display."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from PIL import Image
 
 from orthomvp.cli import main
 from orthomvp.codes import Code, View
 from orthomvp.errors import InputError
-from orthomvp.io.raster import write_geotiff
 from orthomvp.present.snapshot import (
     CROP_MARGIN,
     SnapshotOptions,
@@ -250,10 +251,15 @@ def test_cli_bad_inputs_exit_2_without_output(
 ) -> None:
     d = crater_dir
     dem, out = str(d / "dem.tif"), tmp_path / "snap.png"
-    small = tmp_path / "small.tif"
-    write_geotiff(small, np.ones((10, 12), np.float32), *_grid(d))
+    small = tmp_path / "small.tif"  # no georeference, not the DEM's size: cannot be placed
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(
+            small, "w", driver="GTiff", width=12, height=10, count=1, dtype="float32"
+        ) as dst:
+            dst.write(np.ones((1, 10, 12), np.float32))
     cases = [
-        ["--visibility", str(small)],  # a raster off the DEM grid
+        ["--visibility", str(small)],  # a raster off the DEM grid, without a georeference
         ["--ortho", str(tmp_path / "missing.tif")],
         ["--heights", dem],  # no --truth
         ["--camera", str(d / "nadir.tsai"), "--view", "from-camera", "--camera-index", "2"],
@@ -265,11 +271,3 @@ def test_cli_bad_inputs_exit_2_without_output(
         assert err.startswith("orthomvp: error:") and err.count("\n") == 1, err
         assert not out.exists()
     assert not list(tmp_path.glob(".snap.png*"))  # no temporary file left behind
-
-
-def _grid(d: Path) -> tuple:
-    """Transform and CRS of the scene's DEM."""
-    from orthomvp.geometry.terrain import Terrain
-
-    t = Terrain.read(d / "dem.tif")
-    return t.transform, t.crs

@@ -7,7 +7,10 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command
-from orthomvp.cli.options import PATH, check_outdir, quiet
+from orthomvp.cli.options import PATH, check_outdir, overwrite_option, quiet
+
+DEMO_MARKS = ("index.html", "summary.json")
+"""The files by which a folder is known as an earlier demo's (which the demo refreshes)."""
 
 
 @click.command(cls=Command, short_help="run the pipeline end to end on a built-in synthetic scene")
@@ -18,12 +21,14 @@ from orthomvp.cli.options import PATH, check_outdir, quiet
     required=False,
     metavar="[OUTDIR]",
     help="the directory for every output (created if absent; nothing is written on "
-    "failure; default ./orthomvp-demo)",
+    "failure; default ./orthomvp-demo). A folder an earlier demo wrote is refreshed; any "
+    "other folder that holds files needs --overwrite",
 )
-def demo(outdir: Path) -> None:
+@overwrite_option
+def demo(outdir: Path, overwrite: bool) -> None:
     """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
     print a summary."""
     from orthomvp.demo import run_demo
 
-    check_outdir(outdir, "OUTDIR")
+    check_outdir(outdir, "OUTDIR", overwrite=overwrite, refresh=DEMO_MARKS)
     run_demo(outdir, quiet=quiet())

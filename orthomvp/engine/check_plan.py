@@ -58,6 +58,11 @@ class CheckPlan:
     names: tuple[str, ...]
 
     @property
+    def progress(self) -> bool:
+        """Whether a run reports progress unless told otherwise (the planner's)."""
+        return self.base.progress
+
+    @property
     def tiles(self) -> tuple[TileJob, ...]:
         return self.base.tiles
 
@@ -151,6 +156,9 @@ def plan_check(
     ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values`` and ``world`` as for
     :func:`~orthomvp.engine.plan_ortho`.
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_check`; False prints nothing.
+
     Reads the DEM once in blocks and the images' headers. Raises InputError for bad options,
     GeometryError when an image sees none of the DEM; warns
     (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is larger than the
@@ -187,5 +195,6 @@ def plan_check(
         1.0,
         tuple(reach),
         tuple(elevation),
+        progress=progress,
     )
     return CheckPlan(base, eps, window, labels)

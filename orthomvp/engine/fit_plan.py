@@ -122,7 +122,8 @@ class FitPlan:
     pyramid level) of the whole image, the tiles, the ``options`` (``levels`` the pyramid
     levels of the whole images), ``eps`` of the visibility test, ``spacing`` the DEM's mean
     post spacing in metres, ``margin`` the deconvolution's reach in posts, and per view
-    ``reach`` and ``elevation`` of the occluder halos (as :class:`~orthomvp.engine.Plan`)."""
+    ``reach`` and ``elevation`` of the occluder halos (as :class:`~orthomvp.engine.Plan`);
+    ``progress`` whether a run reports progress unless told otherwise (the planner's)."""
 
     dem: DemSource
     grid: OutputGrid
@@ -136,6 +137,7 @@ class FitPlan:
     margin: int
     reach: tuple[float, ...]
     elevation: tuple[float, ...]
+    progress: bool = True
 
     @property
     def levels(self) -> int:
@@ -173,8 +175,8 @@ class FitPlan:
             r0, r1, c0, c1 = max((w for job in run for w in job.images), key=_posts)
             windows += f", image windows up to {c1 - c0:,} x {r1 - r0:,} px"
         return (
-            f"plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
-            f"{self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "
+            f"orthomvp: plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} "
+            f"tiles of {self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "
             f"pyramid level(s); tiles read {self.margin + 1} posts around them and an occluder "
             f"halo up to {max(self.reach, default=0.0):.0f} posts{windows}; expected peak "
             f"memory {peak / 2**30:.2f} GiB with {workers} tile(s) at a time"
@@ -280,6 +282,9 @@ def plan_fit(
     a fit tile's margin is too wide for smaller ones); ``eps`` (DEM posts), ``dem_crs``,
     ``radius_values`` and ``world`` as for :func:`~orthomvp.engine.plan_ortho`.
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_fit`; False prints nothing.
+
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
     cameras. Raises InputError for bad options and GeometryError when an image sees none of
     the DEM; warns (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is
@@ -338,4 +343,5 @@ def plan_fit(
         margin,
         tuple(reach),
         tuple(elevation),
+        progress,
     )

@@ -117,7 +117,8 @@ class Plan:
     ``reach`` and ``elevation`` per view: the farthest occluder track in DEM posts and the
     lowest line of sight in degrees over all tiles. ``mosaic`` (two views or more) says how
     views combine, ``correction`` the radiometric balance found by
-    :func:`orthomvp.engine.survey.survey`."""
+    :func:`orthomvp.engine.survey.survey`; ``progress`` whether a run reports progress unless
+    told otherwise (the planner's)."""
 
     dem: DemSource
     grid: OutputGrid
@@ -133,6 +134,7 @@ class Plan:
     elevation: tuple[float, ...]
     mosaic: MosaicOptions | None = None
     correction: Correction | None = None
+    progress: bool = True
 
     @property
     def bands(self) -> int:
@@ -339,6 +341,9 @@ def plan_ortho(
     :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); every tile then
     computes its posts plus the options' margin, so tiles join as one untiled run would.
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_plan`; False prints nothing.
+
     Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
     sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
     larger than the DEM.
@@ -389,6 +394,7 @@ def plan_ortho(
         tuple(reach),
         tuple(elevation),
         mosaic,
+        progress=progress,
     )
 
 
