@@ -17,8 +17,9 @@ and each step has faster ways where they apply, with the same results:
 - its ray, :class:`Rays`: ``WHOLE_MESH`` (cast on the whole occluder mesh of the caster),
   ``PART_MESHES`` (the rays from a camera centre over the map of an
   :class:`~orthomvp.occlusion.occluders.Occluders`, cast on meshes of only the cells they pass
-  over, :meth:`~orthomvp.occlusion.occluders.Occluders.cast_from`: the same hits but at
-  grazed vertices) and ``PROVED`` (first proved clear where the DEM's heights allow,
+  over, :meth:`~orthomvp.occlusion.occluders.Occluders.cast_from`: the same hits, but for a
+  ray that grazes a vertex, which either mesh may meet or miss as float32 rounds) and
+  ``PROVED`` (first proved clear where the DEM's heights allow,
   :meth:`~orthomvp.occlusion.occluders.Occluders.clear`, the others as ``PART_MESHES``: the
   same codes and doubt as casting them).
 
