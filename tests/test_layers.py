@@ -31,7 +31,12 @@ LAYERS = [
     ("orthomvp.geometry.world", "orthomvp.camera"),
     ("orthomvp.occlusion", "orthomvp.occlusion.mesh", "orthomvp.occlusion.embree"),
     ("orthomvp.occlusion.raycast", "orthomvp.occlusion.post_geometry"),
-    ("orthomvp.occlusion.post_geometry_kernel", "orthomvp.occlusion.occluders"),
+    (
+        "orthomvp.occlusion.post_geometry_kernel",
+        "orthomvp.occlusion.occluders",
+        "orthomvp.occlusion.carry",
+    ),
+    ("orthomvp.occlusion.paths",),
     (
         "orthomvp.occlusion.visibility",
         "orthomvp.ortho",

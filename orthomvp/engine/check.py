@@ -118,7 +118,8 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
     caster = occluder_caster(window, threads=threads)
     codes, miss, naive = {}, {}, {}
     for k in job.views:
-        vis = _visibility(base, grid, k, caster, window, threads, frozenset({"miss"}))
+        fields = frozenset({"miss"})
+        vis = _visibility(base, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = finite_rows(uv)
         value = np.full(code.shape, np.nan, np.float32)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 from orthomvp.camera import Camera
@@ -30,6 +31,7 @@ from orthomvp.engine.plan import (
     tile_grid,
 )
 from orthomvp.errors import InputError
+from orthomvp.occlusion.paths import Rays, VisibilityPath
 from orthomvp.validate import number
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
@@ -78,6 +80,12 @@ class CheckPlan:
     def margin(self) -> int:
         """Posts computed around every tile: the NCC box's reach."""
         return self.window // 2
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test: the base plan's, with every ray cast on the
+        whole occluder mesh (the check measures every miss)."""
+        return replace(self.base.visibility_path, rays=Rays.WHOLE_MESH)
 
     def tile_bytes(self, job: TileJob) -> int:
         """Expected peak memory of one tile in a worker, bytes (the constants above and

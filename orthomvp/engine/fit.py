@@ -129,8 +129,7 @@ def _run_fit_tile(plan: FitPlan, index: int, threads: int, progress: bool) -> Fi
                 eps=plan.eps,
                 caster=caster,
                 threads=threads,
-                spacing=plan.spacing,
-                strict=False,
+                path=plan.visibility_path,
             )
         codes = vis.codes[inner]
         result.inside[k] = int((codes != Code.NODATA).sum())

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,7 @@ from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
+from orthomvp.occlusion.paths import Rays, VisibilityPath
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""
@@ -142,6 +144,13 @@ class FitPlan:
     @property
     def levels(self) -> int:
         return self.options.levels
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test (:mod:`orthomvp.occlusion.paths`): the numpy
+        separable geometry, every ray cast on the whole occluder mesh of the tile's window, the
+        DEM's :attr:`spacing`, and tiles that may see no post."""
+        return VisibilityPath(rays=Rays.WHOLE_MESH, spacing=self.spacing, strict=False)
 
     def tile_bytes(self, job: FitJob, threads: int = 1) -> int:
         """Expected peak memory of one tile in a worker with ``threads`` threads, bytes."""

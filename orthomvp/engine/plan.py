@@ -30,6 +30,7 @@ from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
+from orthomvp.occlusion.paths import Geometry, Rays, VisibilityPath
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import FUSED_POSTS, MosaicOptions
 from orthomvp.ortho.orthophoto import INTERPOLATION
@@ -155,6 +156,18 @@ class Plan:
             return False
         windows = (job.window for job in self.tiles if job.views)
         return sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in windows) >= FUSED_POSTS
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test (:mod:`orthomvp.occlusion.paths`): the numba
+        kernel's geometry where the plan runs the kernels (:attr:`fused`), else the numpy
+        separable one; rays proved clear where they can be (a mosaic's misses matter only to
+        its doubt, which a proved post cannot have); the DEM's :attr:`spacing`, and tiles that
+        may see no post."""
+        geometry = Geometry.SEPARABLE_KERNEL if self.fused else Geometry.SEPARABLE
+        return VisibilityPath(
+            geometry=geometry, rays=Rays.PROVED, spacing=self.spacing, strict=False
+        )
 
     def extent(self, job: TileJob) -> WindowT:
         """The posts a tile computes: its window grown by :attr:`margin`, within the grid."""

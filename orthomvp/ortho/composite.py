@@ -77,8 +77,8 @@ it (:func:`trusted`)."""
 
 FUSED_POSTS = 2_000_000
 """Posts of a mosaic from which it runs the numba kernels: :func:`compose`'s (``fused``) and
-the visibility test's geometry (:func:`orthomvp.occlusion.visibility.compute_visibility`'s
-``fused``). Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts
+the visibility test's geometry (:attr:`orthomvp.occlusion.paths.Geometry.SEPARABLE_KERNEL`).
+Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts
 of the tiles with views: 2.0 M (6 m) 1.32-1.38 s with them against 1.46-1.59 s without; 1.1 M
 (8 m) 1.09-1.16 against 1.03-1.12 s; 0.51 M (12 m) 0.94-0.96 against 0.79-0.80 s."""
 
