@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from orthomvp.codes import Code
 from orthomvp.io.raster import atomic_path, write_set
-from orthomvp.present.colours import ERROR_CMAP, error_colour_limit
+from orthomvp.present.colours import ERROR_CMAP, HEIGHT_CMAP, error_colour_limit
 
 CODE_COLOURS = [tuple(v / 255 for v in code.rgb) for code in Code]
 """Matplotlib RGB (0-1) of the visibility codes, indexed by code."""
@@ -85,6 +85,94 @@ def scale_bar(ax, metres_per_pixel: float, note: str = "") -> None:  # noqa: ANN
     ax.add_artist(bar)
 
 
+LonLat = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""A map's georeference for its furniture: pixel-centre (column, row) arrays to (longitude,
+latitude) arrays in degrees (for a DEM, ``np.degrees(terrain.pixel_to_lonlat(c, r))``)."""
+
+
+def _rgb(code: Code) -> tuple[float, float, float]:
+    """Matplotlib RGB (0-1) of a visibility code."""
+    return CODE_COLOURS[code]
+
+
+def _degrees(values: np.ndarray, hemispheres: str) -> list[str]:
+    """Tick labels of longitudes ("EW") or latitudes ("NS") in degrees, with as few decimals as
+    tell the ticks apart."""
+    decimals = next((d for d in range(7) if np.allclose(np.round(values, d), values)), 6)
+    pos, neg = hemispheres
+    return [f"{abs(v):.{decimals}f}\u00b0{pos if v >= 0 else neg}" for v in values]
+
+
+def _edge_ticks(values: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Round values (1, 2, 2.5 or 5 times a power of ten, 3 to 5 of them) within ``values``
+    sampled along an edge at ``positions``, and where on the edge they lie; none when the
+    values are not monotonic along it."""
+    from matplotlib.ticker import MaxNLocator
+
+    step = np.diff(values)
+    if not ((step > 0).all() or (step < 0).all()):
+        return np.empty(0), np.empty(0)
+    lo, hi = float(values.min()), float(values.max())
+    ticks = MaxNLocator(nbins=4, steps=[1, 2, 2.5, 5, 10]).tick_values(lo, hi)
+    ticks = ticks[(ticks >= lo) & (ticks <= hi)]
+    order = np.argsort(values)
+    return ticks, np.interp(ticks, values[order], positions[order])
+
+
+def map_frame(ax, lonlat: LonLat, shape: tuple[int, int]) -> None:  # noqa: ANN001
+    """Lon/lat furniture on an image axes showing a (rows, cols) grid (``imshow``, pixel
+    centres at integers): longitude ticks along the bottom edge and latitude ticks along the
+    left edge where round values cross them, a faint graticule through the same values, and a
+    north arrow (along the meridian through the map's centre) in the upper right."""
+    from matplotlib import patheffects
+
+    rows, cols = shape
+    c = np.linspace(-0.5, cols - 0.5, 257)
+    r = np.linspace(-0.5, rows - 0.5, 257)
+    lon_bottom, _ = lonlat(c, np.full_like(c, rows - 0.5))
+    _, lat_left = lonlat(np.full_like(r, -0.5), r)
+    lon_ticks, at_c = _edge_ticks(np.asarray(lon_bottom), c)
+    lat_ticks, at_r = _edge_ticks(np.asarray(lat_left), r)
+    ax.set_xticks(at_c, _degrees(lon_ticks, "EW"), fontsize=8)
+    ax.set_yticks(at_r, _degrees(lat_ticks, "NS"), fontsize=8)
+    cc, rr = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
+    lon, lat = (np.asarray(v) for v in lonlat(cc, rr))
+    for values, ticks in ((lon, lon_ticks), (lat, lat_ticks)):
+        if len(ticks):
+            ax.contour(cc, rr, values, levels=np.sort(ticks), colors="0.15", linewidths=0.5,
+                       linestyles=":", alpha=0.6)  # fmt: skip
+    # north: the pixel direction along which longitude holds and latitude grows
+    c0, r0 = (cols - 1) / 2, (rows - 1) / 2
+    lo, la = (np.asarray(v) for v in lonlat(np.array([c0 - 0.5, c0 + 0.5, c0, c0]),
+                                             np.array([r0, r0, r0 - 0.5, r0 + 0.5])))  # fmt: skip
+    jac = np.array([[lo[1] - lo[0], lo[3] - lo[2]], [la[1] - la[0], la[3] - la[2]]])
+    north = np.linalg.solve(jac, [0.0, 1.0])
+    north /= np.linalg.norm(north)
+    size = 0.1 * min(rows, cols)
+    mid = np.array([cols - 1.2 * size, 1.5 * size])  # (c, r) of the arrow's middle
+    tail, tip = mid - 0.5 * size * north, mid + 0.5 * size * north
+    halo = [patheffects.withStroke(linewidth=3, foreground="white")]
+    ax.annotate("", xy=tip, xytext=tail, arrowprops={"arrowstyle": "-|>,head_width=0.3",
+                "color": "black", "lw": 1.5, "path_effects": halo})  # fmt: skip
+    label = mid + 0.85 * size * north
+    ax.text(*label, "N", ha="center", va="center", fontsize=9, fontweight="bold",
+            path_effects=halo)  # fmt: skip
+    ax.set_xlim(-0.5, cols - 0.5)
+    ax.set_ylim(rows - 0.5, -0.5)
+
+
+def _map(ax, shape: tuple[int, int], lonlat: LonLat | None, spacing: float | None) -> None:  # noqa: ANN001
+    """A map's furniture: lon/lat ticks, graticule and north arrow (:func:`map_frame`) when
+    ``lonlat`` is given, else no ticks; a scale bar when the post ``spacing`` (metres) is."""
+    if lonlat is not None:
+        map_frame(ax, lonlat, shape)
+    else:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if spacing:
+        scale_bar(ax, spacing)
+
+
 def _visibility_axes(ax, codes: np.ndarray, title: str) -> list:  # noqa: ANN001
     """Draw visibility codes; returns the legend handles of the codes present."""
     from matplotlib.colors import ListedColormap
@@ -95,7 +183,7 @@ def _visibility_axes(ax, codes: np.ndarray, title: str) -> list:  # noqa: ANN001
     )
     ax.set_title(title)
     present = [code for code in Code if (codes == code).any()]
-    return [Patch(color=CODE_COLOURS[code], label=code.label) for code in present]
+    return [Patch(color=_rgb(code), label=code.label) for code in present]
 
 
 def scene_overview(
@@ -106,27 +194,39 @@ def scene_overview(
     path: str | Path,
     view: str = "oblique",
     gsd: float | None = None,
+    *,
+    lonlat: LonLat | None = None,
+    height_label: str = "height (m)",
 ) -> None:
-    """Shaded DEM, a rendered image and its truth visibility side by side, with scale bars
-    (``spacing``: DEM post spacing, ``gsd``: the image's ground sample distance at the scene
-    centre, both metres) and a legend of the visibility codes below the figure."""
-    from matplotlib.colors import LightSource
+    """The DEM (heights in colour on :data:`~orthomvp.present.colours.HEIGHT_CMAP`, shaded,
+    with a colour bar labelled ``height_label``, metres), a rendered image and its truth
+    visibility side by side, with scale bars (``spacing``: DEM post spacing, ``gsd``: the
+    image's ground sample distance at the scene centre, both metres), lon/lat ticks and a
+    north arrow on the two maps when ``lonlat`` is given (see :func:`map_frame`), and a
+    legend of the visibility codes below the figure."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import LightSource, Normalize
 
     plt = _pyplot()
-    shade = LightSource(azdeg=315, altdeg=35).hillshade(dem, dx=spacing, dy=spacing)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 5.2), layout="constrained")
-    axes[0].imshow(shade, cmap="gray")
-    axes[0].set_title("DEM (shaded relief)")
+    norm = Normalize(*np.nanpercentile(dem, [0, 100]))
+    cmap = colormaps[HEIGHT_CMAP]
+    shaded = LightSource(azdeg=315, altdeg=35).shade(
+        dem, cmap=cmap, norm=norm, blend_mode="soft", dx=spacing, dy=spacing
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(14, 5.4), layout="constrained")
+    axes[0].imshow(shaded)
+    axes[0].set_title("DEM (heights, shaded relief)")
+    fig.colorbar(ScalarMappable(norm, cmap), ax=axes[0], shrink=0.8, label=height_label)
     axes[1].imshow(image, cmap="gray")
-    axes[1].set_title(f"rendered '{view}' image (raw frame)")
-    handles = _visibility_axes(axes[2], truth, "truth visibility of that view")
-    for ax in axes:
-        ax.set_xticks([])
-        ax.set_yticks([])
-    scale_bar(axes[0], spacing)
+    axes[1].set_title(f"rendered '{view}' image (raw frame, not a map)")
+    axes[1].set_xticks([])
+    axes[1].set_yticks([])
     if gsd:
         scale_bar(axes[1], gsd, " (at the centre)")
-    scale_bar(axes[2], spacing)
+    handles = _visibility_axes(axes[2], truth, "truth visibility of that view")
+    for ax, grid in ((axes[0], dem), (axes[2], truth)):
+        _map(ax, grid.shape, lonlat, spacing)
     fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
     _save(fig, path)
 
@@ -137,48 +237,76 @@ def ortho_comparison(
     mosaic: np.ndarray,
     path: str | Path,
     spacing: float | None = None,
+    *,
+    codes: np.ndarray | None = None,
+    lonlat: LonLat | None = None,
 ) -> None:
     """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps, with
-    a scale bar when the post ``spacing`` (metres) is given."""
+    a scale bar when the post ``spacing`` (metres) is given and lon/lat ticks and a north arrow
+    when ``lonlat`` is (see :func:`map_frame`). Empty posts are drawn in the colour of why they
+    are empty: their visibility code in ``codes`` (the occlusion-aware orthophoto's view:
+    occluded green, facing away orange), else no data; a legend below names them."""
+    from matplotlib.patches import Patch
+
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 5.2), layout="constrained")
     finite = np.concatenate([a[np.isfinite(a)] for a in (naive, aware, mosaic)])
     lo, hi = np.percentile(finite, [1, 99])
     titles = [
         "naive orthophoto (ghosts in the hidden areas)",
-        "orthomvp: occluded posts left empty",
+        "orthomvp: hidden posts left empty",
         "mosaic: filled from the near-nadir view",
     ]
+    why = np.full(aware.shape, Code.NODATA, np.uint8) if codes is None else np.asarray(codes)
+    shown: set[Code] = set()
     for ax, img, title in zip(axes, (naive, aware, mosaic), titles, strict=True):
-        ax.set_facecolor("#c0392b")
+        empty = ~np.isfinite(img)
+        reason = np.where(empty & (why != Code.VISIBLE), why, Code.NODATA)
+        overlay = np.zeros((*img.shape, 4))
+        overlay[..., :3] = np.asarray(CODE_COLOURS)[reason]
+        overlay[..., 3] = empty
+        shown |= {Code(v) for v in np.unique(reason[empty])}
         ax.imshow(np.ma.masked_invalid(img), cmap="gray", vmin=lo, vmax=hi)
+        ax.imshow(overlay, interpolation="nearest")
         ax.set_title(title, fontsize=10)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        if spacing:
-            scale_bar(ax, spacing)
-    fig.text(0.5, 0.01, "red: nodata", ha="center", fontsize=9, color="#c0392b")
+        _map(ax, img.shape, lonlat, spacing)
+    if shown:
+        handles = [Patch(color=_rgb(c), label=f"empty: {c.label}") for c in sorted(shown)]
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
     _save(fig, path)
 
 
 def height_error_maps(
-    before: np.ndarray, after: np.ndarray, spacing: float, path: str | Path
+    before: np.ndarray,
+    after: np.ndarray,
+    spacing: float,
+    path: str | Path,
+    *,
+    lonlat: LonLat | None = None,
 ) -> None:
     """Height error maps (metres, DEM minus truth) before and after fitting, on one diverging
-    colour scale symmetric about 0; NaN (unresolved) posts black."""
+    colour scale symmetric about 0 (:data:`~orthomvp.present.colours.ERROR_CMAP`: red too
+    high, blue too low) with a colour bar in metres; NaN (unresolved) posts in the no-data
+    colour, named in a legend when there are any. Scale bars, and lon/lat ticks and a north
+    arrow when ``lonlat`` is given (see :func:`map_frame`)."""
+    from matplotlib import colormaps
+    from matplotlib.patches import Patch
+
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10.5, 4.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5.0), layout="constrained")
     finite = np.concatenate([a[np.isfinite(a)] for a in (before, after)])
     lim = error_colour_limit(finite)
+    cmap = colormaps[ERROR_CMAP].with_extremes(bad=_rgb(Code.NODATA))
     for ax, err, name in zip(axes, (before, after), ("start DEM", "fitted DEM"), strict=True):
         ok = np.isfinite(err)
         rmse = float(np.sqrt(np.mean(err[ok] ** 2)))
-        ax.set_facecolor("black")
-        im = ax.imshow(np.ma.masked_invalid(err), cmap=ERROR_CMAP, vmin=-lim, vmax=lim)
+        im = ax.imshow(np.ma.masked_invalid(err), cmap=cmap, vmin=-lim, vmax=lim)
         ax.set_title(f"{name}: error against truth, RMSE {rmse:.1f} m", fontsize=10)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.set_xlabel(f"{spacing:g} m posts")
-        scale_bar(ax, spacing)
-    fig.colorbar(im, ax=list(axes), shrink=0.85, label="height error (m): red too high")
+        _map(ax, err.shape, lonlat, spacing)
+    fig.colorbar(
+        im, ax=list(axes), shrink=0.85, label="height error (m): red too high, blue too low"
+    )
+    if not all(np.isfinite(a).all() for a in (before, after)):
+        patch = Patch(color=_rgb(Code.NODATA), label="unresolved (fewer than 2 views)")
+        fig.legend(handles=[patch], loc="outside lower center", fontsize=9)
     _save(fig, path)
