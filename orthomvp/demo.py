@@ -62,9 +62,8 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
     outdir = Path(outdir)
     t0 = time.perf_counter()
     with atomic_dir(outdir) as tmp:
-        make_scene(
-            "crater", size=DEMO_SIZE, spacing=DEMO_SPACING, image_margin=IMAGE_MARGIN
-        ).write(tmp / "scene", progress=not quiet)
+        made = make_scene("crater", size=DEMO_SIZE, spacing=DEMO_SPACING, image_margin=IMAGE_MARGIN)
+        made.write(tmp / "scene", progress=not quiet)
         scene = load_scene(tmp / "scene")
         figures, arrays = _orthophotos(tmp, scene)
         figures.update(_refine(tmp, scene, arrays))
