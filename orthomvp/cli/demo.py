@@ -22,7 +22,8 @@ from orthomvp.cli.options import PATH, check_outdir, quiet
 )
 def demo(outdir: Path) -> None:
     """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
-    print a summary."""
+    print a summary. The first run compiles numba's kernels into the user's cache folder and
+    takes about 1-2 minutes on 2 cores; later runs take about 40 s."""
     from orthomvp.demo import run_demo
 
     check_outdir(outdir, "OUTDIR")

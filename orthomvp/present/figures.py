@@ -6,12 +6,16 @@ import csv
 import io
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orthomvp.codes import Code
 from orthomvp.io.raster import atomic_path, write_set
 from orthomvp.present.colours import ERROR_CMAP, HEIGHT_CMAP, error_colour_limit
+
+if TYPE_CHECKING:
+    from orthomvp.geometry.terrain import Terrain
 
 CODE_COLOURS = [tuple(v / 255 for v in code.rgb) for code in Code]
 """Matplotlib RGB (0-1) of the visibility codes, indexed by code."""
@@ -88,6 +92,16 @@ def scale_bar(ax, metres_per_pixel: float, note: str = "") -> None:  # noqa: ANN
 LonLat = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """A map's georeference for its furniture: pixel-centre (column, row) arrays to (longitude,
 latitude) arrays in degrees (for a DEM, ``np.degrees(terrain.pixel_to_lonlat(c, r))``)."""
+
+
+def lonlat_degrees(terrain: Terrain) -> LonLat:
+    """The :data:`LonLat` georeference of ``terrain``'s grid (its body's lon/lat, degrees)."""
+
+    def lonlat(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lon, lat = terrain.pixel_to_lonlat(c, r)
+        return np.degrees(lon), np.degrees(lat)
+
+    return lonlat
 
 
 def _rgb(code: Code) -> tuple[float, float, float]:
@@ -231,6 +245,45 @@ def scene_overview(
     _save(fig, path)
 
 
+def orthophoto_axes(
+    ax,  # noqa: ANN001
+    image: np.ndarray,
+    title: str,
+    *,
+    stretch: tuple[float, float],
+    codes: np.ndarray | None = None,
+    lonlat: LonLat | None = None,
+    spacing: float | None = None,
+) -> set[Code]:
+    """Draw a one-band orthophoto (rows, cols) in grey, stretched from ``stretch`` (low, high)
+    to black and white, its empty (NaN) posts in the colour of why they are empty: their
+    visibility code in ``codes`` (occluded green, facing away orange), else no data; with the
+    map furniture of :func:`_map` (lon/lat ticks and a north arrow with ``lonlat``, a scale bar
+    with the post ``spacing`` in metres). Returns the codes drawn on empty posts, for a
+    legend (:func:`empty_legend`)."""
+    why = np.full(image.shape, Code.NODATA, np.uint8) if codes is None else np.asarray(codes)
+    empty = ~np.isfinite(image)
+    reason = np.where(empty & (why != Code.VISIBLE), why, Code.NODATA)
+    overlay = np.zeros((*image.shape, 4))
+    overlay[..., :3] = np.asarray(CODE_COLOURS)[reason]
+    overlay[..., 3] = empty
+    ax.imshow(np.ma.masked_invalid(image), cmap="gray", vmin=stretch[0], vmax=stretch[1])
+    ax.imshow(overlay, interpolation="nearest")
+    ax.set_title(title, fontsize=10)
+    _map(ax, image.shape, lonlat, spacing)
+    return {Code(v) for v in np.unique(reason[empty])}
+
+
+def empty_legend(fig, shown: set[Code]) -> None:  # noqa: ANN001
+    """A legend below ``fig`` of the colours of empty orthophoto posts (see
+    :func:`orthophoto_axes`), when there are any."""
+    from matplotlib.patches import Patch
+
+    if shown:
+        handles = [Patch(color=_rgb(c), label=f"empty: {c.label}") for c in sorted(shown)]
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
+
+
 def ortho_comparison(
     naive: np.ndarray,
     aware: np.ndarray,
@@ -241,13 +294,11 @@ def ortho_comparison(
     codes: np.ndarray | None = None,
     lonlat: LonLat | None = None,
 ) -> None:
-    """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps, with
-    a scale bar when the post ``spacing`` (metres) is given and lon/lat ticks and a north arrow
-    when ``lonlat`` is (see :func:`map_frame`). Empty posts are drawn in the colour of why they
-    are empty: their visibility code in ``codes`` (the occlusion-aware orthophoto's view:
-    occluded green, facing away orange), else no data; a legend below names them."""
-    from matplotlib.patches import Patch
-
+    """Naive orthophoto, occlusion-aware orthophoto, and the mosaic that fills the gaps (see
+    :func:`orthophoto_axes`: empty posts in the colour of their code in ``codes``, the
+    occlusion-aware orthophoto's view), with a scale bar when the post ``spacing`` (metres) is
+    given and lon/lat ticks and a north arrow when ``lonlat`` is, and a legend of the empty
+    posts' colours below."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(14, 5.2), layout="constrained")
     finite = np.concatenate([a[np.isfinite(a)] for a in (naive, aware, mosaic)])
@@ -257,22 +308,12 @@ def ortho_comparison(
         "orthomvp: hidden posts left empty",
         "mosaic: filled from the near-nadir view",
     ]
-    why = np.full(aware.shape, Code.NODATA, np.uint8) if codes is None else np.asarray(codes)
     shown: set[Code] = set()
     for ax, img, title in zip(axes, (naive, aware, mosaic), titles, strict=True):
-        empty = ~np.isfinite(img)
-        reason = np.where(empty & (why != Code.VISIBLE), why, Code.NODATA)
-        overlay = np.zeros((*img.shape, 4))
-        overlay[..., :3] = np.asarray(CODE_COLOURS)[reason]
-        overlay[..., 3] = empty
-        shown |= {Code(v) for v in np.unique(reason[empty])}
-        ax.imshow(np.ma.masked_invalid(img), cmap="gray", vmin=lo, vmax=hi)
-        ax.imshow(overlay, interpolation="nearest")
-        ax.set_title(title, fontsize=10)
-        _map(ax, img.shape, lonlat, spacing)
-    if shown:
-        handles = [Patch(color=_rgb(c), label=f"empty: {c.label}") for c in sorted(shown)]
-        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), fontsize=9)
+        shown |= orthophoto_axes(
+            ax, img, title, stretch=(lo, hi), codes=codes, lonlat=lonlat, spacing=spacing
+        )
+    empty_legend(fig, shown)
     _save(fig, path)
 
 

@@ -85,10 +85,11 @@ class SnapshotOptions:
     ``exaggerate`` K > 0 scales heights about their median along each post's up direction
     (``h' = h_med + K (h - h_med)``). ``size`` is (width, height) in pixels, 16 to 8192 a side,
     default 1024 x 768 (``from-camera``: the camera's aspect, 1024 on the long side).
-    ``legend`` draws the legend or colour bar; ``title`` a caption. ``error_limit``: the height
-    error colours saturate at +-this many metres (positive; default: the 99th percentile of
-    |error|). ``crop`` cuts the empty background around what is drawn, to within
-    :data:`CROP_MARGIN` pixels (the image is then smaller than ``size``).
+    ``legend`` draws the legend or colour bar, and a scale bar in front of the DEM's nearest
+    edge labelled with its length and the vertical exaggeration; ``title`` a caption.
+    ``error_limit``: the height error colours saturate at +-this many metres (positive;
+    default: the 99th percentile of |error|). ``crop`` cuts the empty background around what
+    is drawn, to within :data:`CROP_MARGIN` pixels (the image is then smaller than ``size``).
     """
 
     rays: int = 0
@@ -187,7 +188,8 @@ def snapshot(
     Posts without a value are :data:`orthomvp.present.colours.NAN_RGB`. ``cameras`` are drawn
     as frusta (see :func:`orthomvp.present.viewpoint.camera_glyph`; a narrow field of view is
     widened to show the image's shape and orientation) with their optical axis, numbered from
-    1, and a thin line towards a far camera's true position. A camera without an image size
+    1 (each label beside its glyph, inside the window and clear of the other labels), and a
+    thin line towards a far camera's true position. A camera without an image size
     uses the pixel rectangle that holds the DEM's projection. Lighting comes from the image's
     upper left, 35 degrees above the horizon, for readable relief. ``options`` (default
     :class:`SnapshotOptions`) choose the view, rays, size and the rest. Raises InputError for
@@ -447,10 +449,10 @@ def _overlaps(a: Box, b: Box) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def _add_text(plotter: pv.Plotter, text: str, box: Box, colour: str) -> None:
-    """Draw ``text`` in ``box`` (from :func:`_text_box`) with a dark shadow."""
+def _add_text(plotter: pv.Plotter, text: str, box: Box, colour: str, name: str) -> None:
+    """Draw ``text`` in ``box`` (from :func:`_text_box`) with a dark shadow, as actor ``name``."""
     actor = plotter.add_text(
-        text, position=(box[0], box[1]), font_size=_font_px(plotter) // 2, color=colour
+        text, position=(box[0], box[1]), font_size=_font_px(plotter) // 2, color=colour, name=name
     )
     actor.prop.shadow = True
 
@@ -495,7 +497,7 @@ def _add_labels(
             y = float(np.clip(anchor[1] + gap, 2, height - h - 2))
             best = _text_box(text, font, x, y)
         placed.append(best)
-        _add_text(plotter, text, best, colour)
+        _add_text(plotter, text, best, colour, f"camera label {text}")
 
 
 def _round_length(target: float) -> float:
@@ -555,7 +557,9 @@ def _add_scale_bar(
         np.array([p0, p1, p0 - tick, p0 + tick, p1 - tick, p1 + tick]),
         lines=np.array([2, 0, 1, 2, 2, 3, 2, 4, 5]),
     )
-    plotter.add_mesh(bar, color="white", line_width=4, lighting=False, reset_camera=False)
+    plotter.add_mesh(
+        bar, color="white", line_width=4, lighting=False, reset_camera=False, name="scale bar"
+    )
     lines = [
         f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m",
         f"vertical exaggeration {exaggerate:g}x" if exaggerate != 1 else "no vertical exaggeration",
@@ -579,9 +583,10 @@ def _add_scale_bar(
     x, y = float(np.clip(x, 2, max(width - w - 2, 2))), float(np.clip(y, 2, height - h - 2))
     box = (x, y, x + w, y + h)
     top = y + h
-    for text, (tw, th) in zip(lines, sizes, strict=True):  # each centred in the block
+    for k, (text, (tw, th)) in enumerate(zip(lines, sizes, strict=True)):  # centred, stacked
         top -= th
-        _add_text(plotter, text, _text_box(text, font, x + (w - tw) / 2, top), "white")
+        box_k = _text_box(text, font, x + (w - tw) / 2, top)
+        _add_text(plotter, text, box_k, "white", f"scale bar label {k}")
     return box
 
 
