@@ -9,13 +9,14 @@ Three kinds of raster are coloured (:data:`COLOUR_KINDS`):
 - ``"error"``: one band of height errors in metres, on the diverging colour map
   :data:`ERROR_CMAP` from ``-limit`` (blue) through 0 (white) to ``+limit`` (red), clipped.
 
-Posts without a value (NaN) are :data:`NAN_RGB` in every kind.
-
-This module and :mod:`orthomvp.codes` are the one palette of every figure, snapshot, mesh and
-page: one colour per meaning, and no meaning's colour reused for another (red and blue are
-only too high and too low; green only occluded). Rasters are (rows, cols),
+Posts without a value (NaN) are :data:`NAN_RGB` in every kind. Rasters are (rows, cols),
 (rows, cols, bands) or band-first (bands, rows, cols), as :func:`orthomvp.io.raster.read_image`
 reads them; colours are RGB uint8.
+
+This module and :mod:`orthomvp.codes` are the one palette of the maps, snapshots, meshes and
+pages: one colour per meaning (light grey visible, green occluded, orange facing away, violet no
+data or no value, red too high and blue too low), cameras in colours apart from those, and
+heights on their own sequential scale (:data:`HEIGHT_CMAP`) with a colour bar in metres.
 """
 
 from __future__ import annotations

@@ -135,9 +135,10 @@ def _edge_ticks(values: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, 
 
 def map_frame(ax, lonlat: LonLat, shape: tuple[int, int]) -> None:  # noqa: ANN001
     """Lon/lat furniture on an image axes showing a (rows, cols) grid (``imshow``, pixel
-    centres at integers): longitude ticks along the bottom edge and latitude ticks along the
-    left edge where round values cross them, a faint graticule through the same values, and a
-    north arrow (along the meridian through the map's centre) in the upper right."""
+    centres at integers; the maps draw one square per post, nearest interpolation): longitude
+    ticks along the bottom edge and latitude ticks along the left edge where round values cross
+    them, a faint graticule through the same values, and a north arrow (along the meridian
+    through the map's centre) in the upper right."""
     from matplotlib import patheffects
 
     rows, cols = shape
@@ -147,8 +148,8 @@ def map_frame(ax, lonlat: LonLat, shape: tuple[int, int]) -> None:  # noqa: ANN0
     _, lat_left = lonlat(np.full_like(r, -0.5), r)
     lon_ticks, at_c = _edge_ticks(np.asarray(lon_bottom), c)
     lat_ticks, at_r = _edge_ticks(np.asarray(lat_left), r)
-    ax.set_xticks(at_c, _degrees(lon_ticks, "EW"), fontsize=8)
-    ax.set_yticks(at_r, _degrees(lat_ticks, "NS"), fontsize=8)
+    ax.set_xticks(at_c, _degrees(lon_ticks, "EW"), fontsize=9)
+    ax.set_yticks(at_r, _degrees(lat_ticks, "NS"), fontsize=9)
     cc, rr = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
     lon, lat = (np.asarray(v) for v in lonlat(cc, rr))
     for values, ticks in ((lon, lon_ticks), (lat, lat_ticks)):
@@ -229,7 +230,7 @@ def scene_overview(
         dem, cmap=cmap, norm=norm, blend_mode="soft", dx=spacing, dy=spacing
     )
     fig, axes = plt.subplots(1, 3, figsize=(14, 5.4), layout="constrained")
-    axes[0].imshow(shaded)
+    axes[0].imshow(shaded, interpolation="nearest")
     axes[0].set_title("DEM (heights, shaded relief)")
     fig.colorbar(ScalarMappable(norm, cmap), ax=axes[0], shrink=0.8, label=height_label)
     axes[1].imshow(image, cmap="gray")
@@ -257,17 +258,21 @@ def orthophoto_axes(
 ) -> set[Code]:
     """Draw a one-band orthophoto (rows, cols) in grey, stretched from ``stretch`` (low, high)
     to black and white, its empty (NaN) posts in the colour of why they are empty: their
-    visibility code in ``codes`` (occluded green, facing away orange), else no data; with the
-    map furniture of :func:`_map` (lon/lat ticks and a north arrow with ``lonlat``, a scale bar
-    with the post ``spacing`` in metres). Returns the codes drawn on empty posts, for a
-    legend (:func:`empty_legend`)."""
-    why = np.full(image.shape, Code.NODATA, np.uint8) if codes is None else np.asarray(codes)
+    visibility code in ``codes`` (as read: NaN is no data; occluded green, facing away orange),
+    else no data; with the map furniture of :func:`_map` (lon/lat ticks and a north arrow with
+    ``lonlat``, a scale bar with the post ``spacing`` in metres). Returns the codes drawn on
+    empty posts, for a legend (:func:`empty_legend`)."""
+    why = np.full(image.shape, Code.NODATA) if codes is None else np.asarray(codes)
+    why = np.where(np.isfinite(why), why, Code.NODATA).astype(np.uint8)  # NaN: no data
     empty = ~np.isfinite(image)
     reason = np.where(empty & (why != Code.VISIBLE), why, Code.NODATA)
     overlay = np.zeros((*image.shape, 4))
     overlay[..., :3] = np.asarray(CODE_COLOURS)[reason]
     overlay[..., 3] = empty
-    ax.imshow(np.ma.masked_invalid(image), cmap="gray", vmin=stretch[0], vmax=stretch[1])
+    ax.imshow(
+        np.ma.masked_invalid(image), cmap="gray", vmin=stretch[0], vmax=stretch[1],
+        interpolation="nearest",
+    )  # fmt: skip
     ax.imshow(overlay, interpolation="nearest")
     ax.set_title(title, fontsize=10)
     _map(ax, image.shape, lonlat, spacing)
@@ -341,7 +346,9 @@ def height_error_maps(
     for ax, err, name in zip(axes, (before, after), ("start DEM", "fitted DEM"), strict=True):
         ok = np.isfinite(err)
         rmse = float(np.sqrt(np.mean(err[ok] ** 2)))
-        im = ax.imshow(np.ma.masked_invalid(err), cmap=cmap, vmin=-lim, vmax=lim)
+        im = ax.imshow(
+            np.ma.masked_invalid(err), cmap=cmap, vmin=-lim, vmax=lim, interpolation="nearest"
+        )
         ax.set_title(f"{name}: error against truth, RMSE {rmse:.1f} m", fontsize=10)
         _map(ax, err.shape, lonlat, spacing)
     fig.colorbar(
