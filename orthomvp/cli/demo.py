@@ -22,8 +22,9 @@ from orthomvp.cli.options import PATH, check_outdir, quiet
 )
 def demo(outdir: Path) -> None:
     """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
-    print a summary. The first run compiles numba's kernels into the user's cache folder and
-    takes about 1-2 minutes on 2 cores; later runs take about 40 s."""
+    print a summary. The first run also compiles numba's kernels into the user's cache folder:
+    measured on 2 busy cores, 64-108 s the first time and 37-38 s after (31-34 s and 13-15 s of
+    CPU time)."""
     from orthomvp.demo import run_demo
 
     check_outdir(outdir, "OUTDIR")
