@@ -60,10 +60,10 @@ EXAGGERATION = 1.5
 """Vertical exaggeration of the relief snapshots (the height-error ones have none)."""
 TIMING = (
     "measured on 2 cores shared with other work: a first run, which compiles numba's kernels "
-    "into the user's cache folder, 64-108 s (31-34 s of CPU), later runs 37-38 s (13-15 s of CPU)"
+    "into the user's cache folder, 61-108 s (29-34 s of CPU), later runs 36-38 s (13-15 s of CPU)"
 )
-"""What the demo takes, as measured: 2 runs each with a fresh numba cache (``XDG_CACHE_HOME`` a
-new folder) and with the cache they filled, load average 10-14 on 2 cores."""
+"""What the demo takes, as measured: 4 runs with a fresh numba cache (``XDG_CACHE_HOME`` a new
+folder) and 4 with the cache they filled, load average 8-14 on 2 cores."""
 
 
 def run_demo(outdir: str | Path, quiet: bool = False) -> dict:

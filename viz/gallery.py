@@ -126,14 +126,14 @@ def linescan_pictures(tmp: Path) -> None:
     axes[0].set_title("line-scan image (rows = lines = time)", fontsize=10)
     axes[0].set_axis_off()
     spacing = float(np.mean(terrain.post_spacing()))
+    lonlat = lonlat_degrees(terrain)
     shown = set()
     for ax, ortho, title in zip(
         axes[1:], (naive, aware), ("naive orthophoto", "occlusion-aware orthophoto"), strict=True
     ):
         shown |= orthophoto_axes(
-            ax, ortho, title, stretch=(0, high), codes=codes, spacing=spacing,
-            lonlat=lonlat_degrees(terrain),
-        )  # fmt: skip
+            ax, ortho, title, stretch=(0, high), codes=codes, spacing=spacing, lonlat=lonlat
+        )
     empty_legend(fig, shown)
     fig.savefig(HERE / "linescan-orthophotos.png", dpi=90)
     plt.close(fig)

@@ -23,7 +23,7 @@ from orthomvp.cli.options import PATH, check_outdir, quiet
 def demo(outdir: Path) -> None:
     """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
     print a summary. The first run also compiles numba's kernels into the user's cache folder:
-    measured on 2 busy cores, 64-108 s the first time and 37-38 s after (31-34 s and 13-15 s of
+    measured on 2 busy cores, 61-108 s the first time and 36-38 s after (29-34 s and 13-15 s of
     CPU time)."""
     from orthomvp.demo import run_demo
 

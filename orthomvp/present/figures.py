@@ -63,15 +63,20 @@ def save_with_table(
         _pyplot().close(fig)
 
 
+def round_length(target: float) -> float:
+    """The largest of 1, 2 or 5 times a power of ten not above ``target`` (> 0): the length of
+    a scale bar."""
+    power = 10 ** np.floor(np.log10(target))
+    return float(max((m * power for m in (1, 2, 5) if m * power <= target), default=power))
+
+
 def scale_bar(ax, metres_per_pixel: float, note: str = "") -> None:  # noqa: ANN001
     """A scale bar in the lower left of an image axes: a round length (1, 2 or 5 times a power
     of ten, metres or km) about a fifth of the image's width, labelled, on a light box."""
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     width = abs(np.diff(ax.get_xlim())[0]) * metres_per_pixel
-    target = width / 5
-    power = 10 ** np.floor(np.log10(target))
-    length = max((m * power for m in (1, 2, 5) if m * power <= target), default=power)
+    length = round_length(width / 5)
     label = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
     bar = AnchoredSizeBar(
         ax.transData,
@@ -154,12 +159,20 @@ def map_frame(ax, lonlat: LonLat, shape: tuple[int, int]) -> None:  # noqa: ANN0
     lon, lat = (np.asarray(v) for v in lonlat(cc, rr))
     for values, ticks in ((lon, lon_ticks), (lat, lat_ticks)):
         if len(ticks):
-            ax.contour(cc, rr, values, levels=np.sort(ticks), colors="0.15", linewidths=0.5,
-                       linestyles=":", alpha=0.6)  # fmt: skip
+            ax.contour(
+                cc,
+                rr,
+                values,
+                levels=np.sort(ticks),
+                colors="0.15",
+                linewidths=0.5,
+                linestyles=":",
+                alpha=0.6,
+            )
     # north: the pixel direction along which longitude holds and latitude grows
     c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-    lo, la = (np.asarray(v) for v in lonlat(np.array([c0 - 0.5, c0 + 0.5, c0, c0]),
-                                             np.array([r0, r0, r0 - 0.5, r0 + 0.5])))  # fmt: skip
+    around = lonlat(np.array([c0 - 0.5, c0 + 0.5, c0, c0]), np.array([r0, r0, r0 - 0.5, r0 + 0.5]))
+    lo, la = (np.asarray(v) for v in around)
     jac = np.array([[lo[1] - lo[0], lo[3] - lo[2]], [la[1] - la[0], la[3] - la[2]]])
     north = np.linalg.solve(jac, [0.0, 1.0])
     north /= np.linalg.norm(north)
@@ -167,11 +180,10 @@ def map_frame(ax, lonlat: LonLat, shape: tuple[int, int]) -> None:  # noqa: ANN0
     mid = np.array([cols - 1.2 * size, 1.5 * size])  # (c, r) of the arrow's middle
     tail, tip = mid - 0.5 * size * north, mid + 0.5 * size * north
     halo = [patheffects.withStroke(linewidth=3, foreground="white")]
-    ax.annotate("", xy=tip, xytext=tail, arrowprops={"arrowstyle": "-|>,head_width=0.3",
-                "color": "black", "lw": 1.5, "path_effects": halo})  # fmt: skip
+    arrow = {"arrowstyle": "-|>,head_width=0.3", "color": "black", "lw": 1.5, "path_effects": halo}
+    ax.annotate("", xy=tip, xytext=tail, arrowprops=arrow)
     label = mid + 0.85 * size * north
-    ax.text(*label, "N", ha="center", va="center", fontsize=9, fontweight="bold",
-            path_effects=halo)  # fmt: skip
+    ax.text(*label, "N", ha="center", va="center", fontsize=9, weight="bold", path_effects=halo)
     ax.set_xlim(-0.5, cols - 0.5)
     ax.set_ylim(rows - 0.5, -0.5)
 
@@ -269,10 +281,8 @@ def orthophoto_axes(
     overlay = np.zeros((*image.shape, 4))
     overlay[..., :3] = np.asarray(CODE_COLOURS)[reason]
     overlay[..., 3] = empty
-    ax.imshow(
-        np.ma.masked_invalid(image), cmap="gray", vmin=stretch[0], vmax=stretch[1],
-        interpolation="nearest",
-    )  # fmt: skip
+    grey = np.ma.masked_invalid(image)
+    ax.imshow(grey, cmap="gray", vmin=stretch[0], vmax=stretch[1], interpolation="nearest")
     ax.imshow(overlay, interpolation="nearest")
     ax.set_title(title, fontsize=10)
     _map(ax, image.shape, lonlat, spacing)

@@ -43,6 +43,7 @@ from orthomvp.present.colours import (
     raster_bands,
     visibility_codes,
 )
+from orthomvp.present.figures import round_length
 from orthomvp.present.viewpoint import (
     Glyph,
     Rect,
@@ -470,8 +471,8 @@ def _add_labels(
     anchors = [_display(plotter, point) for point, _, _ in labels]
     mean = np.mean(anchors, axis=0)
     gap = 0.4 * font
-    sides = [np.array(d, float) / np.hypot(*d) for d in
-             ((1, 1), (-1, 1), (1, -1), (-1, -1), (1, 0), (-1, 0), (0, 1), (0, -1))]  # fmt: skip
+    compass = ((1, 1), (-1, 1), (1, -1), (-1, -1), (1, 0), (-1, 0), (0, 1), (0, -1))
+    sides = [np.array(d, float) / np.hypot(*d) for d in compass]
     for (_, text, colour), anchor in zip(labels, anchors, strict=True):
         away = anchor - mean
         order = sorted(sides, key=lambda d: -float(d @ away)) if away.any() else sides
@@ -498,12 +499,6 @@ def _add_labels(
             best = _text_box(text, font, x, y)
         placed.append(best)
         _add_text(plotter, text, best, colour, f"camera label {text}")
-
-
-def _round_length(target: float) -> float:
-    """The largest of 1, 2 or 5 times a power of ten not above ``target`` (> 0)."""
-    power = 10 ** np.floor(np.log10(target))
-    return max((m * power for m in (1, 2, 5) if m * power <= target), default=power)
 
 
 def _add_scale_bar(
@@ -540,7 +535,7 @@ def _add_scale_bar(
     name = min(edges, key=screen_y)
     edge, _, n = edges[name]
     ends = points(name, np.array([0.0, n - 1.0]), h_mid)
-    length = _round_length(float(np.linalg.norm(ends[1] - ends[0])) / 4)
+    length = round_length(float(np.linalg.norm(ends[1] - ends[0])) / 4)
     start = 0.1 * (n - 1)
     if _display(plotter, ends[0])[0] > _display(plotter, ends[1])[0]:
         start = 0.9 * (n - 1)  # start from the end on the left of the view
