@@ -3,6 +3,7 @@ display."""
 
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
@@ -271,3 +272,65 @@ def test_cli_bad_inputs_exit_2_without_output(
         assert err.startswith("orthomvp: error:") and err.count("\n") == 1, err
         assert not out.exists()
     assert not list(tmp_path.glob(".snap.png*"))  # no temporary file left behind
+
+
+def _grid(d: Path) -> tuple:
+    """Transform and CRS of the scene's DEM."""
+    from orthomvp.geometry.terrain import Terrain
+
+    t = Terrain.read(d / "dem.tif")
+    return t.transform, t.crs
+
+
+def test_scale_bar_exaggeration_and_camera_labels(crater: Scene) -> None:
+    """The scale bar is as long as its label says (exact float64), the vertical exaggeration is
+    written under it, and the camera labels (two cameras whose glyphs stand close together)
+    lie inside the window without overlapping each other or the scale bar's labels, as VTK
+    itself measures the rendered texts."""
+    import pyvista as pv
+
+    cams = [crater.cameras["oblique"], crater.cameras["nadir"]]
+    width, height = 480, 360
+    options = SnapshotOptions(size=(width, height), exaggerate=1.5, legend=True)
+    snap = snapshot(crater.terrain, cameras=cams, options=options)
+    try:
+        actors = snap.plotter.actors
+        texts = {name: a for name, a in actors.items() if isinstance(a, pv.Text)}
+        assert {"camera label 1", "camera label 2", "scale bar label 0", "scale bar label 1"} <= (
+            texts.keys()
+        )
+        length_text = texts["scale bar label 0"].input
+        value, unit = re.fullmatch(r"(\d+) (m|km)", length_text).groups()
+        length = float(value) * (1000 if unit == "km" else 1)
+        assert texts["scale bar label 1"].input == "vertical exaggeration 1.5x"
+        points = np.asarray(actors["scale bar"].mapper.dataset.points, np.float64)
+        # float32 points in the local frame: metres to within their resolution
+        assert np.linalg.norm(points[1] - points[0]) == pytest.approx(length, rel=1e-6)
+        assert length <= 0.25 * crater.terrain.post_spacing()[0] * 63 * 1.0001
+        boxes = {}
+        for name, actor in texts.items():
+            bbox = [0.0] * 4
+            actor.GetBoundingBox(snap.plotter.renderer, bbox)  # about the text's position
+            px, py = actor.GetPosition()
+            x0, x1, y0, y1 = bbox[0] + px, bbox[1] + px, bbox[2] + py, bbox[3] + py
+            boxes[name] = x0, x1, y0, y1  # display pixels
+            assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height, (name, bbox)
+        names = sorted(boxes)
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                p, q = boxes[a], boxes[b]
+                apart = p[1] <= q[0] or q[1] <= p[0] or p[3] <= q[2] or q[3] <= p[2]
+                assert apart, (a, p, b, q)
+    finally:
+        snap.close()
+    flat = SnapshotOptions(size=(width, height), legend=True)
+    snap = snapshot(crater.terrain, options=flat)
+    try:
+        assert snap.plotter.actors["scale bar label 1"].input == "no vertical exaggeration"
+    finally:
+        snap.close()
+    snap = snapshot(crater.terrain, options=SnapshotOptions(size=(width, height), legend=False))
+    try:
+        assert "scale bar" not in snap.plotter.actors
+    finally:
+        snap.close()
