@@ -24,7 +24,6 @@ MOVED = {
     "orthomvp.occluders": "orthomvp.occlusion.occluders",
     "orthomvp.post_geometry": "orthomvp.occlusion.post_geometry",
     "orthomvp.post_geometry_kernel": "orthomvp.occlusion.post_geometry_kernel",
-    "orthomvp.raster": "orthomvp.io.raster",
     "orthomvp.raycast": "orthomvp.occlusion.raycast",
     "orthomvp.terrain": "orthomvp.geometry.terrain",
     "orthomvp.vectors": "orthomvp.geometry.vectors",
@@ -32,6 +31,17 @@ MOVED = {
     "orthomvp.world": "orthomvp.geometry.world",
 }
 """Old module path -> new module path."""
+
+SPLIT = {
+    "orthomvp.raster": (
+        "orthomvp.io.raster",
+        "orthomvp.io.outputs",
+        "orthomvp.io.signals",
+        "orthomvp.io.write_errors",
+        "orthomvp.io.preflight",
+    ),
+}
+"""Old module path -> the modules its names went to, looked up in this order."""
 
 
 class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
@@ -41,11 +51,13 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
         self.specs: dict[str, importlib.machinery.ModuleSpec] = {}
 
     def find_spec(self, fullname: str, path: object = None, target: object = None):  # noqa: ANN201
-        if fullname not in MOVED:
+        if fullname not in MOVED and fullname not in SPLIT:
             return None
         return importlib.machinery.ModuleSpec(fullname, self)
 
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        if spec.name in SPLIT:
+            return _merged(spec.name, SPLIT[spec.name])
         new = MOVED[spec.name]
         warnings.warn(
             f"{spec.name} moved to {new}; the old path goes in orthomvp 0.3",
@@ -59,8 +71,30 @@ class _Alias(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def exec_module(self, module: ModuleType) -> None:
         """Nothing to run: the module is the new one, already imported. Its own spec and loader,
         which the import system replaced with the old path's, are put back."""
+        if module.__name__ in SPLIT:
+            return
         module.__spec__ = spec = self.specs[module.__name__]
         module.__loader__ = spec.loader
+
+
+def _merged(name: str, homes: tuple[str, ...]) -> ModuleType:
+    """A module ``name`` whose attributes are those of the modules ``homes``, first found first."""
+    warnings.warn(
+        f"{name} was split into {', '.join(homes)}; the old path goes in orthomvp 0.3",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    modules = [importlib.import_module(home) for home in homes]
+    merged = ModuleType(name, f"The names of {name} of release 0.1, now in {', '.join(homes)}.")
+
+    def __getattr__(attr: str) -> object:
+        for module in modules:
+            if hasattr(module, attr):
+                return getattr(module, attr)
+        raise AttributeError(f"module {name!r} has no attribute {attr!r}")
+
+    merged.__getattr__ = __getattr__
+    return merged
 
 
 def install_aliases() -> None:

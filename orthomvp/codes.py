@@ -32,7 +32,10 @@ class Code(IntEnum):
     @property
     def rgb(self) -> tuple[int, int, int]:
         """RGB uint8 colour of the code in figures, meshes and snapshots (occluded is green,
-        as in the occlusion poster's figure 4)."""
+        as in the occlusion poster's figure 4). The palette has one colour per meaning: no
+        data is the colour of every post without a value (an empty orthophoto post, an
+        unresolved height), and none of these is red or blue, which mean too high and too low
+        on height-error maps."""
         return _RGB[self]
 
 
@@ -43,7 +46,7 @@ _LABELS = {
     Code.FACING_AWAY: "facing away",
 }
 _RGB = {
-    Code.NODATA: (90, 115, 190),  # blue
+    Code.NODATA: (150, 110, 200),  # violet: no value
     Code.VISIBLE: (215, 215, 210),  # light grey
     Code.OCCLUDED: (20, 200, 40),  # green
     Code.FACING_AWAY: (235, 115, 30),  # orange

@@ -21,13 +21,19 @@ from scipy import ndimage
 from orthomvp import __version__
 from orthomvp.codes import Code
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
-from orthomvp.io.raster import atomic_dir, atomic_path, write_geotiff
+from orthomvp.io.outputs import atomic_dir, atomic_path
+from orthomvp.io.raster import write_geotiff
 from orthomvp.mvp import FitOptions, fit_dem
 from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.occlusion.visibility import occluder_caster
 from orthomvp.ortho.orthophoto import mosaic, orthorectify
 from orthomvp.present.export import export_mesh
-from orthomvp.present.figures import height_error_maps, ortho_comparison, scene_overview
+from orthomvp.present.figures import (
+    height_error_maps,
+    lonlat_degrees,
+    ortho_comparison,
+    scene_overview,
+)
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
 from orthomvp.present.webpage import write_index
 from orthomvp.synthetic import (
@@ -47,17 +53,28 @@ FIT = FitOptions(hwin=5, levels=1)  # small windows resolve the crater walls bes
 EXPLORE_POST = (24, 30)  # (c, r) outside the crater, for the objective plots
 RIM_RADIUS_POSTS = 45  # posts within this distance of the centre count as "in the crater"
 SNAP_SIZE = (900, 640)
+IMAGE_MARGIN = 14.0
+"""Pixels of each image beyond the DEM (``orthomvp synth`` leaves 6): the fit's window reaches
+hwin = 5 posts, 6.25 pixels at the GSD of 0.8 posts, past a post, and a post is fitted only from
+views whose window lies inside the image, so with 6 the outermost posts were unresolved."""
+EXAGGERATION = 1.5
+"""Vertical exaggeration of the relief snapshots (the height-error ones have none)."""
+TIMING = (
+    "measured on 2 cores shared with other work: a first run, which compiles numba's kernels "
+    "into the user's cache folder, 61-108 s (29-34 s of CPU), later runs 36-38 s (13-15 s of CPU)"
+)
+"""What the demo takes, as measured: 4 runs with a fresh numba cache (``XDG_CACHE_HOME`` a new
+folder) and 4 with the cache they filled, load average 8-14 on 2 cores."""
 
 
 def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
-    """Run everything into ``outdir`` (written atomically) and print a summary. Returns the
-    measured figures."""
+    """Run everything into ``outdir`` (written atomically) and print a summary, each line
+    starting ``orthomvp:`` (nothing when ``quiet``). Returns the measured figures."""
     outdir = Path(outdir)
     t0 = time.perf_counter()
     with atomic_dir(outdir) as tmp:
-        make_scene("crater", size=DEMO_SIZE, spacing=DEMO_SPACING).write(
-            tmp / "scene", progress=not quiet
-        )
+        made = make_scene("crater", size=DEMO_SIZE, spacing=DEMO_SPACING, image_margin=IMAGE_MARGIN)
+        made.write(tmp / "scene", progress=not quiet)
         scene = load_scene(tmp / "scene")
         figures, arrays = _orthophotos(tmp, scene)
         figures.update(_refine(tmp, scene, arrays))
@@ -72,8 +89,9 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
         write_index(
             tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES, about
         )
-    for line in lines:
-        print(line)
+    if not quiet:
+        for line in lines:
+            print(f"orthomvp: {line.removeprefix('orthomvp ')}")
     return figures
 
 
@@ -110,13 +128,16 @@ def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
         "mosaic_fills_hidden": float(np.isfinite(mos.data[0])[hidden].mean()),
     }
     gsd = float(scene.summary["views"]["oblique"]["gsd_m"])
+    radius_km = scene.summary["body_radius_m"] / 1000
     scene_overview(
         terrain.values, DEMO_SPACING, oblique.image[0], oblique.truth, tmp / "overview.png",
-        gsd=gsd,
+        gsd=gsd, lonlat=lonlat_degrees(terrain),
+        height_label=f"height above the {radius_km:,.1f} km sphere (m)",
     )  # fmt: skip
     ortho_comparison(
-        naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png", DEMO_SPACING
-    )
+        naive.data[0], aware.data[0], mos.data[0], tmp / "orthophotos.png", DEMO_SPACING,
+        codes=aware.visibility.codes, lonlat=lonlat_degrees(terrain),
+    )  # fmt: skip
     arrays = {"visibility": aware.visibility.codes, "mosaic": mos.data}
     return figures, arrays
 
@@ -149,7 +170,9 @@ def _refine(tmp: Path, scene: SceneData, arrays: dict) -> dict:
         return float(np.sqrt(np.mean(err[mask & ok] ** 2)))
 
     before, after = start.values - truth, res.heights - truth
-    height_error_maps(np.where(ok, before, np.nan), after, DEMO_SPACING, tmp / "height-error.png")
+    height_error_maps(
+        before, after, DEMO_SPACING, tmp / "height-error.png", lonlat=lonlat_degrees(terrain)
+    )
     return {
         "fit_resolved": float(ok.mean()),
         "fit_rmse_start": rmse(before, True),
@@ -188,7 +211,7 @@ def _snapshots(tmp: Path, scene: SceneData, arrays: dict) -> None:
     oblique, nadir = scene.views["oblique"].camera, scene.views["nadir"].camera
     truth = terrain.values
     limit = float(np.nanpercentile(np.abs(arrays["start"].values - truth), 99))
-    raised = SnapshotOptions(exaggerate=1.5, size=SNAP_SIZE, crop=True)
+    raised = SnapshotOptions(exaggerate=EXAGGERATION, size=SNAP_SIZE, crop=True)
     errors = SnapshotOptions(size=SNAP_SIZE, error_limit=limit, crop=True)
     shots = {
         "snap-visibility.png": (
@@ -220,16 +243,25 @@ def _meshes(tmp: Path, scene: SceneData, arrays: dict) -> None:
 
 
 PAGE = [
-    ("overview.png", "The crater scene: shaded DEM, the rendered 55-degree oblique image and its "
-     "truth visibility (green: occluded)."),
+    ("overview.png", "The crater scene: the DEM's heights in colour over shaded relief (colour bar "
+     "in metres above the 1,737.4 km sphere), the rendered 55-degree oblique image (its raw "
+     "frame) and that view's truth visibility (green occluded, orange facing away). Maps have "
+     "longitude and latitude ticks, a north arrow and a scale bar."),
     ("orthophotos.png", "Naive orthophoto with ghosts, orthomvp's occlusion-aware orthophoto "
-     "(hidden posts empty) and the mosaic that fills them from the near-nadir view."),
-    ("snap-visibility.png", "3D: visibility of the oblique view (green occluded), its camera "
-     "and the near-nadir one with rays to their first hits."),
-    ("snap-mosaic.png", "3D: the mosaic draped on the DEM."),
-    ("height-error.png", "Height error against the truth, start DEM and fitted DEM."),
-    ("snap-error-start.png", "3D: height error of the start DEM."),
-    ("snap-error-fitted.png", "3D: height error of the fitted DEM."),
+     "(hidden posts left empty, drawn in the colour of why: green occluded, orange facing away) "
+     "and the mosaic that fills them from the near-nadir view."),
+    ("snap-visibility.png", f"3D, vertical exaggeration {EXAGGERATION:g}x: visibility of the "
+     "oblique view (green occluded, orange facing away), its camera (1) and the near-nadir one "
+     "(2) with rays to their first hits; the white bar in front of the DEM's near edge gives "
+     "the scale."),
+    ("snap-mosaic.png", f"3D, vertical exaggeration {EXAGGERATION:g}x: the mosaic draped on the "
+     "DEM, with a scale bar."),
+    ("height-error.png", "Height error against the truth of the start DEM and of the fitted DEM "
+     "(colour bar in metres: red too high, blue too low)."),
+    ("snap-error-start.png", "3D, no vertical exaggeration: height error of the start DEM "
+     "(colour bar in metres, red too high, blue too low)."),
+    ("snap-error-fitted.png", "3D, no vertical exaggeration: height error of the fitted DEM, "
+     "on the start DEM's colour scale."),
     ("objective-rplot.png", "The objective against height at one post of the start DEM, with "
      "the optimiser's path (orthomvp explore: rplot)."),
     ("objective-llplot.png", "The objective over orientations at the fitted height, with the "
@@ -262,8 +294,9 @@ def _about(scene: SceneData) -> list[tuple[str, str]]:
         ("orthomvp", __version__),
         ("made", made),
         ("scene", f"crater (orthomvp synth crater --size {DEMO_SIZE} --spacing {DEMO_SPACING:g}"
-         f" --seed {scene.summary['seed']}): {DEMO_SIZE} x {DEMO_SIZE} posts of "
-         f"{DEMO_SPACING:g} m on the Moon"),
+         f" --seed {scene.summary['seed']}, its images {IMAGE_MARGIN:g} px beyond the DEM instead "
+         f"of 6 so that the fit's window fits at the edge posts): {DEMO_SIZE} x {DEMO_SIZE} posts "
+         f"of {DEMO_SPACING:g} m on the Moon"),
         ("views", ", ".join(f"{name} ({v['emission_deg']:g} degrees, GSD {v['gsd_m']:.0f} m)"
                              for name, v in views.items())),
         ("visibility", "epsilon = max(3 posts, GSD in posts) on the occluder surface, the default"),
@@ -282,6 +315,7 @@ def _summary(f: dict, outdir: Path) -> list[str]:
     return [
         f"orthomvp demo: crater scene, {DEMO_SIZE} x {DEMO_SIZE} posts of {DEMO_SPACING:g} m, "
         f"4 views ({f['seconds']:.1f} s), outputs in {outdir}/",
+        f"  what the demo takes, {TIMING}",
         f"  visibility of the 55-degree oblique view vs marched truth: F1 visible "
         f"{f['f1_visible']:.4f}, hidden {f['f1_hidden']:.4f}",
         f"  ghosts among {f['hidden_posts']:,} hidden posts: naive orthophoto "

@@ -91,10 +91,10 @@ def test_views_that_do_not_overlap(city) -> None:
 def test_check_command(city_dir: Path, tmp_path: Path) -> None:
     files = [str(city_dir / f"{n}.{ext}") for n in NAMES for ext in ("tif", "tsai")]
     out = tmp_path / "chk"
-    proc = run("-q", "check", str(city_dir / "dem.tif"), *files, "-o", str(out), "--eps", "2", "4")
+    proc = run("check", str(city_dir / "dem.tif"), *files, "-o", str(out), "--eps", "2", "4")
     assert proc.returncode == 0, proc.stderr
-    assert proc.stderr == ""  # -q: no plan, no progress
-    medians = re.findall(r"eps (\d): median NCC (\d\.\d+) \(", proc.stdout)
+    assert proc.stderr.startswith("orthomvp: plan: check ")
+    medians = re.findall(r"orthomvp: eps (\d) posts: median NCC (\d\.\d+) \(", proc.stdout)
     assert [e for e, _ in medians] == ["2", "4"] and all(float(m) > 0.9 for _, m in medians)
     lines = (tmp_path / "chk.csv").read_text().splitlines()
     assert lines[0] == "eps,view,other,class,miss_from,miss_to,posts,scored,ncc_mean,ncc_median"

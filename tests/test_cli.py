@@ -223,7 +223,7 @@ def test_synth_then_mesh(tmp_path: Path) -> None:
     out = tmp_path / "scene"
     proc = run("synth", "hills", str(out), "--size", "24", "--supersample", "1")
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout == f"wrote hills scene with 4 views to {out}\n"
+    assert proc.stdout == f"orthomvp: wrote hills scene with 4 views to {out}\n"
     for name in ("dem.tif", "scene.json", "truth_radiance.tif", "fore1.tif", "fore1.tsai"):
         assert (out / name).is_file()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -239,7 +239,7 @@ def test_interactive_prompt_through_a_pty(planar_dir: Path, tmp_path: Path) -> N
     os.close(slave)
     try:
         intro = _read_until(master, b"mvp> ")
-        assert b"Loading images... Done!" in intro
+        assert b"orthomvp: loading the images...\r\northomvp: 4 views, DEM" in intro
         os.write(master, b"help\n")
         out = _read_until(master, b"mvp> ")
         for name in (b"poi", b"hwin", b"rplot", b"llplot", b"fit", b"sweep", b"views"):

@@ -98,7 +98,7 @@ def test_two_outputs_on_one_path_are_refused_before_any_work(scene: Path, tmp_pa
 
 
 # -------------------------------------------------------------- an output over an input
-def test_an_output_over_an_input_needs_overwrite(scene: Path, tmp_path: Path) -> None:
+def test_an_output_over_an_input_needs_replace_input(scene: Path, tmp_path: Path) -> None:
     dem, (image, camera, image2, _) = scene / "dem.tif", views(scene)
     hard = tmp_path / "hardlink.tif"
     os.link(dem, hard)  # another name for the DEM
@@ -120,9 +120,12 @@ def test_an_output_over_an_input_needs_overwrite(scene: Path, tmp_path: Path) ->
     for args, path, label in cases:
         assert_refused(run(*args), 2, path, f"the input {label}", "--overwrite")
     assert state(tmp_path) == before
-    # --overwrite lets it happen (the inputs are read in full first)
-    code, out, err = run("visibility", dem, image, camera, "-o", image, "--overwrite")
-    assert code == 0 and f"wrote {image}" in out, err
+    # --overwrite alone does not; with --replace-input it happens (inputs are read in full first)
+    args = ["visibility", dem, image, camera, "-o", image, "--overwrite"]
+    assert_refused(run(*args), 2, image, "the input IMAGE", "--overwrite --replace-input")
+    assert state(tmp_path) == before
+    code, out, err = run(*args, "--replace-input")
+    assert code == 0 and f"orthomvp: wrote {image}" in out, err
     assert state(tmp_path)["in/oblique.tif"] != before["in/oblique.tif"]
 
 
@@ -432,10 +435,11 @@ def test_what_gdal_and_libtiff_print_becomes_the_error(
     tmp_path: Path, capfd: pytest.CaptureFixture
 ) -> None:
     """libtiff prints its I/O errors on file descriptor 2 and GDAL may not raise (a full disk
-    at close): within :func:`orthomvp.io.raster.writing` they become one OutputError naming the
-    output and the cause, and nothing reaches stderr; messages of no failure pass through."""
+    at close): within :func:`orthomvp.io.write_errors.writing` they become one OutputError
+    naming the output and the cause, and nothing reaches stderr; messages of no failure pass
+    through."""
     from orthomvp.errors import OutputError
-    from orthomvp.io.raster import writing
+    from orthomvp.io.write_errors import writing
 
     out = tmp_path / "o.tif"
     with pytest.raises(OutputError) as caught:
@@ -562,7 +566,7 @@ def test_stale_temporaries_of_a_killed_run_are_removed(scene: Path, tmp_path: Pa
     """A run killed with SIGKILL in the middle of its write leaves its temporary file; the
     next run writing that output removes it (its process is gone), not one of a live run;
     so are temporary directories (synth, demo)."""
-    from orthomvp.io.raster import temp_name
+    from orthomvp.io.outputs import temp_name
 
     out = tmp_path / "out"
     out.mkdir()
@@ -627,17 +631,20 @@ def signal_at_every_step(
 ) -> int:
     """Run ``write`` again and again with each of ``signals`` (SIGTERM with the CLI's handler, see
     :func:`orthomvp.cli.sigterm_raises`) raised at its first, second, ... traced step in the
-    output writer (``orthomvp.io.raster`` and contextlib), until a run ends before the step;
-    after an interrupt, :func:`orthomvp.io.raster.remove_temporaries` runs, as the CLI runs it.
+    output writer (``orthomvp.io``'s outputs, signals, write_errors, preflight and raster, and
+    contextlib), until a run ends before the step; after an interrupt,
+    :func:`orthomvp.io.outputs.remove_temporaries` runs, as the CLI runs it.
     After each: the signal was not lost, the handlers of before still get the signals,
     stderr is the one of before, no temporary file is left, and ``check`` passes. Returns the
     number of steps."""
     import contextlib as ctx
 
-    import orthomvp.io.raster
     from orthomvp.cli import Terminated, sigterm_raises
+    from orthomvp.io import outputs, preflight, raster, write_errors
+    from orthomvp.io import signals as holding  # (``signals`` is the argument)
 
-    files = (orthomvp.io.raster.__file__, ctx.__file__)
+    writer = (outputs, holding, write_errors, preflight, raster)
+    files = (*(m.__file__ for m in writer), ctx.__file__)
     stderr = os.fstat(2)
     kinds = {signal.SIGINT: KeyboardInterrupt, signal.SIGTERM: Terminated}
     for sig in signals:
@@ -650,7 +657,7 @@ def signal_at_every_step(
                     interrupted = False
                 except kind:
                     interrupted = True
-                    orthomvp.io.raster.remove_temporaries()  # as orthomvp.cli.main does
+                    outputs.remove_temporaries()  # as orthomvp.cli.main does
                 finally:
                     sys.settrace(None)
                 # the handlers of before still get the signals
@@ -676,7 +683,7 @@ def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: P
     """SIGTERM (with the CLI's handler) arriving at every line of creating, writing, renaming
     and removing a set of two outputs: both or neither are there, and no temporary file
     (SIGINT at every opcode: the slow test below)."""
-    from orthomvp.io.raster import write_set
+    from orthomvp.io.outputs import write_set
 
     out = tmp_path / "out"
     out.mkdir()

@@ -11,7 +11,7 @@ import warnings
 import pytest
 
 import orthomvp
-from orthomvp._moved import MOVED
+from orthomvp._moved import MOVED, SPLIT
 
 
 def test_import_orthomvp_stays_light() -> None:
@@ -73,3 +73,27 @@ def test_patching_the_old_path_patches_the_new(monkeypatch: pytest.MonkeyPatch) 
         warnings.simplefilter("ignore", DeprecationWarning)
         monkeypatch.setattr("orthomvp.visibility.default_eps", lambda gsd: "patched")
     assert visibility.default_eps(None) == "patched"
+
+
+def test_the_split_raster_module_still_gives_every_name_of_0_1() -> None:
+    names = ("atomic_path", "atomic_paths", "HeldSignals", "writing", "check_space", "read_image")
+    code = (
+        "import warnings\n"
+        "warnings.simplefilter('always')\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    import orthomvp.raster as old\n"
+        "import importlib\n"
+        f"homes = [importlib.import_module(h) for h in {SPLIT['orthomvp.raster']!r}]\n"
+        f"for name in {names!r}:\n"
+        "    value = getattr(old, name)\n"
+        "    home = importlib.import_module(value.__module__)\n"
+        "    assert home in homes and value is vars(home)[name], name\n"
+        "assert [w.category.__name__ for w in caught] == ['DeprecationWarning'], caught\n"
+        "try:\n"
+        "    old.no_such_name\n"
+        "except AttributeError:\n"
+        "    pass\n"
+        "else:\n"
+        "    raise AssertionError('no AttributeError')\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -16,6 +16,7 @@ from orthomvp.io.raster import read_image
 from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.present.colours import height_error
 from orthomvp.present.export import export_mesh
+from orthomvp.present.texture import TextureSampler
 
 
 def _holey(crater_dir: Path, tmp_path: Path) -> Path:
@@ -33,8 +34,28 @@ def _holey(crater_dir: Path, tmp_path: Path) -> Path:
     return path
 
 
+def _finer(path: Path, tmp_path: Path) -> Path:
+    """``path`` at twice its resolution, shifted by a third of a new pixel, with noise: a
+    texture off the DEM grid."""
+    with rasterio.open(path) as src:
+        profile, values = src.profile, src.read(1).astype(np.float32)
+    fine = np.kron(values, np.ones((2, 2), np.float32))
+    fine += np.random.default_rng(2).normal(0, 0.01, fine.shape).astype(np.float32)
+    t = profile["transform"]
+    profile.update(
+        dtype="float32",
+        width=fine.shape[1],
+        height=fine.shape[0],
+        transform=t @ rasterio.Affine.scale(0.5) @ rasterio.Affine.translation(1 / 3, 1 / 3),
+    )
+    out = tmp_path / "finer.tif"
+    with rasterio.open(out, "w", **profile) as dst:
+        dst.write(fine, 1)
+    return out
+
+
 @pytest.mark.parametrize("local", [False, True])
-@pytest.mark.parametrize("colour", ["none", "image", "visibility", "error"])
+@pytest.mark.parametrize("colour", ["none", "image", "finer", "visibility", "error"])
 def test_streamed_ply_equals_the_in_memory_file(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, local: bool, colour: str
 ) -> None:
@@ -43,12 +64,19 @@ def test_streamed_ply_equals_the_in_memory_file(
     source = scan_dem(dem)
     terrain = Terrain.read(dem)
     texture, colours, kind = None, None, "image"
+    grid = (source.shape, source.transform, source.crs)
     if colour == "image":
-        colours = mesh_stream.image_stretch(crater_dir / "truth_radiance.tif", source.shape)
-        texture = read_image(crater_dir / "truth_radiance.tif")
+        path = crater_dir / "truth_radiance.tif"
+        colours = mesh_stream.image_stretch(TextureSampler(path, *grid))
+        texture = read_image(path)
+    elif colour == "finer":  # a texture off the DEM grid, sampled at the posts in both paths
+        path = _finer(crater_dir / "truth_radiance.tif", tmp_path)
+        colours = mesh_stream.image_stretch(TextureSampler(path, *grid))
+        texture = TextureSampler(path, terrain.shape, terrain.transform, terrain.crs).grid()
     elif colour == "visibility":
-        colours = mesh_stream.code_colours(crater_dir / "oblique.visibility.tif", source.shape)
-        texture, kind = read_image(crater_dir / "oblique.visibility.tif"), "visibility"
+        path = crater_dir / "oblique.visibility.tif"
+        colours = mesh_stream.code_colours(TextureSampler(path, *grid))
+        texture, kind = read_image(path), "visibility"
     elif colour == "error":
         truth = crater_dir / "dem.tif"
         colours, limit = mesh_stream.error_against(scan_dem(truth), source, None)

@@ -18,17 +18,15 @@ from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.io.raster import write_geotiff
+from orthomvp.ortho.balance import BALANCES, pair_stats, solve_balance
 from orthomvp.ortho.composite import (
-    BALANCES,
     FILLS,
     PRIORITIES,
     Flag,
     MosaicOptions,
     box_sum,
     overlap_width,
-    pair_stats,
     seam_visibility,
-    solve_balance,
     trusted,
     visible_median,
 )
@@ -424,8 +422,8 @@ def test_cli_reports_the_posts_taken_from_each_image(
     args = [str(p) for pair in views for p in pair]
     assert main(["mosaic", str(crater_dir / "dem.tif"), *args, "-o", str(out)]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    parts = line.split(": ", 1)[1].rsplit("; ", 1)
-    taken = [int(part.split(" from ")[0].replace(",", "")) for part in parts[0].split(", ")]
+    parts = line.split(": ", 2)[2].rsplit("; ", 1)
+    taken = [int(part.split(" posts from ")[0].replace(",", "")) for part in parts[0].split(", ")]
     none = int(parts[1].split()[0].replace(",", ""))
     data = read(out)
     filled = int(np.isfinite(data).all(axis=0).sum())
@@ -487,7 +485,8 @@ FUSED_CASES = [
 def test_fused_compose_is_numpys_bit_for_bit(views: int, options: MosaicOptions) -> None:
     """The numba kernels give numpy's composition bit for bit: data, labels, flags and
     weights, with ties, NaN samples and angles, doubtful posts and a balance correction."""
-    from orthomvp.ortho.composite import Correction, compose
+    from orthomvp.ortho.balance import Correction
+    from orthomvp.ortho.composite import compose
 
     args = random_stack(views, seed=views)
     rng = np.random.default_rng(views)

@@ -20,6 +20,7 @@ from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.occlusion.mesh import TerrainMesh, occluder_mesh
 from orthomvp.occlusion.occluders import RADII, Occluders, _box
+from orthomvp.occlusion.paths import Geometry, Rays, VisibilityPath
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.ortho.composite import MosaicOptions, doubtful
@@ -28,6 +29,9 @@ from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.cameras import look_at
 
 SPACING = 2.0
+PROVED = VisibilityPath(rays=Rays.PROVED)
+PART_MESHES = VisibilityPath(rays=Rays.PART_MESHES)  # every ray cast, on meshes of parts
+WHOLE_MESH = VisibilityPath(rays=Rays.WHOLE_MESH)  # every ray cast, on the whole mesh
 
 
 def map_terrain(values: np.ndarray, posts: tuple[float, float] = (SPACING, SPACING)) -> Terrain:
@@ -191,7 +195,7 @@ def test_visibility_with_the_proof_has_the_codes_of_casting_every_ray(
     whole = RayCaster(occluder_mesh(t))
     for cam in cameras:
         rays.clear()
-        proved = compute_visibility(t, cam, caster=Occluders(t), prove=True)
+        proved = compute_visibility(t, cam, caster=Occluders(t), path=PROVED)
         cast_proved = sum(rays)
         every = compute_visibility(t, cam, caster=whole)
         np.testing.assert_array_equal(proved.codes, every.codes)
@@ -239,7 +243,7 @@ def test_a_distorted_camera_casts_every_ray() -> None:
     t = map_terrain(rough(7))
     cam = camera_at(t, 70.0, 30.0)
     bent = replace(cam, distortion=TsaiDistortion(k1=1e-3, k2=0.0, p1=0.0, p2=0.0))
-    vis = compute_visibility(t, bent, prove=True)
+    vis = compute_visibility(t, bent, path=PROVED)
     cast = np.isin(vis.codes, (Code.VISIBLE, Code.OCCLUDED))
     assert cast.sum() > 1000 and not np.isnan(vis.miss[cast]).any()
 
@@ -250,14 +254,14 @@ def test_posts_all_proved_build_no_mesh(monkeypatch: pytest.MonkeyPatch) -> None
     r, c = np.mgrid[0:60, 0:70].astype(float)
     t = map_terrain(3 * np.sin(r / 15) + 2 * np.cos(c / 11))
     cam = camera_at(t, 89.9, 0.0)
-    every = compute_visibility(t, cam, caster=Occluders(t), prove=False)
+    every = compute_visibility(t, cam, caster=Occluders(t), path=PART_MESHES)
 
     def refuse(*args: object, **kw: object) -> None:
         raise AssertionError("a mesh was built")
 
     monkeypatch.setattr("orthomvp.occlusion.occluders.occluder_mesh", refuse)
     occluders = Occluders(t)
-    proved = compute_visibility(t, cam, caster=occluders, prove=True)
+    proved = compute_visibility(t, cam, caster=occluders, path=PROVED)
     np.testing.assert_array_equal(proved.codes, every.codes)
     assert (proved.codes == Code.VISIBLE).mean() > 0.9 and occluders.mesh_seconds == 0
 
@@ -331,11 +335,21 @@ def test_meshes_of_the_cells_rays_pass_over_cast_as_the_whole(
     parts = 0
     for cam in cameras:
         occluders = Occluders(t)
-        part = compute_visibility(t, cam, caster=occluders, prove=True)
-        every = compute_visibility(t, cam, caster=whole, prove=True)
+        part = compute_visibility(t, cam, caster=occluders, path=PROVED)
+        every = compute_visibility(t, cam, caster=whole, path=PROVED)
         np.testing.assert_array_equal(part.codes, every.codes)
         np.testing.assert_array_equal(part.miss, every.miss)
         parts += occluders._caster is None  # cast on parts only
+        # every ray, none proved, cast on parts and on the whole mesh that the path asks for
+        on_parts, on_whole = Occluders(t), Occluders(t)
+        a = compute_visibility(t, cam, caster=on_parts, path=PART_MESHES)
+        b = compute_visibility(t, cam, caster=on_whole, path=WHOLE_MESH)
+        for name in ("codes", "uv", "miss", "eps"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        assert (
+            on_whole._caster is not None
+            and np.isfinite(b.miss).sum() > np.isfinite(part.miss).sum()
+        )
     assert parts >= 2
 
 
@@ -367,10 +381,10 @@ def test_a_mesh_of_some_cells_has_the_whole_mesh_triangles_there() -> None:
 @pytest.mark.parametrize(
     ("size", "factor"), [((2.0, 2.0), 0.4), ((2.0, 2.0), 2.5), ((1.0, 3.0), 1.0), ((3.0, 1.5), 0.5)]
 )
-@pytest.mark.parametrize("fused", [False, True])
+@pytest.mark.parametrize("geometry", [Geometry.SEPARABLE, Geometry.SEPARABLE_KERNEL])
 @pytest.mark.parametrize("eps", [None, 1.2])
 def test_the_proof_keeps_codes_and_doubt_on_other_grids(
-    size: tuple[float, float], factor: float, fused: bool, eps: float | None
+    size: tuple[float, float], factor: float, geometry: Geometry, eps: float | None
 ) -> None:
     """Grids finer than the DEM (codes carried from its posts), coarser, and on oblong posts,
     through the numpy and the numba geometry, with the default epsilon and a small one: the
@@ -383,10 +397,11 @@ def test_the_proof_keeps_codes_and_doubt_on_other_grids(
         cam = camera_at(dem, elevation, azimuth)
         runs = [
             compute_visibility(
-                grid, cam, caster=Occluders(dem), prove=prove, eps=eps, post_scale=scale,
-                dem=None if factor == 1 else dem, fused=fused, fields=frozenset({"miss"}),
+                grid, cam, caster=Occluders(dem), eps=eps, post_scale=scale,
+                dem=None if factor == 1 else dem, fields=frozenset({"miss"}),
+                path=VisibilityPath(geometry=geometry, rays=rays),
             )
-            for prove in (True, False)
+            for rays in (Rays.PROVED, Rays.PART_MESHES)
         ]  # fmt: skip
         np.testing.assert_array_equal(runs[0].codes, runs[1].codes)
         doubt = [doubtful(v.miss, v.eps) for v in runs]

@@ -479,10 +479,10 @@ def test_check_odm_equals_the_views_given_directly(
 ) -> None:
     root, cameras = odm_dir
     odm, direct = tmp_path / "odm", tmp_path / "direct"
-    proc = run("-q", "check", "--odm", str(root), "-o", str(odm), "--eps", "2", "4")
+    proc = run("check", "--odm", str(root), "-o", str(odm), "--eps", "2", "4")
     assert proc.returncode == 0, proc.stderr
     assert "1 images in" in proc.stderr and "stray.tif" in proc.stderr  # not reconstructed
-    assert "eps 2: median NCC" in proc.stdout
+    assert "orthomvp: eps 2 posts: median NCC" in proc.stdout
     pairs = []
     for name in sorted(cameras):  # ODM's order: the images sorted by name
         pairs += [str(root / "images" / f"{name}.tif"), str(root / RECONSTRUCTION)]

@@ -12,9 +12,13 @@ import pytest
 from affine import Affine
 
 from orthomvp.camera import BrownConradyDistortion
+from orthomvp.occlusion.paths import Geometry, VisibilityPath
 from orthomvp.occlusion.post_geometry import general, image_window, separable, separable_applies
 from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
 from orthomvp.synthetic.loader import load_scene
+
+GENERAL = VisibilityPath(geometry=Geometry.GENERAL)  # the oracle of the separable geometry
+KERNEL = VisibilityPath(geometry=Geometry.SEPARABLE_KERNEL)  # that the numpy one tests
 
 
 def assert_same(a, b) -> None:  # noqa: ANN001 - two Visibility results
@@ -46,16 +50,16 @@ def test_separable_equals_general_on_the_city(city_grids: tuple) -> None:
     codes carried from the DEM, on a grid three times finer."""
     dem, caster, holes, fine, cameras = city_grids
     for cam in cameras:
-        a = compute_visibility(dem, cam, caster=caster, fast=False)
+        a = compute_visibility(dem, cam, caster=caster, path=GENERAL)
         b = compute_visibility(dem, cam, caster=caster)
         assert_same(a, b)
         assert (a.codes == 2).sum() > 100 and (a.codes == 1).sum() > 1000
-        a = compute_visibility(holes, cam, caster=caster, fast=False)
+        a = compute_visibility(holes, cam, caster=caster, path=GENERAL)
         b = compute_visibility(holes, cam, caster=caster)
         assert_same(a, b)
         assert (a.codes[19:24, 29:42] == 0).sum() > 33  # the hole and the posts beside it
         kw = dict(caster=caster, post_scale=1 / 3, dem=dem)
-        a = compute_visibility(fine, cam, fast=False, **kw)
+        a = compute_visibility(fine, cam, path=GENERAL, **kw)
         b = compute_visibility(fine, cam, **kw)
         assert_same(a, b)
         # most posts take their code from the DEM posts around them, without a ray
@@ -86,19 +90,19 @@ def test_separable_tile_field_by_field(city_dir: Path, flip: bool) -> None:
 
 
 def test_general_path_where_separable_does_not_apply(city_dir: Path, crater_dir: Path) -> None:
-    """A lens with distortion, or a body-fixed grid, takes the general path whatever ``fast``
-    says."""
+    """A lens with distortion, or a body-fixed grid, takes the general path whatever the
+    :class:`VisibilityPath` allows (the numba kernel too)."""
     scene = load_scene(city_dir)
     cam = next(iter(scene.views.values())).camera
     lens = replace(cam, distortion=BrownConradyDistortion(0.0, 0.0, 1e-9, 0.0, 0.0, 0.0, 0.0, 0.0))
     caster = occluder_caster(scene.terrain)
-    a = compute_visibility(scene.terrain, lens, caster=caster, fast=False)
-    b = compute_visibility(scene.terrain, lens, caster=caster)
+    a = compute_visibility(scene.terrain, lens, caster=caster, path=GENERAL)
+    b = compute_visibility(scene.terrain, lens, caster=caster, path=KERNEL)
     np.testing.assert_array_equal(a.uv, b.uv)
     crater = load_scene(crater_dir)
     cam = next(iter(crater.views.values())).camera
-    a = compute_visibility(crater.terrain, cam, fast=False)
-    b = compute_visibility(crater.terrain, cam)
+    a = compute_visibility(crater.terrain, cam, path=GENERAL)
+    b = compute_visibility(crater.terrain, cam, path=KERNEL)
     np.testing.assert_array_equal(a.uv, b.uv)
 
 
@@ -112,7 +116,7 @@ def test_image_window_bounds_the_posts_in_the_image(city_dir: Path) -> None:
     for view in scene.views.values():
         cam = view.camera
         corner = cam.crop(0, 0, cam.width // 2, cam.height // 3)
-        a = compute_visibility(dem, corner, caster=caster, fast=False)
+        a = compute_visibility(dem, corner, caster=caster, path=GENERAL)
         b = compute_visibility(dem, corner, caster=caster)
         assert_same(a, b)
         r0, r1, c0, c1 = image_window(dem, corner)
@@ -128,10 +132,10 @@ def assert_identical(a, b) -> None:  # noqa: ANN001 - two Visibility results
 
 
 def test_fused_kernel_equals_numpy_on_the_city(city_grids: tuple) -> None:
-    """The numba kernel (``fused``) gives the numpy path's codes, misses, epsilons, positions,
-    emission angles and GSDs bit for bit: every view of the city on its grid, with holes,
-    without occlusion, and on a grid three times finer with the codes carried from the DEM
-    (most posts without a ray), split in tiles of 7 posts (every tile's border)."""
+    """The numba kernel (``Geometry.SEPARABLE_KERNEL``) gives the numpy path's codes, misses,
+    epsilons, positions, emission angles and GSDs bit for bit: every view of the city on its
+    grid, with holes, without occlusion, and on a grid three times finer with the codes carried
+    from the DEM (most posts without a ray), split in tiles of 7 posts (every tile's border)."""
     import orthomvp.occlusion.visibility as visibility
 
     dem, caster, holes, fine, cameras = city_grids
@@ -143,7 +147,7 @@ def test_fused_kernel_equals_numpy_on_the_city(city_grids: tuple) -> None:
             (fine, {"post_scale": 1 / 3, "dem": dem}),
         ):
             a = compute_visibility(terrain, cam, caster=caster, **kw)
-            b = compute_visibility(terrain, cam, caster=caster, fused=True, **kw)
+            b = compute_visibility(terrain, cam, caster=caster, path=KERNEL, **kw)
             assert_identical(a, b)
         assert separable_applies(terrain, cam) and (a.codes == 2).sum() > 1000
         assert np.isnan(b.miss[b.codes == 1]).mean() > 0.5
@@ -154,14 +158,14 @@ def test_fused_kernel_equals_numpy_on_the_city(city_grids: tuple) -> None:
     outside = np.ones(dem.shape, bool)
     outside[r0:r1, c0:c1] = False
     assert 0 < (r1 - r0) * (c1 - c0) < dem.shape[0] * dem.shape[1] / 2
-    a = compute_visibility(dem, part, caster=caster, strict=False)
-    b = compute_visibility(dem, part, caster=caster, strict=False, fused=True)
+    a = compute_visibility(dem, part, caster=caster, path=VisibilityPath(strict=False))
+    b = compute_visibility(dem, part, caster=caster, path=replace(KERNEL, strict=False))
     assert_identical(a, b)
     assert np.isnan(b.uv[outside]).all() and (b.codes[outside] == 0).all()
     tile, visibility.TILE = visibility.TILE, 7
     try:
         a = compute_visibility(holes, cam, caster=caster)
-        b = compute_visibility(holes, cam, caster=caster, fused=True)
+        b = compute_visibility(holes, cam, caster=caster, path=KERNEL)
     finally:
         visibility.TILE = tile
     assert_identical(a, b)

@@ -277,3 +277,102 @@ def test_figures_keep_their_legend_and_show_a_scale(monkeypatch: pytest.MonkeyPa
         for bar in bars:
             label = bar.get_child().get_children()[1].get_children()[0].get_text()
             assert re.fullmatch(r"\d+ (m|km)( \(at the centre\))?", label), label
+
+
+def _rotated_lonlat(theta_deg: float, k: float = 0.001):  # noqa: ANN202
+    """A map grid turned ``theta`` degrees: lon = 3 + k (c cos t + r sin t), lat = 26 +
+    k (c sin t - r cos t) degrees, whose north is the pixel direction (sin t, -cos t)."""
+    t = np.radians(theta_deg)
+
+    def lonlat(c: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c, r = np.asarray(c, np.float64), np.asarray(r, np.float64)
+        return 3 + k * (c * np.cos(t) + r * np.sin(t)), 26 + k * (c * np.sin(t) - r * np.cos(t))
+
+    return lonlat, np.array([np.sin(t), -np.cos(t)])
+
+
+def _north_arrow(ax) -> np.ndarray:  # noqa: ANN001
+    """The unit (c, r) direction of the axes' north arrow (tail to tip)."""
+    from matplotlib.text import Annotation
+
+    (arrow,) = [t for t in ax.texts if isinstance(t, Annotation)]
+    d = np.subtract(arrow.xy, arrow.xyann)
+    return d / np.linalg.norm(d)
+
+
+def _ticks(axis) -> tuple:  # noqa: ANN001
+    """An axis's tick positions and labels."""
+    return axis.get_ticklocs(), axis.get_ticklabels()
+
+
+def _degrees_of(label: str) -> float:
+    value, hemisphere = re.fullmatch(r"([\d.]+)\u00b0([NSEW])", label).groups()
+    return float(value) * (-1 if hemisphere in "SW" else 1)
+
+
+@pytest.mark.parametrize("theta", [0.0, 30.0])
+def test_maps_have_lonlat_ticks_a_north_arrow_and_colour_bars_in_metres(
+    monkeypatch: pytest.MonkeyPatch, theta: float
+) -> None:
+    """Every map of the three demo figures has longitude ticks on its bottom edge and latitude
+    ticks on its left edge where those values cross the edge (the grid's own formula inverted),
+    a north arrow along the meridian, and every colour bar is labelled in metres."""
+    from orthomvp.present import figures
+
+    saved = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: saved.append(fig))
+    lonlat, north = _rotated_lonlat(theta)
+    rng = np.random.default_rng(0)
+    rows = cols = 60
+    dem = rng.normal(size=(rows, cols)).cumsum(0)
+    codes = np.ones((rows, cols), np.uint8)
+    codes[20:30, 20:40] = Code.OCCLUDED
+    maps = rng.random((3, rows, cols))
+    maps[1][codes == Code.OCCLUDED] = np.nan
+    figures.scene_overview(dem, 50.0, rng.random((70, 65)), codes, "o.png", lonlat=lonlat)
+    figures.ortho_comparison(*maps, "c.png", spacing=50.0, codes=codes, lonlat=lonlat)
+    figures.height_error_maps(maps[0] - 0.5, maps[1] - 0.5, 50.0, "e.png", lonlat=lonlat)
+    overview, comparison, errors = saved
+    t = np.radians(theta)
+    map_axes = [overview.axes[0], overview.axes[2], *comparison.axes[:3], *errors.axes[:2]]
+    for ax in map_axes:
+        xticks = [(p, _degrees_of(lb.get_text())) for p, lb in zip(*_ticks(ax.xaxis), strict=True)]
+        yticks = [(p, _degrees_of(lb.get_text())) for p, lb in zip(*_ticks(ax.yaxis), strict=True)]
+        assert len(xticks) >= 2 and len(yticks) >= 2
+        r_bottom, c_left = rows - 0.5, -0.5
+        for c, lon in xticks:  # lon = 3 + k (c cos t + r sin t) on the bottom edge
+            assert -0.5 <= c <= cols - 0.5
+            expect = ((lon - 3) / 0.001 - r_bottom * np.sin(t)) / np.cos(t)
+            assert c == pytest.approx(expect, abs=0.02)
+        for r, lat in yticks:  # lat = 26 + k (c sin t - r cos t) on the left edge
+            expect = (c_left * np.sin(t) - (lat - 26) / 0.001) / np.cos(t)
+            assert r == pytest.approx(expect, abs=0.02)
+        np.testing.assert_allclose(_north_arrow(ax), north, atol=1e-9)
+    assert not overview.axes[1].get_xticks().size  # the raw frame is no map
+    bars = [ax for fig in saved for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(bars) == 2
+    for bar in bars:
+        assert "(m)" in bar.get_ylabel(), bar.get_ylabel()
+    # the empty posts of the occlusion-aware orthophoto are named by why they are empty
+    (legend,) = comparison.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["empty: occluded"]
+
+
+def test_one_colour_per_meaning() -> None:
+    """Occluded and no-data posts are far (in RGB, 0-255) from every colour the height-error
+    map gives an error beyond an eighth of its range (too high red, too low blue), cameras are
+    drawn in none of the code colours, and the no-value colour is the no-data code's."""
+    from matplotlib import colormaps
+
+    from orthomvp.present.colours import CAMERA_COLOURS, ERROR_CMAP
+
+    x = np.concatenate([np.linspace(0, 0.375, 64), np.linspace(0.625, 1, 64)])
+    error_rgb = colormaps[ERROR_CMAP](x)[:, :3] * 255
+    for code in (Code.OCCLUDED, Code.NODATA):
+        nearest = np.linalg.norm(error_rgb - np.array(code.rgb), axis=1).min()
+        assert nearest > 75, (code, nearest)
+    assert tuple(NAN_RGB) == Code.NODATA.rgb
+    codes = np.array([c.rgb for c in Code], float)
+    for colour in CAMERA_COLOURS:
+        rgb = np.array([int(colour[i : i + 2], 16) for i in (1, 3, 5)])
+        assert np.linalg.norm(codes - rgb, axis=1).min() > 60, colour

@@ -1,4 +1,4 @@
-"""The README's Python example runs as written, on a synthetic scene."""
+"""The Python examples of the README and docs/ run as written, on a synthetic scene."""
 
 from __future__ import annotations
 
@@ -9,12 +9,14 @@ from pathlib import Path
 import numpy as np
 import rasterio
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+GUIDES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def _run_block(marker: str, folder: Path) -> dict:
-    """Run the README's Python block that contains ``marker`` in ``folder``; its names."""
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    """Run the one Python block of the README or docs/ that contains ``marker`` in ``folder``;
+    its names."""
+    blocks = [b for g in GUIDES for b in re.findall(r"```python\n(.*?)```", g.read_text(), re.S)]
     (block,) = [b for b in blocks if marker in b]
     cwd = os.getcwd()
     os.chdir(folder)
@@ -31,7 +33,7 @@ def test_readme_engine_example(tmp_path: Path) -> None:
     from orthomvp.synthetic import make_scene
 
     make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
-    namespace = _run_block("plan_ortho", tmp_path)
+    namespace = _run_block("dask_client(", tmp_path)
     assert namespace["report"].filled > 0
     threaded, dask = read_image(tmp_path / "ortho.tif"), read_image(tmp_path / "ortho-dask.tif")
     np.testing.assert_array_equal(threaded, dask)
@@ -45,7 +47,7 @@ def test_readme_python_example(tmp_path: Path) -> None:
     from orthomvp.synthetic import make_scene
 
     make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
-    namespace = _run_block("compute_visibility", tmp_path)
+    namespace = _run_block("om.fit_dem(", tmp_path)
     np.testing.assert_allclose(namespace["c2"], namespace["c"], atol=1e-7)
     assert (namespace["mos"].source > 0).all()
     fit, dem = namespace["fit"], namespace["dem"]
@@ -66,3 +68,18 @@ def test_readme_python_example(tmp_path: Path) -> None:
     with rasterio.open(tmp_path / "fitted.tif") as src:
         np.testing.assert_array_equal(src.read(1), again.heights.astype(np.float32))
     assert n["report"].fitted == int(again.resolved.sum())
+
+
+def test_readme_front_example(tmp_path: Path) -> None:
+    from orthomvp.io.raster import read_image
+    from orthomvp.synthetic import make_scene
+
+    make_scene("crater", size=48, spacing=100.0).write(tmp_path / "scene", supersample=1)
+    n = _run_block("import orthomvp as om\nfrom orthomvp.io.raster import read_image\n\n", tmp_path)
+    # the file path's orthophoto is the in-memory one's where both have a value
+    on_file = read_image(tmp_path / "ortho.tif")
+    in_memory = n["ortho"].data
+    both = np.isfinite(on_file) & np.isfinite(in_memory)
+    assert both.sum() > 500
+    np.testing.assert_allclose(on_file[both], in_memory[both], atol=1e-4)
+    assert n["report"].filled == int(np.isfinite(on_file[0]).sum())

@@ -3,16 +3,18 @@ display."""
 
 from __future__ import annotations
 
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from PIL import Image
 
 from orthomvp.cli import main
 from orthomvp.codes import Code, View
 from orthomvp.errors import InputError
-from orthomvp.io.raster import write_geotiff
 from orthomvp.present.snapshot import (
     CROP_MARGIN,
     SnapshotOptions,
@@ -250,10 +252,15 @@ def test_cli_bad_inputs_exit_2_without_output(
 ) -> None:
     d = crater_dir
     dem, out = str(d / "dem.tif"), tmp_path / "snap.png"
-    small = tmp_path / "small.tif"
-    write_geotiff(small, np.ones((10, 12), np.float32), *_grid(d))
+    small = tmp_path / "small.tif"  # no georeference, not the DEM's size: cannot be placed
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(
+            small, "w", driver="GTiff", width=12, height=10, count=1, dtype="float32"
+        ) as dst:
+            dst.write(np.ones((1, 10, 12), np.float32))
     cases = [
-        ["--visibility", str(small)],  # a raster off the DEM grid
+        ["--visibility", str(small)],  # a raster off the DEM grid, without a georeference
         ["--ortho", str(tmp_path / "missing.tif")],
         ["--heights", dem],  # no --truth
         ["--camera", str(d / "nadir.tsai"), "--view", "from-camera", "--camera-index", "2"],
@@ -273,3 +280,57 @@ def _grid(d: Path) -> tuple:
 
     t = Terrain.read(d / "dem.tif")
     return t.transform, t.crs
+
+
+def test_scale_bar_exaggeration_and_camera_labels(crater: Scene) -> None:
+    """The scale bar is as long as its label says (exact float64), the vertical exaggeration is
+    written under it, and the camera labels (two cameras whose glyphs stand close together)
+    lie inside the window without overlapping each other or the scale bar's labels, as VTK
+    itself measures the rendered texts."""
+    import pyvista as pv
+
+    cams = [crater.cameras["oblique"], crater.cameras["nadir"]]
+    width, height = 480, 360
+    options = SnapshotOptions(size=(width, height), exaggerate=1.5, legend=True)
+    snap = snapshot(crater.terrain, cameras=cams, options=options)
+    try:
+        actors = snap.plotter.actors
+        texts = {name: a for name, a in actors.items() if isinstance(a, pv.Text)}
+        assert {"camera label 1", "camera label 2", "scale bar label 0", "scale bar label 1"} <= (
+            texts.keys()
+        )
+        length_text = texts["scale bar label 0"].input
+        value, unit = re.fullmatch(r"(\d+) (m|km)", length_text).groups()
+        length = float(value) * (1000 if unit == "km" else 1)
+        assert texts["scale bar label 1"].input == "vertical exaggeration 1.5x"
+        points = np.asarray(actors["scale bar"].mapper.dataset.points, np.float64)
+        # float32 points in the local frame: metres to within their resolution
+        assert np.linalg.norm(points[1] - points[0]) == pytest.approx(length, rel=1e-6)
+        assert length <= 0.25 * crater.terrain.post_spacing()[0] * 63 * 1.0001
+        boxes = {}
+        for name, actor in texts.items():
+            bbox = [0.0] * 4
+            actor.GetBoundingBox(snap.plotter.renderer, bbox)  # about the text's position
+            px, py = actor.GetPosition()
+            x0, x1, y0, y1 = bbox[0] + px, bbox[1] + px, bbox[2] + py, bbox[3] + py
+            boxes[name] = x0, x1, y0, y1  # display pixels
+            assert 0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height, (name, bbox)
+        names = sorted(boxes)
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                p, q = boxes[a], boxes[b]
+                apart = p[1] <= q[0] or q[1] <= p[0] or p[3] <= q[2] or q[3] <= p[2]
+                assert apart, (a, p, b, q)
+    finally:
+        snap.close()
+    flat = SnapshotOptions(size=(width, height), legend=True)
+    snap = snapshot(crater.terrain, options=flat)
+    try:
+        assert snap.plotter.actors["scale bar label 1"].input == "no vertical exaggeration"
+    finally:
+        snap.close()
+    snap = snapshot(crater.terrain, options=SnapshotOptions(size=(width, height), legend=False))
+    try:
+        assert "scale bar" not in snap.plotter.actors
+    finally:
+        snap.close()

@@ -139,3 +139,27 @@ def test_hills_and_seeds() -> None:
         make_scene("volcano")
     with pytest.raises(InputError):
         make_scene("hills", size=4)
+
+
+@pytest.mark.parametrize("kind", ["hills", "city"])
+def test_image_margin_frames_the_dem_that_many_pixels_wider(kind: str) -> None:
+    """``image_margin`` pixels lie between the DEM's projection (its corners at the lowest and
+    highest heights, through the camera's own projection) and each image edge."""
+    for margin in (6.0, 14.0):
+        scene = make_scene(kind, size=16, image_margin=margin)
+        t = scene.terrain
+        rows, cols = t.shape
+        h = t.values[t.valid]
+        corners = t.to_world(
+            np.array([0, cols - 1] * 4, float),
+            np.array([0, 0, rows - 1, rows - 1] * 2, float),
+            np.repeat([h.min(), h.max()], 4),
+        )
+        for cam in scene.cameras.values():
+            uv, _ = cam.project(corners)
+            lo, hi = uv.min(axis=0), uv.max(axis=0)
+            np.testing.assert_allclose(lo, margin, atol=1e-6)
+            assert np.all(np.array([cam.width, cam.height]) - hi >= margin - 1e-6)
+            assert np.all(np.array([cam.width, cam.height]) - hi < margin + 1)
+    with pytest.raises(InputError, match="margin"):
+        make_scene("hills", size=16, image_margin=-1)

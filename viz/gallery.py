@@ -22,6 +22,7 @@ from orthomvp.demo import run_demo
 from orthomvp.explore import Explorer, ExplorerShell, run_commands
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.io.raster import read_image
+from orthomvp.present.figures import empty_legend, lonlat_degrees, orthophoto_axes
 from orthomvp.quality.eps_study import eps_study, save
 from orthomvp.synthetic import make_scene
 
@@ -93,7 +94,8 @@ def explore_pictures(tmp: Path) -> None:
 def linescan_pictures(tmp: Path) -> None:
     """The line-scan crater through the command line, as the README shows it: its visibility
     in 3D (occluded posts green, facing away orange) and, side by side, the line-scan image,
-    the naive orthophoto and the occlusion-aware one."""
+    the naive orthophoto and the occlusion-aware one (its empty posts in their code's
+    colour), maps with lon/lat ticks, a north arrow and a scale bar."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -114,17 +116,25 @@ def linescan_pictures(tmp: Path) -> None:
     ):
         if cli([str(a) for a in args]) != 0:
             sys.exit(f"gallery: orthomvp {args[0]} failed")
-    panels = [
-        (read_image(scene / "linescan.tif")[0], "line-scan image (rows = lines = time)"),
-        (read_image(tmp / "naive.tif")[0], "naive orthophoto"),
-        (read_image(tmp / "ortho.tif")[0], "occlusion-aware orthophoto"),
-    ]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.4))
-    for ax, (image, title) in zip(axes, panels, strict=True):
-        ax.imshow(image, cmap="gray", vmin=0, vmax=float(np.nanpercentile(image, 99.5)))
-        ax.set_title(title)
-        ax.set_axis_off()
-    fig.tight_layout()
+    terrain = Terrain.read(scene / "dem.tif")
+    codes = read_image(tmp / "vis.tif")[0]
+    naive, aware = (read_image(tmp / f"{name}.tif")[0] for name in ("naive", "ortho"))
+    image = read_image(scene / "linescan.tif")[0]
+    fig, axes = plt.subplots(1, 3, figsize=(14, 5.0), layout="constrained")
+    high = float(np.nanpercentile(image, 99.5))
+    axes[0].imshow(image, cmap="gray", vmin=0, vmax=high)
+    axes[0].set_title("line-scan image (rows = lines = time)", fontsize=10)
+    axes[0].set_axis_off()
+    spacing = float(np.mean(terrain.post_spacing()))
+    lonlat = lonlat_degrees(terrain)
+    shown = set()
+    for ax, ortho, title in zip(
+        axes[1:], (naive, aware), ("naive orthophoto", "occlusion-aware orthophoto"), strict=True
+    ):
+        shown |= orthophoto_axes(
+            ax, ortho, title, stretch=(0, high), codes=codes, spacing=spacing, lonlat=lonlat
+        )
+    empty_legend(fig, shown)
     fig.savefig(HERE / "linescan-orthophotos.png", dpi=90)
     plt.close(fig)
 

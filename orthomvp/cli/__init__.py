@@ -108,11 +108,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _remove_temporaries() -> None:
-    """:func:`orthomvp.io.raster.remove_temporaries`, when that module was imported (``--help``
+    """:func:`orthomvp.io.outputs.remove_temporaries`, when that module was imported (``--help``
     and usage errors do not import it)."""
-    raster = sys.modules.get("orthomvp.io.raster")
-    if raster is not None:
-        raster.remove_temporaries()
+    outputs = sys.modules.get("orthomvp.io.outputs")
+    if outputs is not None:
+        outputs.remove_temporaries()
 
 
 def _error(message: object, status: int = EXIT_USER) -> int:

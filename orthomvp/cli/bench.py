@@ -10,7 +10,14 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command, Variadic
-from orthomvp.cli.options import PATH, POSITIVE, Output, SizeOrZero, check_outputs
+from orthomvp.cli.options import (
+    PATH,
+    POSITIVE,
+    Output,
+    SizeOrZero,
+    check_outputs,
+    overwrite_option,
+)
 
 PEER_DATA_ENV = "ORTHOMVP_DATA"
 """The environment variable naming the data folder that holds ``ngi-aerial/``."""
@@ -112,6 +119,7 @@ def peer_data_default() -> Path | None:
 @click.option(
     "--json", "json_path", type=PATH, metavar="FILE", help="also write the figures as JSON"
 )
+@overwrite_option
 def bench(
     size: int,
     rays: int,
@@ -126,6 +134,7 @@ def bench(
     scale_sizes: tuple[int, ...],
     scale_dask: int | None,
     json_path: Path | None,
+    overwrite: bool,
 ) -> None:
     """Ray casting: rays per second through orthomvp's first_hit and through the bare backend
     call on the same rays, for Embree and Open3D. Orthophoto: the occlusion-aware orthophoto
@@ -140,10 +149,10 @@ def bench(
     Orthority time. --scale runs instead the engine's scale benchmark (threads = cores)."""
     from orthomvp import bench as b
     from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
-    from orthomvp.io.raster import atomic_path
+    from orthomvp.io.outputs import atomic_path
     from orthomvp.synthetic.scene import check_scene_memory
 
-    check_outputs([Output("--json", json_path, ())])
+    check_outputs([Output("--json", json_path, ())], overwrite=overwrite)
     if not peer:  # every check before the first benchmark runs
         check_raycast_memory(size, rays, "choose a smaller --size or fewer --rays")
         if ortho_size:
@@ -204,7 +213,7 @@ def bench_peer(data: Path | None, res: float | None, repeat: int) -> dict:
             case = b.ngi_case(data, Path(tmp))
         else:
             where = f"in {data}" if data else f"given (--peer-data, or ${PEER_DATA_ENV})"
-            print(f"no ngi-aerial data {where}: using a synthetic aerial scene")
+            print(f"orthomvp: no ngi-aerial data {where}: using a synthetic aerial scene")
             case = b.synthetic_case(Path(tmp))
         row = b.bench_orthority(case, res=res, repeat=repeat)
     print(b.format_orthority(row))

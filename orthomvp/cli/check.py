@@ -18,9 +18,11 @@ from orthomvp.cli.options import (
     check_outputs,
     dem_options,
     optional_dem_argument,
+    overwrite_options,
     pairs_argument,
     prefix_option,
     quiet,
+    say,
 )
 
 if TYPE_CHECKING:
@@ -54,6 +56,7 @@ DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
     help="side of the NCC window, DEM posts (odd)",
 )
 @engine_options(dtype=False, grid=False, rasters=False)
+@overwrite_options
 @dem_options
 def check(
     dem: DemInput,
@@ -63,6 +66,8 @@ def check(
     eps: tuple[float, ...],
     window: int,
     engine: EngineInput,
+    overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """For every pair of overlapping views, the local NCC between their orthophotos at posts
     visible in both, and at posts one view calls occluded (its naive value against the other
@@ -80,7 +85,7 @@ def check(
     csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
     outputs = [Output("-o", csv, (".csv",), "CSV"), Output("-o", png, (".png",), "a PNG")]
     dem, pairs, inputs = command_views(dem, pairs, odm)
-    check_outputs(outputs, inputs)
+    check_outputs(outputs, inputs, overwrite, replace_input)
     names = [str(image) for image, _ in pairs]
     with warnings_as_lines():
         plan = plan_check(
@@ -96,15 +101,15 @@ def check(
         with engine.workers() as executor:
             result = run_check(plan, progress=not quiet(), **executor)
     for a, b in result.apart:
-        print(f"{names[a - 1]} and {names[b - 1]} do not overlap: that pair is not checked")
+        say(f"{names[a - 1]} and {names[b - 1]} do not overlap: that pair is not checked")
     for e in eps:
         vis, occ = result.pooled(e, "visible"), result.pooled(e, "occluded")
-        print(
-            f"eps {e:g}: median NCC {_text(vis)} at posts visible in both, {_text(occ)} at "
+        say(
+            f"eps {e:g} posts: median NCC {_text(vis)} at posts visible in both, {_text(occ)} at "
             "posts called occluded (naive value)"
         )
     lib.save(result, csv, png)
-    print(f"wrote {csv} and {png}")
+    say(f"wrote {csv} and {png}")
 
 
 def _text(row: dict) -> str:

@@ -13,7 +13,9 @@ from orthomvp.cli.options import (
     POSITIVE,
     Output,
     check_outputs,
+    overwrite_option,
     prefix_option,
+    say,
 )
 
 
@@ -45,8 +47,13 @@ from orthomvp.cli.options import (
     metavar="METRES ...",
     help="standard deviations of Gaussian noise added to the DEM",
 )
+@overwrite_option
 def eps_study(
-    scene: Path, output: Path, eps: tuple[float, ...], dem_noise: tuple[float, ...]
+    scene: Path,
+    output: Path,
+    eps: tuple[float, ...],
+    dem_noise: tuple[float, ...],
+    overwrite: bool,
 ) -> None:
     """Score the visibility test against the marched truth of a scene written by 'orthomvp
     synth', for a range of epsilons (DEM posts) and optional DEM noise: precision, recall
@@ -54,14 +61,14 @@ def eps_study(
     from orthomvp.quality import eps_study as epsstudy
 
     csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
-    check_outputs([Output("-o", csv, ()), Output("-o", png, ())])
+    check_outputs([Output("-o", csv, ()), Output("-o", png, ())], overwrite=overwrite)
     values = eps or epsstudy.DEFAULT_EPS_VALUES
     rows = epsstudy.eps_study(scene, eps_values=values, noise=dem_noise)
     epsstudy.save(rows, csv, png)
     for r in rows:
         if r["eps"] == "default":
-            print(
-                f"{r['view']:>10} noise {r['noise_m']:g} m: default rule F1 visible "
+            say(
+                f"{r['view']}, DEM noise {r['noise_m']:g} m: default rule F1 visible "
                 f"{r['f1_visible']:.4f}, hidden {r['f1_hidden']:.4f}"
             )
-    print(f"wrote {csv} and {png}")
+    say(f"wrote {csv} and {png}")

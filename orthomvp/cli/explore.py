@@ -58,7 +58,7 @@ def explore(
     elif not sys.stdin.isatty():
         lines = split_commands(sys.stdin.read())
     if not quiet():
-        print("Loading images...", end=" ", flush=True)
+        print("orthomvp: loading the images...", flush=True)
     views = [load_view(image, camera) for image, camera in pairs]
     terrain = dem.read([v[1] for v in views])
     explorer = Explorer(
@@ -73,7 +73,7 @@ def explore(
     if not quiet():
         rows, cols = terrain.shape
         print(
-            f"Done! {len(views)} views, DEM {cols} x {rows} posts of "
+            f"orthomvp: {len(views)} views, DEM {cols} x {rows} posts of "
             f"{explorer.spacing:.1f} m; type help for the commands."
         )
         shell.do_poi("")

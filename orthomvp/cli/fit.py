@@ -20,9 +20,10 @@ from orthomvp.cli.options import (
     eps_option,
     levels_option,
     output_option,
-    overwrite_option,
+    overwrite_options,
     pairs_argument,
     quiet,
+    say,
     view_inputs,
 )
 
@@ -85,7 +86,7 @@ MAX_DECONVOLVE = 10
     "step may amplify noise once more)",
 )
 @eps_option
-@overwrite_option
+@overwrite_options
 @dem_options
 @engine_options(dtype=False, grid=False)
 def fit(
@@ -104,6 +105,7 @@ def fit(
     deconvolve: int,
     eps: float | None,
     overwrite: bool,
+    replace_input: bool,
     engine: EngineInput,
 ) -> None:
     """Fit a plane (height, normal) at every DEM post to the images in which the post is
@@ -123,7 +125,7 @@ def fit(
         Output("--views", views),
         Output("--uncertainty", uncertainty),
     ]
-    check_outputs(outputs, view_inputs(dem, pairs), overwrite)
+    check_outputs(outputs, view_inputs(dem, pairs), overwrite, replace_input)
     options = FitOptions(
         hwin=hwin,
         sigma=sigma,
@@ -150,4 +152,4 @@ def fit(
         progress=not quiet(),
     )
     report = engine.run(plan, outputs, progress=not quiet(), runner=run_fit)
-    print(report.line(output))
+    say(report.line(output))

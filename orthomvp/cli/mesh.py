@@ -17,7 +17,8 @@ from orthomvp.cli.options import (
     dem_options,
     error_limit_option,
     output_option,
-    overwrite_option,
+    overwrite_options,
+    say,
     usage_error,
 )
 
@@ -39,7 +40,9 @@ imported: --help stays fast)"""
     "--texture",
     type=PATH,
     metavar="RASTER",
-    help="a raster on the DEM grid to colour the mesh (see --colour-by)",
+    help="a raster to colour the mesh (see --colour-by): on the DEM grid, or any georeferenced "
+    "raster (finer, coarser, another extent or CRS), sampled at the posts (the texel under "
+    "each post; posts outside it get the no-data colour)",
 )
 @click.option(
     "--error-against",
@@ -59,7 +62,7 @@ imported: --help stays fast)"""
 @click.option(
     "--local-origin",
     is_flag=True,
-    help="write vertices relative to the mesh's local origin (printed) instead of "
+    help="write vertices relative to the mesh's local origin (printed, except with -q) instead of "
     "body-fixed coordinates",
 )
 @click.option(
@@ -68,7 +71,7 @@ imported: --help stays fast)"""
     metavar="TRIANGLES",
     help="simplify to about this many triangles (Open3D quadric decimation)",
 )
-@overwrite_option
+@overwrite_options
 @dem_options
 def mesh(
     dem: DemInput,
@@ -80,14 +83,17 @@ def mesh(
     local_origin: bool,
     decimate: int | None,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Triangulate the DEM in body-fixed Cartesian metres (two triangles per grid cell, holes
     skipped) and export it. PLY gets vertex colours, OBJ (with OUT.mtl and OUT.png beside it)
-    and GLB an image texture, from --texture or --error-against."""
-    from orthomvp.io.raster import read_image
+    and GLB an image texture, from --texture or --error-against: one texel per post, or at a
+    finer --texture's own resolution (an integer number of texels per post, at most 4096 a
+    side)."""
     from orthomvp.occlusion.mesh import terrain_mesh
     from orthomvp.present.colours import error_colour_limit, height_error
     from orthomvp.present.export import export_mesh
+    from orthomvp.present.texture import finer_grid, on_dem_grid
 
     kind = colour_by or ("error" if error_against else "image")
     if error_against and kind != "error":
@@ -97,8 +103,13 @@ def mesh(
     if error_limit is not None and kind != "error":
         raise usage_error("--error-limit applies to error colours only (--colour-by error)")
     inputs = [("DEM", dem.path), ("--texture", texture), ("--error-against", error_against)]
-    mesh_output = Output("-o", output, MESH_SUFFIXES, "a mesh")
-    check_outputs([mesh_output], inputs, overwrite)
+    outputs = [Output("-o", output, MESH_SUFFIXES, "a mesh")]
+    if output.suffix.lower() == ".obj" and (texture or error_against) and decimate is None:
+        outputs += [  # its material and texture image, beside it
+            Output("-o", output.with_suffix(".mtl"), (".mtl",), "its material"),
+            Output("-o", output.with_suffix(".png"), (".png",), "its texture image"),
+        ]
+    check_outputs(outputs, inputs, overwrite, replace_input)
     if output.suffix.lower() == ".ply" and decimate is None:
         _stream(dem, output, texture, error_against, kind, error_limit, local_origin)
         return
@@ -108,7 +119,10 @@ def mesh(
         truth = replace(dem, path=error_against, world=terrain.world).read()
         colours = height_error(terrain, truth)
     else:
-        colours = read_image(texture) if texture else None
+        colours = on_dem_grid(texture, terrain) if texture else None
+    image = None  # OBJ and GLB: an image texture at a finer texture's own resolution
+    if texture and decimate is None:
+        image = finer_grid(texture, terrain)
     export_mesh(
         tmesh,
         output,
@@ -117,14 +131,15 @@ def mesh(
         target_triangles=decimate,
         colour_kind=kind,
         error_limit=error_limit,
+        texture_image=image,
     )
     note = f", decimated to about {decimate:,} triangles" if decimate else ""
-    print(f"wrote {output}: {len(tmesh.vertices):,} vertices, {len(tmesh.faces):,} triangles{note}")
+    say(f"wrote {output}: {len(tmesh.vertices):,} vertices, {len(tmesh.faces):,} triangles{note}")
     if kind == "error":
         limit = error_colour_limit(colours, limit=error_limit)
-        print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
+        say(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
     if local_origin:
-        print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*tmesh.origin))
+        say("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*tmesh.origin))
 
 
 def _stream(
@@ -142,6 +157,7 @@ def _stream(
     from orthomvp.geometry.datum import HeightOptions
     from orthomvp.present.mesh_stream import code_colours, image_stretch, write_ply_stream
     from orthomvp.present.mesh_stream import error_against as error_colours_of
+    from orthomvp.present.texture import TextureSampler
 
     world = WorldFrame.BODY if dem.world == "auto" else WorldFrame(dem.world)
     heights = HeightOptions(dem.vertical_datum, dem.height_offset)
@@ -151,13 +167,12 @@ def _stream(
         truth = scan_dem(error_against, dem.crs, dem.radius_values, heights=heights)
         truth = with_world(truth, world)
         colours, limit = error_colours_of(truth, source, error_limit)
-    elif texture and kind == "visibility":
-        colours = code_colours(texture, source.shape)
     elif texture:
-        colours = image_stretch(texture, source.shape)
+        sampler = TextureSampler(texture, source.shape, source.transform, source.crs)
+        colours = code_colours(sampler) if kind == "visibility" else image_stretch(sampler)
     n_vert, n_face, origin = write_ply_stream(source, output, colours=colours, local=local_origin)
-    print(f"wrote {output}: {n_vert:,} vertices, {n_face:,} triangles")
+    say(f"wrote {output}: {n_vert:,} vertices, {n_face:,} triangles")
     if limit is not None:
-        print(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
+        say(f"error colours: blue -{limit:.3g} m, white 0, red +{limit:.3g} m (clipped beyond)")
     if local_origin:
-        print("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*origin))
+        say("local origin (body-fixed metres): {:.3f} {:.3f} {:.3f}".format(*origin))

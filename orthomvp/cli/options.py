@@ -26,10 +26,14 @@ PATH = click.Path(path_type=Path)
 """A file or directory name; its existence is checked where it is read, with a clear message."""
 
 CAMERA_HELP = (
-    "camera model: .tsai, .pinhole, .json, an OpenSfM reconstruction.json or ODM shots.geojson "
-    "(the shot of IMAGE), or an Orthority exterior file (.csv, .geojson; the row of IMAGE, the "
-    "one .yaml beside it)"
+    "camera model, any of: ASP .tsai or .pinhole; our .json; an Orthority exterior file (.csv, "
+    ".geojson; the row of IMAGE, the one .yaml beside it) or RPC .yaml; an OpenSfM "
+    "reconstruction.json or ODM shots.geojson (the shot of IMAGE); a USGS CSM ISD or model "
+    "state .json (line scan, frame, push frame); an RPC camera: the image itself when its "
+    "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file"
 )
+"""What a CAMERA may be: every kind of :data:`orthomvp.camera.FORMATS` (not imported: --help
+stays fast; a test checks that every kind is named)."""
 
 
 class Number(click.FloatRange):
@@ -92,11 +96,20 @@ def usage_error(message: str) -> click.UsageError:
 
 
 def quiet() -> bool:
-    """Whether ``-q`` asked for no progress bars or notes."""
+    """Whether ``-q`` asked for warnings and errors only."""
     return bool(click.get_current_context().find_root().params.get("quiet"))
 
 
-quiet_option = click.option("-q", "--quiet", is_flag=True, help="no progress bars or notes")
+def say(line: str, *, err: bool = False) -> None:
+    """Print an informational ``line`` as ``orthomvp: line``, on stdout (stderr with ``err``);
+    nothing with ``-q``."""
+    if not quiet():
+        click.echo(f"orthomvp: {line}", err=err)
+
+
+quiet_option = click.option(
+    "-q", "--quiet", is_flag=True, help="print warnings and errors only (no progress or summary)"
+)
 
 
 # ------------------------------------------------------------------------------------ DEM
@@ -334,8 +347,19 @@ def error_limit_option(help: str) -> Callable[[F], F]:  # noqa: A002
 overwrite_option = click.option(
     "--overwrite",
     is_flag=True,
-    help="let an output replace one of the inputs (every input is read in full first)",
+    help="replace output files that exist (without it an existing output is refused)",
 )
+replace_input_option = click.option(
+    "--replace-input",
+    is_flag=True,
+    help="with --overwrite, let an output replace one of this command's inputs (every input is "
+    "read in full first)",
+)
+
+
+def overwrite_options(f: F) -> F:
+    """--overwrite and --replace-input, as the command's ``overwrite`` and ``replace_input``."""
+    return overwrite_option(replace_input_option(f))
 
 
 # --------------------------------------------------------------------- output checks
@@ -359,12 +383,14 @@ def check_outputs(
     outputs: Sequence[Output],
     inputs: Sequence[tuple[str, Path | None]] = (),
     overwrite: bool = False,
+    replace_input: bool = False,
 ) -> None:
     """Refuse, before any work, outputs that cannot end well, with a usage error naming the
     path: two outputs with the same path; an output that is one of the ``inputs`` ((label,
-    path) pairs, e.g. ("DEM", dem.path)) unless ``overwrite``; a file name whose extension does
-    not match the output's format; an output that is a directory, or whose directory is
-    missing, not a directory or not writable."""
+    path) pairs, e.g. ("DEM", dem.path)) unless both ``overwrite`` and ``replace_input``; an
+    output file that exists, unless ``overwrite`` (as rio and gdalwarp); a file name whose
+    extension does not match the output's format; an output that is a directory, or whose
+    directory is missing, not a directory or not writable."""
     given = [out for out in outputs if out.path is not None]
     for i, out in enumerate(given):
         for other in given[:i]:
@@ -374,19 +400,22 @@ def check_outputs(
                     f"{other.path}: given to both {other.option} and {out.option}{alias}; one "
                     "would overwrite the other: give each output its own file"
                 )
-    if not overwrite:
-        for out in given:
-            for label, path in inputs:
-                if path is not None and same_file(out.path, path):
-                    alias = f" ({path})" if str(out.path) != str(path) else ""
-                    raise usage_error(
-                        f"{out.path}: {out.option} would overwrite the input {label}{alias}; "
-                        "give another file name, or --overwrite to replace it"
-                    )
+    for out in given:
+        for label, path in inputs:
+            if path is not None and same_file(out.path, path) and not (overwrite and replace_input):
+                alias = f" ({path})" if str(out.path) != str(path) else ""
+                raise usage_error(
+                    f"{out.path}: {out.option} would replace the input {label}{alias}; give "
+                    "another file name, or --overwrite --replace-input to replace it"
+                )
     for out in given:
         path = out.path
         if path.is_dir():
             raise usage_error(f"{path}: {out.option} names a directory; give a file name")
+        if not overwrite and os.path.lexists(path):
+            raise usage_error(
+                f"{path}: the output file of {out.option} exists; give --overwrite to replace it"
+            )
         if out.suffixes and path.suffix.lower() not in out.suffixes:
             raise usage_error(
                 f"{path}: {out.option} writes {out.name}; name it "
@@ -405,11 +434,22 @@ def view_inputs(dem: DemInput, pairs: Sequence[tuple[Path, Path]]) -> list[tuple
     return inputs
 
 
-def check_outdir(path: Path, option: str) -> None:
-    """Refuse an output directory ``path`` that is an existing file or whose parent directory
-    is missing or not writable (a usage error naming it)."""
+def check_outdir(
+    path: Path, option: str, *, overwrite: bool = False, refresh: Sequence[str] = ()
+) -> None:
+    """Refuse an output directory ``path`` that is an existing file, whose parent directory
+    is missing or not writable, or that holds files, unless ``overwrite`` or unless it holds
+    every file named in ``refresh`` (the marks of the command's own earlier output, which it
+    may refresh); a usage error naming it."""
     if path.exists() and not path.is_dir():
         raise usage_error(f"{path}: {option} is a file, not a directory")
+    if path.is_dir() and not overwrite and any(path.iterdir()):
+        own = bool(refresh) and all((path / name).is_file() for name in refresh)
+        if not own:
+            raise usage_error(
+                f"{path}: {option} exists and is not empty; give --overwrite to write into it "
+                "(files of the same name are replaced)"
+            )
     check_directory(path, f"{path}: {option}")
 
 
@@ -424,7 +464,7 @@ def check_directory(path: Path, what: str) -> None:
         read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
         cause = "a read-only file system" if read_only else "permission denied"
         raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
-    from orthomvp.io.raster import check_space
+    from orthomvp.io.preflight import check_space
 
     check_space(path)
 

@@ -27,9 +27,10 @@ from orthomvp.cli.options import (
     interp_option,
     optional_dem_argument,
     output_option,
-    overwrite_option,
+    overwrite_options,
     pairs_argument,
     quiet,
+    say,
     usage_error,
     view_inputs,
 )
@@ -43,8 +44,11 @@ if TYPE_CHECKING:
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 FILLS = ("none", "any-view", "naive")
 BALANCES = ("none", "gain", "gain-offset")
-"""As :data:`orthomvp.ortho.composite.PRIORITIES`, ``FILLS`` and ``BALANCES`` (not imported: --help
-stays fast; a test checks that they agree)."""
+"""As :data:`orthomvp.ortho.composite.PRIORITIES` and ``FILLS``, and
+:data:`orthomvp.ortho.balance.BALANCES` (not imported: --help stays fast; a test checks that they
+agree)."""
+NAMED_IMAGES = 4
+"""The mosaic's summary names each image up to this many, else counts them."""
 
 
 def _reference(ctx: click.Context, param: click.Parameter, value: str) -> int | None:
@@ -102,7 +106,7 @@ def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
 @output_option("VIS.tif", "the visibility codes (uint8 GeoTIFF on the output grid)")
 @eps_option
 @engine_options(dtype=False)
-@overwrite_option
+@overwrite_options
 @dem_options
 def visibility(
     dem: DemInput,
@@ -112,17 +116,20 @@ def visibility(
     eps: float | None,
     engine: EngineInput,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Classify every post of the output grid (the DEM's, or --res/--bounds/--crs) for one
     camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
     Written as a uint8 GeoTIFF."""
-    check_outputs([Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite)
+    check_outputs(
+        [Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite, replace_input
+    )
     with warnings_as_lines():
         plan = _plan(dem, [(image, camera)], engine, eps=eps)
         report = _run(plan, engine, visibility=output)
     warn_partial(report, 0, str(image))
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
-    print(f"wrote {output}: {counts}")
+    say(f"wrote {output}: {sum(report.counts[0]):,} posts, {counts}")
 
 
 @click.command(cls=Command, short_help="occlusion-aware orthophoto of one image")
@@ -145,7 +152,7 @@ def visibility(
 )
 @eps_option
 @engine_options(dtype=True)
-@overwrite_option
+@overwrite_options
 @dem_options
 def ortho(
     dem: DemInput,
@@ -158,12 +165,13 @@ def ortho(
     eps: float | None,
     engine: EngineInput,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Orthorectify IMAGE through CAMERA onto the output grid (the DEM's, or
     --res/--bounds/--crs). Posts that are not visible (occluded, facing away, outside) are
     nodata unless --no-occlusion asks for the naive orthophoto."""
     outputs = [Output("-o", output), Output("--visibility", visibility_out)]
-    check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite)
+    check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite, replace_input)
     with warnings_as_lines():
         plan = _plan(
             dem, [(image, camera)], engine, occlusion=not no_occlusion, eps=eps, interp=interp
@@ -171,7 +179,7 @@ def ortho(
         report = _run(plan, engine, ortho=output, visibility=visibility_out)
     warn_partial(report, 0, str(image))
     rows, cols = plan.grid.shape
-    print(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
+    say(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
 
 
 @click.command(
@@ -246,7 +254,7 @@ def ortho(
 @interp_option
 @eps_option
 @engine_options(dtype=True)
-@overwrite_option
+@overwrite_options
 @dem_options
 def mosaic(
     dem: DemInput,
@@ -265,6 +273,7 @@ def mosaic(
     eps: float | None,
     engine: EngineInput,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
     or --res/--bounds/--crs) into one seamless mosaic: each post prefers the visible image
@@ -280,7 +289,7 @@ def mosaic(
         Output("--visibility", visibility_out),
     ]
     dem, pairs, inputs = command_views(dem, pairs, odm)
-    check_outputs(outputs, inputs, overwrite)
+    check_outputs(outputs, inputs, overwrite, replace_input)
     from orthomvp.errors import InputError
     from orthomvp.ortho.composite import MosaicOptions
 
@@ -300,11 +309,25 @@ def mosaic(
         plan = _plan(dem, pairs, engine, eps=eps, interp=interp, mosaic=options)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
     rows, cols = plan.grid.shape
-    parts = ", ".join(
-        f"{n:,} from {image}" for n, (image, _) in zip(report.taken, pairs, strict=True)
-    )
     none = rows * cols - sum(report.taken)
-    print(f"wrote {output}: {parts}; {none:,} posts from no image")
+    say(
+        f"wrote {output}: {taken_text(report.taken, [image for image, _ in pairs])}; {none:,} "
+        "posts from no image"
+    )
+
+
+def taken_text(taken: list[int], images: list[Path]) -> str:
+    """How many posts came from each image: each one named when there are at most
+    :data:`NAMED_IMAGES`, else the count of images and the range of their shares."""
+    if len(images) <= NAMED_IMAGES:
+        return ", ".join(
+            f"{n:,} posts from {image}" for n, image in zip(taken, images, strict=True)
+        )
+    used = sum(1 for n in taken if n)
+    return (
+        f"{sum(taken):,} posts from {used} of {len(images)} images (from {min(taken):,} to "
+        f"{max(taken):,} posts each)"
+    )
 
 
 def warn_partial(report: RunReport, view: int, what: str) -> None:

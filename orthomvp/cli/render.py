@@ -21,7 +21,8 @@ from orthomvp.cli.options import (
     enum_choice,
     error_limit_option,
     output_option,
-    overwrite_option,
+    overwrite_options,
+    say,
     usage_error,
 )
 from orthomvp.codes import View
@@ -104,7 +105,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
     is_flag=True,
     help="cut the empty background around the scene (the image gets smaller than --size)",
 )
-@overwrite_option
+@overwrite_options
 @dem_options
 def render(
     dem: DemInput,
@@ -126,21 +127,26 @@ def render(
     no_legend: bool,
     crop: bool,
     overwrite: bool,
+    replace_input: bool,
 ) -> None:
     """Render the DEM mesh offscreen to an image: shaded relief, or draped with an
     orthophoto, or coloured by visibility codes (occluded posts green) or by the height error
     FITTED - TRUTH (metres); cameras drawn as numbered frusta, optionally with rays to their
-    first hits."""
+    first hits. A raster on the DEM grid is draped as it is; any other georeferenced raster
+    (finer, coarser, another extent or CRS) is sampled at the posts (the texel under each
+    post; posts outside it have no value)."""
     from orthomvp.camera import read_camera
-    from orthomvp.io.raster import read_image
     from orthomvp.present.snapshot import SnapshotOptions, snapshot
+    from orthomvp.present.texture import on_dem_grid
 
     if (heights is None) != (truth is None):
         raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")
     given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
     inputs = [("DEM", dem.path)] + [(f"--{key}", path) for key, path in given.items()]
     inputs += [(f"--camera {k}", path) for k, path in enumerate(cameras, start=1)]
-    check_outputs([Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite)
+    check_outputs(
+        [Output("-o", output, IMAGE_SUFFIXES, "an image")], inputs, overwrite, replace_input
+    )
     models = [read_camera(path) for path in cameras]
     if view == View.FROM_CAMERA and not camera_index <= len(models):
         raise usage_error(
@@ -148,7 +154,11 @@ def render(
             f"files ({len(models)}), got {camera_index}"
         )
     terrain = dem.read(models)
-    rasters = {key: read_image(path) for key, path in given.items() if path is not None}
+    rasters = {
+        key: on_dem_grid(path, terrain, f"--{key} raster")
+        for key, path in given.items()
+        if path is not None
+    }
     snap = snapshot(
         terrain,
         **rasters,
@@ -173,4 +183,4 @@ def render(
         snap.close()
     height, width = snap.image.shape[:2]
     shown = next((k for k in ("ortho", "visibility", "heights") if k in rasters), "relief")
-    print(f"wrote {output}: {width} x {height} {view} view, {shown}, {len(models)} camera(s)")
+    say(f"wrote {output}: {width} x {height} px {view} view, {shown}, {len(models)} camera(s)")

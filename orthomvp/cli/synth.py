@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from orthomvp.cli.command import Command
-from orthomvp.cli.options import PATH, Number, check_outdir, quiet
+from orthomvp.cli.options import PATH, Number, check_outdir, overwrite_option, quiet, say
 
 KINDS = ("planar", "crater", "hills", "city")
 """the scene kinds of :func:`orthomvp.synthetic.make_scene` (not imported: --help stays fast)"""
@@ -32,7 +32,8 @@ SENSORS = ("frame", "linescan")
     "outdir",
     type=PATH,
     metavar="OUTDIR",
-    help="the scene directory (created if absent; nothing is written on failure)",
+    help="the scene directory (created if absent; one that holds files needs --overwrite; "
+    "nothing is written on failure)",
 )
 @click.option(
     "--size",
@@ -77,6 +78,7 @@ SENSORS = ("frame", "linescan")
     metavar="N",
     help="rays per pixel side when rendering",
 )
+@overwrite_option
 def synth(
     kind: str,
     outdir: Path,
@@ -86,18 +88,19 @@ def synth(
     seed: int,
     sensor: str,
     supersample: int,
+    overwrite: bool,
 ) -> None:
     """Write a synthetic scene: DEM GeoTIFF (heights in metres; lunar kinds above the
     1737400 m sphere, city in UTM 33N with cameras in its map frame), rendered images (float32
     TIFF), cameras (.tsai, or ISD .json for --sensor linescan: each line rendered from its own
     sensor position), truth rasters (radiance, per-camera visibility: 0 outside image, 1
     visible, 2 occluded, 3 facing away) and scene.json."""
-    from orthomvp.io.raster import atomic_dir
+    from orthomvp.io.outputs import atomic_dir
     from orthomvp.synthetic import make_scene
     from orthomvp.synthetic.kinds import DEFAULTS
     from orthomvp.synthetic.scene import check_scene_memory
 
-    check_outdir(outdir, "OUTDIR")
+    check_outdir(outdir, "OUTDIR", overwrite=overwrite)
     size = size or DEFAULTS[kind][0]
     check_scene_memory(size, gsd_ratio or DEFAULTS[kind][2], "choose a smaller --size")
     scene = make_scene(
@@ -105,4 +108,4 @@ def synth(
     )
     with atomic_dir(outdir) as tmp:
         summary = scene.write(tmp, supersample=supersample, progress=not quiet())
-    print(f"wrote {kind} scene with {len(summary['views'])} views to {outdir}")
+    say(f"wrote {kind} scene with {len(summary['views'])} views to {outdir}")

@@ -118,7 +118,8 @@ def _run_check_tile(plan: CheckPlan, index: int, threads: int) -> CheckTile:
     caster = occluder_caster(window, threads=threads)
     codes, miss, naive = {}, {}, {}
     for k in job.views:
-        vis = _visibility(base, grid, k, caster, window, threads, frozenset({"miss"}))
+        fields = frozenset({"miss"})
+        vis = _visibility(base, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = finite_rows(uv)
         value = np.full(code.shape, np.nan, np.float32)
@@ -219,7 +220,7 @@ def run_check(
     threads: int | None = None,
     processes: int | None = None,
     client: Any = None,
-    progress: bool = True,
+    progress: bool | None = None,
     inflight: int | None = None,
 ) -> CheckResult:
     """Run every tile of ``plan`` and return the check (as
@@ -228,10 +229,12 @@ def run_check(
 
     Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes, or
     on the Dask ``client``, at most ``inflight`` (default the workers; see
-    :func:`~orthomvp.engine.run.results`) at a time. A pair of views overlaps when both see at least
-    ``window`` x ``window`` of the same posts. Raises InputError before any work when the expected
-    peak memory exceeds what is available, GeometryError when no pair overlaps or a view sees only
-    posts facing away, WorkerError when a worker dies."""
+    :func:`~orthomvp.engine.run.results`) at a time; ``progress`` (progress and the plan's summary
+    on stderr) defaults to the plan's (:func:`~orthomvp.engine.plan_check`'s). A pair of views
+    overlaps when both see at least ``window`` x ``window`` of the same posts. Raises InputError
+    before any work when the expected peak memory exceeds what is available, GeometryError when
+    no pair overlaps or a view sees only posts facing away, WorkerError when a worker dies."""
+    progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
     peak = check_memory(plan, plan.peak_memory(at_once, processes or 0), at_once)

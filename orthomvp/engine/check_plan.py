@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 from orthomvp.camera import Camera
@@ -31,6 +32,7 @@ from orthomvp.engine.plan import (
 )
 from orthomvp.errors import InputError
 from orthomvp.geometry.datum import HeightOptions
+from orthomvp.occlusion.paths import Rays, VisibilityPath
 from orthomvp.validate import number
 
 DEFAULT_EPS = (1.0, 2.0, 4.0, 8.0)
@@ -59,6 +61,11 @@ class CheckPlan:
     names: tuple[str, ...]
 
     @property
+    def progress(self) -> bool:
+        """Whether a run reports progress unless told otherwise (the planner's)."""
+        return self.base.progress
+
+    @property
     def tiles(self) -> tuple[TileJob, ...]:
         return self.base.tiles
 
@@ -74,6 +81,12 @@ class CheckPlan:
     def margin(self) -> int:
         """Posts computed around every tile: the NCC box's reach."""
         return self.window // 2
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test: the base plan's, with every ray cast on the
+        whole occluder mesh (the check measures every miss)."""
+        return replace(self.base.visibility_path, rays=Rays.WHOLE_MESH)
 
     def tile_bytes(self, job: TileJob) -> int:
         """Expected peak memory of one tile in a worker, bytes (the constants above and
@@ -154,6 +167,9 @@ def plan_check(
     ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values``, ``world``,
     ``vertical_datum`` and ``height_offset`` as for :func:`~orthomvp.engine.plan_ortho`.
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_check`; False prints nothing.
+
     Reads the DEM once in blocks and the images' headers. Raises InputError for bad options,
     GeometryError when an image sees none of the DEM; warns
     (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is larger than the
@@ -191,5 +207,6 @@ def plan_check(
         1.0,
         tuple(reach),
         tuple(elevation),
+        progress=progress,
     )
     return CheckPlan(base, eps, window, labels)

@@ -129,8 +129,7 @@ def _run_fit_tile(plan: FitPlan, index: int, threads: int, progress: bool) -> Fi
                 eps=plan.eps,
                 caster=caster,
                 threads=threads,
-                spacing=plan.spacing,
-                strict=False,
+                path=plan.visibility_path,
             )
         codes = vis.codes[inner]
         result.inside[k] = int((codes != Code.NODATA).sum())
@@ -313,12 +312,15 @@ class FitReport:
     refits: int = 0
 
     def line(self, output: str | Path) -> str:
-        """The one-line summary that ``orthomvp fit`` prints."""
+        """The one-line summary that ``orthomvp fit`` prints: the change is fitted minus input
+        height over the fitted posts, the uncertainty the fitted planes' 1-sigma height
+        uncertainty (see :mod:`orthomvp.mvp.fit`), both in metres."""
         return (
             f"wrote {output}: {self.fitted:,} of {self.posts:,} posts fitted "
-            f"({self.converged:,} converged); change from the input: median "
-            f"{self.median_shift:+.2f}, RMS {self.rms_shift:.2f}; median uncertainty "
-            f"{self.median_sigma:.2f}"
+            f"({self.converged:,} converged); height change, fitted - input: median "
+            f"{self.median_shift:+.2f} m, RMS {self.rms_shift:.2f} m; median 1-sigma height "
+            f"uncertainty {self.median_sigma:.2f} m (from the plane fit's covariance and "
+            "residual)"
         )
 
 
@@ -329,7 +331,7 @@ def run_fit(
     threads: int | None = None,
     processes: int | None = None,
     client: Any = None,
-    progress: bool = True,
+    progress: bool | None = None,
     inflight: int | None = None,
 ) -> FitReport:
     """Fit every tile of ``plan`` and write ``outputs`` (all of them, or none).
@@ -337,10 +339,12 @@ def run_fit(
     Tiles run in ``threads`` threads (default one per core), or ``processes`` worker processes, or
     on the Dask ``client``, at most ``inflight`` (default the workers; see
     :func:`~orthomvp.engine.run.results`) at a time; with fewer tiles than threads each tile fits
-    with several threads (and, alone, shows the fitter's own progress). Raises InputError before any
-    work when the expected peak memory exceeds what is available, GeometryError (writing nothing)
-    when no post is visible in 2 or more images or an image sees only posts facing away, WorkerError
-    (writing nothing) when a worker dies."""
+    with several threads (and, alone, shows the fitter's own progress). ``progress``: progress and
+    the plan's summary on stderr; default as the plan was made (:func:`plan_fit`'s). Raises
+    InputError before any work when the expected peak memory exceeds what is available,
+    GeometryError (writing nothing) when no post is visible in 2 or more images or an image sees
+    only posts facing away, WorkerError (writing nothing) when a worker dies."""
+    progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
     peak = check_memory(plan, plan.peak_memory(at_once, processes or 0, inner), at_once)

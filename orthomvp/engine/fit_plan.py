@@ -34,6 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +65,7 @@ from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
+from orthomvp.occlusion.paths import Rays, VisibilityPath
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""
@@ -123,7 +125,8 @@ class FitPlan:
     pyramid level) of the whole image, the tiles, the ``options`` (``levels`` the pyramid
     levels of the whole images), ``eps`` of the visibility test, ``spacing`` the DEM's mean
     post spacing in metres, ``margin`` the deconvolution's reach in posts, and per view
-    ``reach`` and ``elevation`` of the occluder halos (as :class:`~orthomvp.engine.Plan`)."""
+    ``reach`` and ``elevation`` of the occluder halos (as :class:`~orthomvp.engine.Plan`);
+    ``progress`` whether a run reports progress unless told otherwise (the planner's)."""
 
     dem: DemSource
     grid: OutputGrid
@@ -137,10 +140,18 @@ class FitPlan:
     margin: int
     reach: tuple[float, ...]
     elevation: tuple[float, ...]
+    progress: bool = True
 
     @property
     def levels(self) -> int:
         return self.options.levels
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test (:mod:`orthomvp.occlusion.paths`): the numpy
+        separable geometry, every ray cast on the whole occluder mesh of the tile's window, the
+        DEM's :attr:`spacing`, and tiles that may see no post."""
+        return VisibilityPath(rays=Rays.WHOLE_MESH, spacing=self.spacing, strict=False)
 
     def tile_bytes(self, job: FitJob, threads: int = 1) -> int:
         """Expected peak memory of one tile in a worker with ``threads`` threads, bytes."""
@@ -174,8 +185,8 @@ class FitPlan:
             r0, r1, c0, c1 = max((w for job in run for w in job.images), key=_posts)
             windows += f", image windows up to {c1 - c0:,} x {r1 - r0:,} px"
         return (
-            f"plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} tiles of "
-            f"{self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "
+            f"orthomvp: plan: fit {cols:,} x {rows:,} posts, {len(run)} of {len(self.tiles)} "
+            f"tiles of {self.tile} x {self.tile} to run, {len(self.views)} images, {self.levels} "
             f"pyramid level(s); tiles read {self.margin + 1} posts around them and an occluder "
             f"halo up to {max(self.reach, default=0.0):.0f} posts{windows}; expected peak "
             f"memory {peak / 2**30:.2f} GiB with {workers} tile(s) at a time"
@@ -286,6 +297,9 @@ def plan_fit(
     the DEM's vertical datum, written under its whole CRS, when they are the file's (the map
     frame), else under its horizontal CRS (:meth:`~orthomvp.engine.grid.DemSource.heights_crs`).
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_fit`; False prints nothing.
+
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
     cameras. Raises InputError for bad options and GeometryError when an image sees none of
     the DEM; warns (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is
@@ -345,4 +359,5 @@ def plan_fit(
         margin,
         tuple(reach),
         tuple(elevation),
+        progress,
     )

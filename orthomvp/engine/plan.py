@@ -32,7 +32,9 @@ from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
-from orthomvp.ortho.composite import FUSED_POSTS, Correction, MosaicOptions
+from orthomvp.occlusion.paths import Geometry, Rays, VisibilityPath
+from orthomvp.ortho.balance import Correction
+from orthomvp.ortho.composite import FUSED_POSTS, MosaicOptions
 from orthomvp.ortho.orthophoto import INTERPOLATION
 
 Box = tuple[float, float, float, float]
@@ -118,7 +120,8 @@ class Plan:
     ``reach`` and ``elevation`` per view: the farthest occluder track in DEM posts and the
     lowest line of sight in degrees over all tiles. ``mosaic`` (two views or more) says how
     views combine, ``correction`` the radiometric balance found by
-    :func:`orthomvp.engine.survey.survey`."""
+    :func:`orthomvp.engine.survey.survey`; ``progress`` whether a run reports progress unless
+    told otherwise (the planner's)."""
 
     dem: DemSource
     grid: OutputGrid
@@ -134,6 +137,7 @@ class Plan:
     elevation: tuple[float, ...]
     mosaic: MosaicOptions | None = None
     correction: Correction | None = None
+    progress: bool = True
 
     @property
     def bands(self) -> int:
@@ -154,6 +158,18 @@ class Plan:
             return False
         windows = (job.window for job in self.tiles if job.views)
         return sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in windows) >= FUSED_POSTS
+
+    @cached_property
+    def visibility_path(self) -> VisibilityPath:
+        """The way of every tile's visibility test (:mod:`orthomvp.occlusion.paths`): the numba
+        kernel's geometry where the plan runs the kernels (:attr:`fused`), else the numpy
+        separable one; rays proved clear where they can be (a mosaic's misses matter only to
+        its doubt, which a proved post cannot have); the DEM's :attr:`spacing`, and tiles that
+        may see no post."""
+        geometry = Geometry.SEPARABLE_KERNEL if self.fused else Geometry.SEPARABLE
+        return VisibilityPath(
+            geometry=geometry, rays=Rays.PROVED, spacing=self.spacing, strict=False
+        )
 
     def extent(self, job: TileJob) -> WindowT:
         """The posts a tile computes: its window grown by :attr:`margin`, within the grid."""
@@ -344,6 +360,9 @@ def plan_ortho(
     :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); every tile then
     computes its posts plus the options' margin, so tiles join as one untiled run would.
 
+    ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
+    :func:`~orthomvp.engine.run_plan`; False prints nothing.
+
     Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
     sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
     larger than the DEM.
@@ -395,6 +414,7 @@ def plan_ortho(
         tuple(reach),
         tuple(elevation),
         mosaic,
+        progress=progress,
     )
 
 

@@ -30,7 +30,7 @@ from orthomvp.engine.writer import Outputs, output_set
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
 from orthomvp.io.raster import held_rasters
 from orthomvp.optional import require
-from orthomvp.ortho.composite import Correction
+from orthomvp.ortho.balance import Correction
 
 
 class WorkerError(OrthoMVPError):
@@ -313,7 +313,7 @@ def run_plan(
     threads: int | None = None,
     processes: int | None = None,
     client: Any = None,
-    progress: bool = True,
+    progress: bool | None = None,
     inflight: int | None = None,
 ) -> RunReport:
     """Run every tile of ``plan`` and write ``outputs``.
@@ -321,7 +321,9 @@ def run_plan(
     Tiles run in ``threads`` threads (default: one per core), or in ``processes`` worker processes,
     or on the Dask ``client`` (see :func:`dask_client`); at most ``inflight`` tiles (default: the
     workers) run or wait to run at a time (see :func:`results`). A plain ``threads`` run gives each
-    tile ``threads // tiles`` threads when there are fewer tiles than threads.
+    tile ``threads // tiles`` threads when there are fewer tiles than threads. ``progress``: a
+    progress bar (or log lines) and the plan's summary on stderr; default as the plan was made
+    (:func:`~orthomvp.engine.plan_ortho`'s ``progress``).
 
     A mosaic plan with blending or balancing first runs its survey
     (:func:`orthomvp.engine.survey.survey`): the balance's statistics and the widest overlap of the
@@ -330,6 +332,7 @@ def run_plan(
     Raises InputError before any work when the expected peak memory exceeds what is available,
     GeometryError (and writes nothing) when an image sees no post of the grid or only posts facing
     away, and WorkerError (writing nothing) when a worker dies."""
+    progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
     kinds = frozenset(outputs.paths())

@@ -1,7 +1,7 @@
 """The mosaic's survey, before its tiles, on a decimated copy of the output grid (at most
 :data:`SURVEY_POSTS` posts a side, so memory is bounded whatever the grid): every view's samples
 and codes for the radiometric balance (overlap statistics,
-:func:`orthomvp.ortho.composite.solve_balance`), and the widest overlap of the images' footprints
+:func:`orthomvp.ortho.balance.solve_balance`), and the widest overlap of the images' footprints
 (the blend width is clamped to it, with a
 :class:`~orthomvp.ortho.composite.BlendWarning`). Without a balance only the footprints are needed:
 the survey then casts no rays and samples no image.
@@ -17,7 +17,8 @@ import numpy as np
 
 from orthomvp.engine.grid import grid_to_dem, output_grid
 from orthomvp.engine.plan import Plan, _grid_spacing, _job, plan_tiles
-from orthomvp.ortho.composite import clamp_blend, overlap_width, pair_stats, solve_balance
+from orthomvp.ortho.balance import pair_stats, solve_balance
+from orthomvp.ortho.composite import clamp_blend, overlap_width
 
 SURVEY_POSTS = 512
 """Posts along the longer side of the survey grid for a balance (at most)."""

@@ -25,9 +25,11 @@ from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJ
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import column_range, finite_rows
 from orthomvp.occlusion.occluders import Occluders
+from orthomvp.occlusion.paths import VisibilityPath
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import Visibility, compute_visibility
-from orthomvp.ortho.composite import Correction, compose, doubtful, nadir_angle
+from orthomvp.ortho.balance import Correction
+from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 
 
@@ -271,7 +273,9 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
         for k in job.views:
             view = plan.views[k]
             with _timed(seconds, "visibility"):
-                vis = _visibility(plan, grid, k, caster, window, threads, fields)
+                vis = _visibility(
+                    plan, grid, k, caster, window, threads, fields, plan.visibility_path
+                )
             codes, uv, emission = vis.codes[inner], vis.uv[inner], vis.emission[inner]
             _record_codes(result, k, codes)
             keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
@@ -319,25 +323,22 @@ def _visibility(
     window: Terrain,
     threads: int,
     fields: frozenset[str],
-    prove: bool | None = None,
+    path: VisibilityPath,
 ) -> Visibility:
     """View ``k``'s visibility on ``grid`` (occluders from the DEM ``window``), with the
-    optional ``fields`` and ``prove`` of
-    :func:`~orthomvp.occlusion.visibility.compute_visibility`."""
+    optional ``fields`` of :func:`~orthomvp.occlusion.visibility.compute_visibility`, on the
+    plan's ``path``."""
     return compute_visibility(
         grid,
         plan.views[k].camera,
         eps=plan.eps,
         caster=caster,
-        threads=threads,
-        post_scale=plan.post_scale,
         occlusion=plan.occlusion,
-        spacing=plan.spacing,
-        strict=False,
-        dem=window,
         fields=fields,
-        fused=plan.fused,
-        prove=prove,
+        dem=window,
+        post_scale=plan.post_scale,
+        threads=threads,
+        path=path,
     )
 
 
@@ -389,8 +390,7 @@ def _mosaic_tile(
     fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
-            # (a view's misses matter only to its doubt, which a proved post cannot have)
-            vis = _visibility(plan, grid, k, caster, window, threads, fields, prove=True)
+            vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:

@@ -27,7 +27,9 @@ from orthomvp.engine.overviews import AVERAGE, halve, window_level
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
-from orthomvp.io.raster import atomic_paths, check_written, scratch_path, writing
+from orthomvp.io.outputs import atomic_paths, scratch_path
+from orthomvp.io.raster import check_written
+from orthomvp.io.write_errors import writing
 
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
@@ -191,7 +193,7 @@ class _Output:
     """One output being written: its dataset open for windowed writes, and for a COG one per
     overview level (``levels``: the file of each level's factor). Every step that writes
     reports a failure as one OutputError naming the output (see
-    :func:`orthomvp.io.raster.writing`)."""
+    :func:`orthomvp.io.write_errors.writing`)."""
 
     def __init__(
         self,

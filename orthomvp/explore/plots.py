@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from orthomvp.explore.session import Curve, ExploreError, PathPoint, Surface
-from orthomvp.io.raster import write_set
+from orthomvp.io.outputs import write_set
 
 FORMATS = ("png", "svg", "pdf")
 

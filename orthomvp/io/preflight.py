@@ -1,5 +1,6 @@
-"""Memory preflight: refuse, before any work, a job that cannot fit in memory, with one line
-that says how big it is and what to change ("this grid is 1.6e11 posts, about 370 GiB; ...").
+"""Memory and disk preflight: refuse, before any work, a job that cannot fit in memory, with one
+line that says how big it is and what to change ("this grid is 1.6e11 posts, about 370 GiB;
+..."), and an output whose disk has no space left (:func:`check_space`).
 
 The estimates are the peak memory of each job, measured on this project's machine and rounded
 up (see the constants beside each caller); they are meant to catch sizes that are off by
@@ -10,8 +11,10 @@ from __future__ import annotations
 
 import os
 import resource
+import shutil
+from pathlib import Path
 
-from orthomvp.errors import InputError
+from orthomvp.errors import InputError, OutputError
 
 BASE = 300 << 20
 """What the process itself needs (Python, numpy, GDAL, Embree), bytes."""
@@ -70,3 +73,25 @@ def count_text(n: float) -> str:
         return f"{n:,.0f}"
     mantissa, exponent = f"{n:.1e}".split("e")
     return f"{mantissa.removesuffix('.0')}e{int(exponent)}"
+
+
+def disk_size_text(size: int) -> str:
+    """``size`` bytes in kB, MB or GB (powers of 1000, as file sizes and free space are
+    given in messages about outputs)."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6)):
+        if size >= scale:
+            return f"{size / scale:.3g} {unit}"
+    return f"{max(size, 1) / 1e3:.3g} kB"
+
+
+def check_space(path: str | Path, need: int = 0) -> None:
+    """OutputError unless the file system of ``path``'s directory has ``need`` bytes (and at
+    least one) free."""
+    path = Path(path)
+    try:
+        free = shutil.disk_usage(path.parent).free
+    except OSError:
+        return  # the directory is checked elsewhere
+    if free < max(need, 1):
+        note = f" (needs about {disk_size_text(need)}, {disk_size_text(free)} free)" if need else ""
+        raise OutputError(f"cannot write {path}: no space left on device{note}")

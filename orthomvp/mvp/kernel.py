@@ -10,10 +10,9 @@ derivatives are float32 as in the numpy objective; derivatives and sums over sam
 float64.
 
 numba is imported here (and in :mod:`orthomvp.jit`) only, and this module only when the fitter first
-evaluates; the first call compiles (a few seconds, see ``orthomvp bench``) into numba's cache:
-beside this file when its directory is writable, else the user's cache directory
-(``~/.cache/numba``) or ``NUMBA_CACHE_DIR``; without any writable place it compiles in every
-process."""
+evaluates; the first call compiles (a few seconds, see ``orthomvp bench``) into numba's cache
+in the user's cache folder (:func:`orthomvp.jit.cache_dir`); without a writable one it compiles
+in every process."""
 
 from __future__ import annotations
 

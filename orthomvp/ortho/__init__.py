@@ -1,7 +1,8 @@
 """Making the picture. Orthophotos that leave occluded posts empty and mosaics that fill them
 from the views that see them (:mod:`.orthophoto`); the mosaic's composition: trust, seamlines,
-feathering, radiometric balance and the hole policy (:mod:`.composite`, with the fused numba
-kernel :mod:`.composite_kernel` that its numpy code tests). Its names are imported on first use."""
+feathering and the hole policy (:mod:`.composite`, with the fused numba kernel
+:mod:`.composite_kernel` that its numpy code tests), after the views' radiometric balance
+(:mod:`.balance`). Its names are imported on first use."""
 
 from typing import TYPE_CHECKING
 

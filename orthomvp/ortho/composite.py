@@ -1,5 +1,6 @@
-"""Mosaic composition: source priority, seamlines, feathered blending, radiometric balancing
-and the hole policy, on per-view stacks of one window (a tile with its margin, or a whole grid).
+"""Mosaic composition: source priority, seamlines, feathered blending and the hole policy, on
+per-view stacks of one window (a tile with its margin, or a whole grid), after the radiometric
+balance of :mod:`orthomvp.ortho.balance`.
 
 Every decision at a post depends only on the posts within :meth:`MosaicOptions.margin` of it,
 and the sums behind them are exact integers, so a tile computed with that margin around it
@@ -42,6 +43,7 @@ from orthomvp.camera import Camera
 from orthomvp.codes import DOUBT, Code
 from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
+from orthomvp.ortho.balance import BALANCES, Correction
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 """Which view a post prefers: smallest emission angle (surface normal to camera), finest
@@ -52,10 +54,6 @@ FILLS = ("none", "any-view", "naive")
 """Hole policy: leave empty; the least-bad view that sees the post's side or not (facing away,
 never occluded; least priority cost); the naive value of the nadir-most view imaging it
 (occluded included: a ghost, flagged)."""
-
-BALANCES = ("gain", "gain-offset")
-"""Radiometric balancing: one gain per image and band (means matched on overlaps), or a gain
-(standard deviations matched) and an offset (means matched)."""
 
 SEAM_RADIUS = 4
 """Posts around a post whose costs decide its label."""
@@ -79,8 +77,8 @@ it (:func:`trusted`)."""
 
 FUSED_POSTS = 2_000_000
 """Posts of a mosaic from which it runs the numba kernels: :func:`compose`'s (``fused``) and
-the visibility test's geometry (:func:`orthomvp.occlusion.visibility.compute_visibility`'s
-``fused``). Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts
+the visibility test's geometry (:attr:`orthomvp.occlusion.paths.Geometry.SEPARABLE_KERNEL`).
+Loading them costs about 0.3 s a process. Four ngi-aerial frames, whole process, posts
 of the tiles with views: 2.0 M (6 m) 1.32-1.38 s with them against 1.46-1.59 s without; 1.1 M
 (8 m) 1.09-1.16 against 1.03-1.12 s; 0.51 M (12 m) 0.94-0.96 against 0.79-0.80 s."""
 
@@ -102,8 +100,8 @@ class Flag(IntEnum):
 class MosaicOptions:
     """How views combine: ``priority`` (:data:`PRIORITIES`), ``seamlines`` (False: each post
     from its best view alone), ``blend`` width in posts (0: hard seams), ``balance`` (None or
-    one of :data:`BALANCES`) with ``reference`` the 0-based view held fixed (None: the mean
-    gain is 1 and the mean offset 0), and ``fill`` (:data:`FILLS`)."""
+    one of :data:`~orthomvp.ortho.balance.BALANCES`) with ``reference`` the 0-based view held
+    fixed (None: the mean gain is 1 and the mean offset 0), and ``fill`` (:data:`FILLS`)."""
 
     priority: str = "emission"
     seamlines: bool = True
@@ -135,20 +133,6 @@ class MosaicOptions:
         (2 :data:`SEAM_RADIUS`) and the blend box (``blend // 2``)."""
         seams = 2 * SEAM_RADIUS if self.seamlines else 0
         return TRUST_RADIUS + seams + self.blend // 2
-
-
-@dataclass(frozen=True)
-class Correction:
-    """Per view and band: corrected = ``gains`` * value + ``offsets`` ((views, bands))."""
-
-    gains: np.ndarray
-    offsets: np.ndarray
-
-    def apply(self, values: np.ndarray) -> np.ndarray:
-        """``values`` (views, bands, ...) corrected, float32."""
-        shape = self.gains.shape + (1,) * (values.ndim - 2)
-        out = values * self.gains.reshape(shape) + self.offsets.reshape(shape)
-        return out.astype(np.float32)
 
 
 @dataclass
@@ -390,92 +374,6 @@ def compose(
         flags[got] = flag
         label = np.where(got, fill, label)
     return Composite(data, (label + 1).astype(np.int64), flags, weights)
-
-
-def pair_stats(values: np.ndarray, codes: np.ndarray) -> np.ndarray:
-    """Overlap statistics (views, views, bands, 5) float64: for each ordered pair (i, j) and
-    band, the posts both see, the sums of i's and of j's values, and of their squares (over
-    the posts of that pair), from ``values`` (views, bands, rows, cols) and ``codes``."""
-    n, bands = values.shape[:2]
-    visible = (codes == Code.VISIBLE) & np.isfinite(values).all(axis=1)
-    out = np.zeros((n, n, bands, 5))
-    for i in range(n):
-        for j in range(n):
-            both = visible[i] & visible[j]
-            if i == j or not both.any():
-                continue
-            a = values[i][:, both].astype(np.float64)
-            b = values[j][:, both].astype(np.float64)
-            out[i, j] = np.stack(
-                [np.full(bands, both.sum()), a.sum(1), b.sum(1), (a * a).sum(1), (b * b).sum(1)],
-                axis=1,
-            )
-    return out
-
-
-def _constrained(
-    rows: list[tuple[float, dict[int, float]]], n: int, reference: int | None
-) -> np.ndarray:
-    """Least squares of ``rows`` ((right-hand side, {unknown: coefficient})) over ``n``
-    unknowns x, with x[reference] = its target or (None) the unknowns' mean at the target;
-    targets are the rows' natural values: 1 for gains, 0 for offsets, given by the caller as
-    the last row (coefficient 1 of every unknown, or of the reference)."""
-    *eqs, (target, _) = rows
-    a = np.zeros((len(eqs) + n, n))
-    y = np.zeros(len(eqs) + n)
-    for m, (rhs, coef) in enumerate(eqs):
-        y[m] = rhs
-        for k, v in coef.items():
-            a[m, k] = v
-    # a faint pull of every unknown towards the target keeps views without overlaps defined
-    scale = 1e-6 * max(float(np.abs(a).max()), 1.0)
-    a[len(eqs) :] = scale * np.eye(n)
-    y[len(eqs) :] = scale * target
-    c = np.zeros((1, n))
-    if reference is None:
-        c[0] = 1.0 / n
-    else:
-        c[0, reference] = 1.0
-    kkt = np.block([[2 * a.T @ a, c.T], [c, np.zeros((1, 1))]])
-    rhs = np.concatenate([2 * a.T @ y, [target]])
-    return np.linalg.solve(kkt, rhs)[:n]
-
-
-def solve_balance(stats: np.ndarray, mode: str, reference: int | None) -> Correction:
-    """Per-view gains and offsets from :func:`pair_stats` (summed over windows): for every
-    overlapping pair, weighted by the root of its posts, gains match the means (``mode``
-    "gain") or the standard deviations ("gain-offset", whose offsets then match the means),
-    with view ``reference`` held fixed (gain 1, offset 0) or the mean gain 1 and offset 0."""
-    n, _, bands, _ = stats.shape
-    if reference is not None and reference >= n:
-        raise InputError(f"balance reference {reference + 1} is not one of the {n} views")
-    gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
-    for b in range(bands):
-        mean, std, weight = {}, {}, {}
-        for i in range(n):
-            for j in range(i + 1, n):
-                cnt, si, sj, qi, qj = stats[i, j, b]
-                if cnt < 2:
-                    continue
-                mean[i, j] = (si / cnt, sj / cnt)
-                std[i, j] = (
-                    np.sqrt(max(qi / cnt - (si / cnt) ** 2, 0.0)),
-                    np.sqrt(max(qj / cnt - (sj / cnt) ** 2, 0.0)),
-                )
-                weight[i, j] = np.sqrt(cnt)
-        match = std if mode == "gain-offset" else mean
-        rows = [
-            (0.0, {i: w * match[i, j][0], j: -w * match[i, j][1]}) for (i, j), w in weight.items()
-        ]
-        gains[:, b] = _constrained([*rows, (1.0, {})], n, reference)
-        if mode == "gain-offset":
-            g = gains[:, b]
-            rows = [
-                (-w * (g[i] * mean[i, j][0] - g[j] * mean[i, j][1]), {i: w, j: -w})
-                for (i, j), w in weight.items()
-            ]
-            offsets[:, b] = _constrained([*rows, (0.0, {})], n, reference)
-    return Correction(gains, offsets)
 
 
 def overlap_width(codes: np.ndarray, step: float = 1.0) -> float:

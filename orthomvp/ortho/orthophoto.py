@@ -27,6 +27,7 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.io.preflight import check_memory, count_text
+from orthomvp.occlusion.paths import Geometry, VisibilityPath
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import (
     VISIBILITY_BYTES_PER_POST,
@@ -34,17 +35,15 @@ from orthomvp.occlusion.visibility import (
     compute_visibility,
     occluder_caster,
 )
+from orthomvp.ortho.balance import Correction, pair_stats, solve_balance
 from orthomvp.ortho.composite import (
     FUSED_POSTS,
-    Correction,
     MosaicOptions,
     clamp_blend,
     compose,
     doubtful,
     nadir_angle,
     overlap_width,
-    pair_stats,
-    solve_balance,
 )
 from orthomvp.validate import of_type
 
@@ -254,10 +253,11 @@ def mosaic(
     visibilities = []
     whole = (slice(None), slice(None))
     fused = codes[0].size >= FUSED_POSTS  # (the numba kernels pay for their load)
+    path = VisibilityPath(geometry=Geometry.SEPARABLE_KERNEL if fused else Geometry.SEPARABLE)
     for k, (image, camera) in enumerate(views):
         camera = check_image(image, camera)
         vis = compute_visibility(
-            terrain, camera, eps=eps, caster=caster, progress=progress, fused=fused
+            terrain, camera, eps=eps, caster=caster, progress=progress, path=path
         )
         visibilities.append(vis)
         codes[k], emission[k], gsd[k] = vis.codes, vis.emission, vis.gsd

@@ -5,13 +5,18 @@ Three kinds of raster are coloured (:data:`COLOUR_KINDS`):
 - ``"image"``: grey (1 band) or RGB (the first 3 of 3 or more bands). uint8 is taken as it is;
   other data is stretched between its 1st and 99th percentiles.
 - ``"visibility"``: one band of :class:`orthomvp.codes.Code` values (NaN counts as no data), in
-  the fixed colours :data:`orthomvp.codes.CODE_RGB` (occluded green).
+  the fixed colours :data:`orthomvp.codes.CODE_RGB` (occluded green, facing away orange).
 - ``"error"``: one band of height errors in metres, on the diverging colour map
   :data:`ERROR_CMAP` from ``-limit`` (blue) through 0 (white) to ``+limit`` (red), clipped.
 
 Posts without a value (NaN) are :data:`NAN_RGB` in every kind. Rasters are (rows, cols),
 (rows, cols, bands) or band-first (bands, rows, cols), as :func:`orthomvp.io.raster.read_image`
 reads them; colours are RGB uint8.
+
+This module and :mod:`orthomvp.codes` are the one palette of the maps, snapshots, meshes and
+pages: one colour per meaning (light grey visible, green occluded, orange facing away, violet no
+data or no value, red too high and blue too low), cameras in colours apart from those, and
+heights on their own sequential scale (:data:`HEIGHT_CMAP`) with a colour bar in metres.
 """
 
 from __future__ import annotations
@@ -25,10 +30,16 @@ from orthomvp.validate import number
 
 COLOUR_KINDS = ("image", "visibility", "error")
 ERROR_CMAP = "RdBu_r"
-"""Matplotlib colour map of height errors: negative blue, zero white, positive red."""
-NAN_RGB = (48, 48, 54)
+"""Matplotlib colour map of height errors: negative (too low) blue, zero white, positive (too
+high) red."""
+HEIGHT_CMAP = "cividis"
+"""Matplotlib colour map of heights (elevation) in maps: low dark blue-grey to high yellow."""
+NAN_RGB = Code.NODATA.rgb
 """RGB uint8 of posts without a value (an empty orthophoto post, an unknown height error),
-dark grey."""
+violet: the colour of the no-data code (no grey, which images and relief use)."""
+CAMERA_COLOURS = ("#ffd21f", "#ff4fd8", "#4fc3ff", "#ffffff")
+"""Colours of cameras in 3D snapshots (frusta, labels, rays and their hits), in turn: none of
+them green (occluded), orange (facing away), violet (no data) or red (too high)."""
 
 
 def raster_bands(data: np.ndarray, shape: tuple[int, int], name: str = "raster") -> np.ndarray:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.errors import InputError
-from orthomvp.io.raster import atomic_path, write_set
+from orthomvp.io.outputs import atomic_path, write_set
 from orthomvp.occlusion.mesh import TerrainMesh
 from orthomvp.optional import require
 from orthomvp.present.colours import NAN_RGB, post_colours
@@ -33,6 +33,7 @@ def export_mesh(
     target_triangles: int | None = None,
     colour_kind: str = "image",
     error_limit: float | None = None,
+    texture_image: np.ndarray | None = None,
 ) -> None:
     """Write the mesh as PLY (vertex colours), OBJ or GLB (image texture, UVs from the grid).
 
@@ -40,7 +41,10 @@ def export_mesh(
     raster on the DEM grid, coloured as ``colour_kind`` says (see
     :func:`orthomvp.present.colours.post_colours`, whose ``limit`` is ``error_limit``). OBJ
     writes its material (NAME.mtl) and texture image (NAME.png) beside it; GLB embeds the image
-    and keeps float32 vertices local, the origin being its node's transform. With
+    and keeps float32 vertices local, the origin being its node's transform. Their image has
+    one texel per post, or is ``texture_image`` when given: a raster over the DEM grid's
+    extent ``k`` times finer ((bands, k * rows, k * cols), as
+    :func:`orthomvp.present.texture.finer_grid` samples it), coloured as ``texture``. With
     ``target_triangles`` the mesh is first decimated with Open3D; the colours then travel as
     vertex colours in every format. Files are written atomically.
     """
@@ -61,7 +65,12 @@ def export_mesh(
         if colours is not None and suffix == ".ply":
             mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
         elif colours is not None:
-            mesh.visual = _texture_visuals(tmesh, colours[:, :3], path.stem)
+            image = None
+            if texture_image is not None:
+                fine = np.shape(texture_image)[-2:]
+                image = post_colours(texture_image, fine, colour_kind, error_limit)
+                image = image.reshape(*fine, 3)
+            mesh.visual = _texture_visuals(tmesh, colours[:, :3], path.stem, image)
     offset = np.zeros(3) if local else tmesh.origin
     if suffix == ".glb":
         # glTF vertices are float32 (0.12 m at lunar radius): keep them local and carry the
@@ -80,17 +89,20 @@ def export_mesh(
 
 
 def _texture_visuals(
-    tmesh: TerrainMesh, rgb: np.ndarray, name: str
+    tmesh: TerrainMesh, rgb: np.ndarray, name: str, fine: np.ndarray | None = None
 ) -> trimesh.visual.TextureVisuals:
     """A texture image on the DEM grid (one texel per post, posts outside the mesh
-    :data:`~orthomvp.present.colours.NAN_RGB`) from per-vertex ``rgb``, in a material ``name``."""
+    :data:`~orthomvp.present.colours.NAN_RGB`) from per-vertex ``rgb``, or the RGB image
+    ``fine`` (k * rows, k * cols, 3) over the grid's extent, in a material ``name``."""
     from PIL import Image
 
     trimesh = require("trimesh", "mesh export")
-    rows, cols = tmesh.grid_shape
-    img = np.full((rows * cols, 3), NAN_RGB, np.uint8)
-    img[tmesh.vertex_post] = rgb
-    image = Image.fromarray(img.reshape(rows, cols, 3))
+    if fine is None:
+        rows, cols = tmesh.grid_shape
+        img = np.full((rows * cols, 3), NAN_RGB, np.uint8)
+        img[tmesh.vertex_post] = rgb
+        fine = img.reshape(rows, cols, 3)
+    image = Image.fromarray(fine)
     # Name the material (and so the OBJ's texture file) after the output file, so that two
     # meshes exported to one directory do not share one 'material_0.png'. A white diffuse colour
     # (glTF base colour factor) and no specular shine leave the texture's colours as they are;
@@ -134,7 +146,7 @@ def write_ply(mesh: trimesh.Trimesh, path: str | Path) -> None:
 
 def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
     """OBJ with its material and texture image beside it, atomic as a set: all files are
-    renamed only when all were written (see :func:`orthomvp.io.raster.write_set`)."""
+    renamed only when all were written (see :func:`orthomvp.io.outputs.write_set`)."""
     from trimesh.exchange.obj import export_obj
 
     text, files = export_obj(

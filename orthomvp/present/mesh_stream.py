@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import rasterio
 from rasterio.enums import Resampling
-from rasterio.windows import Window
 
 from orthomvp.engine.grid import DemSource
 from orthomvp.errors import InputError
-from orthomvp.io.raster import atomic_path, open_raster
+from orthomvp.io.outputs import atomic_path
+from orthomvp.io.raster import open_raster
 from orthomvp.occlusion.mesh import cell_triangles, grid_triangles, points_down
 from orthomvp.present.colours import (
     CODE_RGB,
@@ -35,6 +35,7 @@ from orthomvp.present.colours import (
     image_colours,
     visibility_codes,
 )
+from orthomvp.present.texture import TextureSampler
 
 BLOCK_POSTS = 1 << 22
 """DEM posts (at most) of one block of rows."""
@@ -136,26 +137,28 @@ def _winding(dem: DemSource, origin: np.ndarray) -> bool:
     raise InputError(f"{dem.path}: no grid cell has four valid posts; nothing to mesh")
 
 
-def image_stretch(path: Path, shape: tuple[int, int]) -> Colours:
-    """Colours of a texture raster on the DEM grid of ``shape``, as the ``mesh`` command gives
-    them (:func:`~orthomvp.present.colours.image_colours` of the raster read as float32: grey
-    or RGB, stretched from the 1st to the 99th percentile, NaN posts grey)."""
-    with open_raster(path) as src:
-        if (src.height, src.width) != shape:
-            raise InputError(f"{path}: the texture raster is not on the DEM grid {shape}")
-        if src.count == 2:
-            raise InputError("the texture raster must have 1 band (grey) or 3 or more (RGB), not 2")
-        bands = list(range(1, min(src.count, 3) + 1))
-        sample = _sample(src, bands)
+def image_stretch(texture: TextureSampler) -> Colours:
+    """Colours of a ``texture`` raster at the DEM's posts, as the ``mesh`` command gives them
+    (:func:`~orthomvp.present.colours.image_colours` of the raster read as float32: grey or
+    RGB, stretched from the 1st to the 99th percentile of its values at the posts, NaN posts
+    and posts outside it grey). A raster on the DEM grid takes its statistics from its own
+    values (:func:`_sample`), any other from its values at the DEM's posts (every post, or
+    a regular subset of about :data:`STATS_POSTS`)."""
+    if texture.count == 2:
+        raise InputError("the texture raster must have 1 band (grey) or 3 or more (RGB), not 2")
+    bands = list(range(1, min(texture.count, 3) + 1))
+    if texture.on_grid:
+        with open_raster(texture.path) as src:
+            sample = _sample(src, bands)
+    else:
+        sample = _posts_sample(texture, bands)
     filled = np.isfinite(sample).all(axis=1)
     if not filled.any():
-        raise InputError("the texture raster holds no valid values")
+        raise InputError("the texture raster holds no valid values at the DEM's posts")
     stretch = tuple(np.percentile(sample[filled], [1, 99]))
 
     def colours(r0: int, r1: int, used: np.ndarray) -> np.ndarray:
-        with open_raster(path) as src:
-            data = src.read(bands, window=Window(0, r0, shape[1], r1 - r0), masked=True)
-        values = np.ma.filled(data.astype(np.float32), np.nan)
+        values = texture.read(r0, r1, bands)
         out = np.full((int(used.sum()), 4), 255, np.uint8)
         out[:, :3] = image_colours(values, "texture raster", stretch=stretch)[used.ravel()]
         return out
@@ -173,14 +176,22 @@ def _sample(src: rasterio.DatasetReader, bands: list[int]) -> np.ndarray:
     return values.reshape(len(bands), -1).T
 
 
-def code_colours(path: Path, shape: tuple[int, int]) -> Colours:
-    """Colours of a visibility raster (codes 0-3) on the DEM grid of ``shape``."""
+def _posts_sample(texture: TextureSampler, bands: list[int]) -> np.ndarray:
+    """Values (n, bands) of ``bands`` of the ``texture`` at the DEM's posts: every post, or
+    every ``step``-th post of every ``step``-th row of a grid of more than
+    :data:`STATS_POSTS`."""
+    rows, cols = texture.shape
+    step = max(1, int(np.ceil(np.sqrt(rows * cols / STATS_POSTS))))
+    r, c = np.mgrid[0:rows:step, 0:cols:step]
+    return texture.at(c.ravel(), r.ravel(), bands).astype(np.float64).T
+
+
+def code_colours(texture: TextureSampler) -> Colours:
+    """Colours of a visibility raster (codes 0-3) at the DEM's posts (code 0, no data, outside
+    the raster)."""
 
     def colours(r0: int, r1: int, used: np.ndarray) -> np.ndarray:
-        with open_raster(path) as src:
-            if (src.height, src.width) != shape:
-                raise InputError(f"{path}: the visibility raster is not on the DEM grid {shape}")
-            data = src.read(1, window=Window(0, r0, shape[1], r1 - r0))
+        data = texture.read(r0, r1, [1])[0]
         codes = visibility_codes(data, data.shape)
         out = np.full((int(used.sum()), 4), 255, np.uint8)
         out[:, :3] = CODE_RGB[codes[used]]

@@ -199,7 +199,9 @@ def plot(result: CheckResult) -> Figure:
     )
     labels = [f"{lo:g}-{hi:g}" for lo, hi in zip(MISS_BINS[:-1], MISS_BINS[1:], strict=True)]
     for ax, eps in zip(axes[0], eps_values, strict=True):
-        for cls, colour in (("visible", "tab:blue"), ("occluded", "tab:red")):
+        # occluded in its code colour; visible dark grey (its light grey would not show on white)
+        occluded = tuple(v / 255 for v in Code.OCCLUDED.rgb)
+        for cls, colour in (("visible", "0.3"), ("occluded", occluded)):
             rows = [
                 r
                 for r in result.rows

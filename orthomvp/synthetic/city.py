@@ -402,7 +402,8 @@ class CityScene:
     frame, :data:`CITY_CRS`, the true heights at its posts), the ``views`` and their
     ``cameras`` (map frame, with image sizes) of ground sample distance ``gsd`` metres at the
     tile centre, the post ``spacing`` in metres, the ``seed`` and the ``facts`` recorded in the
-    summary. Duck-types :class:`~orthomvp.synthetic.scene.Scene` for the writer."""
+    summary. A :class:`~orthomvp.synthetic.writer.WritableScene`, as
+    :class:`~orthomvp.synthetic.scene.Scene` is."""
 
     kind: str
     surface: CitySurface
@@ -467,10 +468,12 @@ class CityScene:
         return write_scene(self, outdir, supersample, progress)
 
 
-def make_city(size: int, spacing: float, gsd_ratio: float, seed: int) -> CityScene:
+def make_city(
+    size: int, spacing: float, gsd_ratio: float, seed: int, margin: float = 6.0
+) -> CityScene:
     """A city of ``size`` x ``size`` posts ``spacing`` metres apart centred on :data:`ORIGIN`,
     seen from :data:`VIEW_ANGLES` at :data:`ALTITUDE` with ground sample distance
-    ``gsd_ratio`` post spacings (arguments checked by
+    ``gsd_ratio`` post spacings, its images ``margin`` pixels beyond the DEM (arguments checked by
     :func:`~orthomvp.synthetic.scene.make_scene`)."""
     rng = np.random.default_rng(seed)
     extent = size * spacing
@@ -487,7 +490,7 @@ def make_city(size: int, spacing: float, gsd_ratio: float, seed: int) -> CitySce
     terrain = grid.with_values(surface.height(e - ORIGIN[0], n - ORIGIN[1]))
     gsd = gsd_ratio * spacing
     views = tuple(ViewSpec(name, em, az, ALTITUDE * extent) for name, em, az in VIEW_ANGLES)
-    cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
+    cameras = {view.name: orbital_camera(terrain, view, gsd, margin) for view in views}
     facts = {
         "buildings": len(surface.buildings),
         "trees": len(surface.trees),

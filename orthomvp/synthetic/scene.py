@@ -132,6 +132,7 @@ def make_scene(
     lonlat_deg: tuple[float, float] = (3.6, 26.1),
     *,
     sensor: str = "frame",
+    image_margin: float = 6.0,
 ) -> Scene | CityScene:
     """An analytic scene of ``kind`` (one of :data:`~orthomvp.synthetic.kinds.KINDS`) with
     ``size`` x ``size`` posts ``spacing`` metres apart (defaults per kind), centred on
@@ -140,7 +141,8 @@ def make_scene(
     ``frame`` (the kind's pinhole views) or ``linescan`` (the line scanners of
     :data:`orthomvp.synthetic.linescan.VIEWS`; lunar kinds only). ``city`` is a
     :class:`~orthomvp.synthetic.city.CityScene` in its own projected CRS (``lonlat_deg`` does
-    not apply).
+    not apply). ``image_margin``: pixels of each image beyond the DEM's projection on every
+    side (room for a fit's window at the outermost posts).
 
     Ranges (InputError outside them, and for a scene too large for the memory): ``size`` an
     integer >= 8, ``spacing`` :data:`SPACING_RANGE` metres, ``gsd_ratio``
@@ -162,11 +164,12 @@ def make_scene(
         d_ratio if gsd_ratio is None else number(gsd_ratio, "GSD ratio", minimum=lo, maximum=hi)
     )
     seed = number(seed, "seed", minimum=0, integer=True)
+    margin = number(image_margin, "image margin (pixels)", minimum=0)
     check_scene_memory(size, gsd_ratio)
     if kind == "city":
         if sensor != "frame":
             raise InputError("the city scene has frame cameras only (--sensor frame)")
-        return make_city(size, spacing, gsd_ratio, seed)
+        return make_city(size, spacing, gsd_ratio, seed, margin)
     rng = np.random.default_rng(seed)
     lon0, lat0 = np.radians(lonlat_deg[0]), np.radians(lonlat_deg[1])
     height, facts = relief(kind, size * spacing, lon0, lat0, rng)
@@ -183,10 +186,10 @@ def make_scene(
     gsd = gsd_ratio * spacing
     if sensor == "linescan":
         views = LINESCAN_VIEWS
-        cameras = {v.name: orbital_line_scanner(terrain, v, gsd) for v in views}
+        cameras = {v.name: orbital_line_scanner(terrain, v, gsd, margin) for v in views}
     else:
         views = VIEWS[kind]
-        cameras = {view.name: orbital_camera(terrain, view, gsd) for view in views}
+        cameras = {view.name: orbital_camera(terrain, view, gsd, margin) for view in views}
     return Scene(kind, surface, terrain, views, cameras, spacing, gsd, seed, facts, sensor)
 
 

@@ -11,27 +11,71 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
 import numpy as np
 from affine import Affine
 from tqdm import tqdm
 
-from orthomvp.camera import write_tsai
+from orthomvp.camera import Camera, write_tsai
 from orthomvp.camera.csm import LineScanCamera, write_isd
 from orthomvp.codes import Code
-from orthomvp.io.raster import atomic_path, write_geotiff
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.io.outputs import atomic_path
+from orthomvp.io.raster import write_geotiff
+from orthomvp.synthetic.cameras import ViewSpec
 from orthomvp.synthetic.rendering import MAX_SUPERSAMPLE
 from orthomvp.validate import number
 
-if TYPE_CHECKING:
-    from orthomvp.synthetic.city import CityScene
-    from orthomvp.synthetic.scene import Scene
+
+class LitSurface(Protocol):
+    """What the writer needs of a scene's surface: its radiance at local (x, y) metres and the
+    unit vector ``sun`` towards the sun."""
+
+    @property
+    def sun(self) -> np.ndarray: ...
+
+    def radiance(self, x: np.ndarray, y: np.ndarray) -> np.ndarray: ...
+
+
+CameraT = TypeVar("CameraT", bound=Camera)
+"""The camera type of a scene's views (a city's are pinhole cameras)."""
+
+
+class WritableScene(Protocol[CameraT]):
+    """What :func:`write_scene` needs of a scene, as :class:`~orthomvp.synthetic.scene.Scene`
+    and :class:`~orthomvp.synthetic.city.CityScene` give it (the writer depends on this alone,
+    so that neither is imported here)."""
+
+    @property
+    def kind(self) -> str: ...
+    @property
+    def surface(self) -> LitSurface: ...
+    @property
+    def terrain(self) -> Terrain: ...
+    @property
+    def views(self) -> tuple[ViewSpec, ...]: ...
+    @property
+    def cameras(self) -> Mapping[str, CameraT]: ...
+    @property
+    def spacing(self) -> float: ...
+    @property
+    def gsd(self) -> float: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def facts(self) -> dict: ...
+
+    def post_local(self) -> tuple[np.ndarray, np.ndarray]: ...
+    def frame_facts(self) -> dict: ...
+    def render(self, camera: CameraT, supersample: int = 3) -> np.ndarray: ...
+    def visibility_truth(self, camera: CameraT, step: float | None = None) -> np.ndarray: ...
 
 
 def write_scene(
-    scene: Scene | CityScene, outdir: str | Path, supersample: int = 3, progress: bool = False
+    scene: WritableScene[CameraT], outdir: str | Path, supersample: int = 3, progress: bool = False
 ) -> dict:
     """Render ``scene`` (``supersample`` x ``supersample`` rays per pixel) and write its
     directory into ``outdir``, with a progress bar over the views if ``progress`` and on a

@@ -16,7 +16,7 @@ from pathlib import Path
 from orthomvp.camera.distortion import Distortion, distortion_class
 from orthomvp.camera.model import Camera, FieldError, PinholeCamera
 from orthomvp.errors import FormatError, InputError
-from orthomvp.io.raster import atomic_path
+from orthomvp.io.outputs import atomic_path
 
 
 @dataclass(frozen=True)
@@ -151,7 +151,7 @@ def build_distortion(
 
 def write_text(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8, ``\\n`` line ends) to ``path`` through
-    :func:`orthomvp.io.raster.atomic_path`; OutputError (naming the path and the cause) if it
+    :func:`orthomvp.io.outputs.atomic_path`; OutputError (naming the path and the cause) if it
     cannot be written."""
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")

@@ -1,0 +1,245 @@
+"""Atomic output sets, the writer every command relies on. This module owns
+:func:`atomic_path`, :func:`atomic_paths`, :func:`write_set`, :func:`atomic_dir` and
+:func:`scratch_path`: outputs are written to hidden temporary files beside their targets, named
+with the process id and machine (:func:`temp_name`), and renamed onto the targets only when all
+of them were written; a failure, SIGINT or SIGTERM removes them (creating, renaming or removing
+one is never cut in half by a signal: :class:`~orthomvp.io.signals.HeldSignals`), what a killed
+run (SIGKILL) left is removed by the next run writing the same output (:func:`remove_stale`),
+and :func:`remove_temporaries` is the last resort after an interrupt and at exit. A disk with
+no space left is refused before writing (:func:`~orthomvp.io.preflight.check_space`); a failed
+write is one OutputError naming the output (:func:`~orthomvp.io.write_errors.writing`).
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import itertools
+import os
+import shutil
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+from orthomvp.errors import InputError, OrthoMVPError, OutputError
+from orthomvp.io.preflight import check_space
+from orthomvp.io.signals import HeldSignals
+from orthomvp.io.write_errors import release_stderr, write_error, writing
+
+TEMP_TAG = "orthomvp"
+"""Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME."""
+_HOST = f"{zlib.crc32(os.uname().nodename.encode()):08x}"
+
+
+def _umask() -> int:
+    """The process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_pending: dict[Path, None] = {}
+"""This process's temporary outputs (files and directories) not yet renamed or removed."""
+
+
+def _new_temp(path: Path, tag: str = "") -> Path:
+    """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
+    tmp = temp_name(path, tag)
+    _pending[tmp] = None
+    return tmp
+
+
+def _drop(tmp: Path) -> None:
+    """Remove a temporary output (call with signals held)."""
+    _remove(tmp)
+    _pending.pop(tmp, None)
+
+
+def remove_temporaries() -> None:
+    """The last resort after an interrupt: remove every temporary output of this process that
+    is still there, and give file descriptor 2 back if it is captured (see
+    :func:`~orthomvp.io.write_errors.writing`).
+
+    A signal that arrives just as a ``with`` block ends (in contextlib, before it resumes the
+    generator that would clean up) leaves that clean-up to the garbage collector, which may
+    run late or not at all; the command line calls this before it reports the interrupt, and
+    it runs at exit."""
+    for tmp in list(_pending):
+        _drop(tmp)
+    release_stderr()
+
+
+def temp_name(path: Path, tag: str = "") -> Path:
+    """A new temporary name beside ``path`` that :func:`remove_stale` recognises: hidden, with
+    this process's id and machine, ending as ``path`` does (``tag`` before the suffix)."""
+    token = os.urandom(4).hex()
+    name = f".{path.name}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{path.suffix}"
+    return path.with_name(name)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` (of this machine) exists."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True
+
+
+def remove_stale(path: Path) -> list[Path]:
+    """Remove the temporary files and directories of ``path`` (see :func:`temp_name`) that
+    runs on this machine left when they were killed (SIGKILL, a power cut): those whose
+    process is gone. Returns what was removed."""
+    prefix = f".{path.name}.{TEMP_TAG}-"
+    try:
+        entries = [e for e in os.scandir(path.parent) if e.name.startswith(prefix)]
+    except OSError:
+        return []
+    removed = []
+    for entry in entries:
+        pid, _, rest = entry.name[len(prefix) :].partition("-")
+        if not pid.isdigit() or not rest.startswith(f"{_HOST}-") or _alive(int(pid)):
+            continue
+        with contextlib.suppress(OSError):  # another run may have removed it first
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+            removed.append(Path(entry.path))
+    return removed
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file (with the .aux.xml sidecar GDAL may leave) or directory, if
+    there. A failure is not reported: the error that led here is the one to report (and on
+    a read-only file system even removing what is not there fails)."""
+    if tmp.is_dir() and not tmp.is_symlink():
+        shutil.rmtree(tmp, ignore_errors=True)
+    for name in (tmp, Path(f"{tmp}.aux.xml")):
+        with contextlib.suppress(OSError):
+            name.unlink()
+
+
+@contextlib.contextmanager
+def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Iterator[list[Path]]:
+    """Yield temporary paths beside ``paths``; rename them onto ``paths``, one after another,
+    when the block succeeds; on any failure (SIGINT and SIGTERM too) remove them all and
+    touch no target.
+
+    First the temporary files that killed runs left beside the targets are removed (see
+    :func:`remove_stale`), and the free space is checked: at least one byte, and ``need``
+    (bytes each output surely takes) in total per directory. A failure to create or rename
+    raises an OutputError naming the target; the writes themselves are the block's (see
+    :func:`~orthomvp.io.write_errors.writing`)."""
+    targets = [Path(p) for p in paths]
+    for target in targets:
+        if not target.parent.is_dir():
+            raise InputError(f"{target}: output directory {target.parent} does not exist")
+    temps: list[Path] = []
+    target = targets[0]
+    own = True  # whether an OSError is of creating or renaming (the block's pass through)
+    with HeldSignals() as held:
+        try:
+            per_dir: dict[Path, list] = {}  # the first target of each directory, and the total
+            for target, size in itertools.zip_longest(targets, need[: len(targets)], fillvalue=0):
+                per_dir.setdefault(target.parent, [target, 0])[1] += size
+            for target, total in per_dir.values():
+                check_space(target, total)
+            for target in targets:
+                remove_stale(target)
+                temps.append(_new_temp(target))  # noted before it exists: removed in any case
+                os.close(os.open(temps[-1], os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            own = False
+            with held.released():
+                yield temps
+            own = True
+            mode = 0o666 & ~_umask()
+            for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
+                os.chmod(tmp, mode)
+                os.replace(tmp, target)
+        except OrthoMVPError:
+            raise
+        except OSError as exc:
+            if not own:
+                raise
+            raise write_error(target, exc) from exc
+        finally:
+            for tmp in temps:
+                _drop(tmp)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, size: int | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds
+    (see :func:`atomic_paths`). A failed write in the block is reported as one OutputError
+    naming ``path`` (see :func:`~orthomvp.io.write_errors.writing`; ``size``: bytes the output
+    takes at most)."""
+    with atomic_paths([path]) as (tmp,), writing(path, size):
+        yield tmp
+
+
+def write_set(writers: dict[Path, Callable[[Path], object]]) -> None:
+    """Write several files as one atomic set: each ``writers[path](tmp)`` writes its
+    temporary file; all are renamed onto their paths only when all were written (see
+    :func:`atomic_paths`); a failure is one OutputError naming the file."""
+    with atomic_paths(list(writers)) as temps:
+        for (path, write), tmp in zip(writers.items(), temps, strict=True):
+            with writing(path):
+                write(tmp)
+
+
+@contextlib.contextmanager
+def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
+    """Yield a temporary name beside ``path`` (see :func:`temp_name`) for work files that
+    make ``path``; whatever was written there is removed after the block."""
+    with HeldSignals() as held:
+        tmp = _new_temp(Path(path), tag)
+        try:
+            with held.released():
+                yield tmp
+        finally:
+            _drop(tmp)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary directory beside ``path``; on success move its files into ``path``.
+
+    On failure (SIGINT and SIGTERM too) the temporary directory is removed and ``path`` is
+    left as it was; errors name the files under ``path``, not under the temporary directory.
+    Temporary directories of killed runs are removed first (see :func:`remove_stale`).
+    """
+    path = Path(path)
+    if not path.parent.exists():
+        raise InputError(f"{path}: parent directory {path.parent} does not exist")
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: exists and is not a directory")
+    check_space(path)
+    tmp: Path | None = None
+    with HeldSignals() as held:
+        try:
+            remove_stale(path)
+            tmp = _new_temp(path)
+            tmp.mkdir()
+            with held.released():
+                yield tmp
+            os.chmod(tmp, 0o777 & ~_umask())
+            if path.exists():
+                for item in tmp.iterdir():
+                    os.replace(item, path / item.name)
+            else:
+                os.replace(tmp, path)
+        except OutputError as exc:
+            raise OutputError(str(exc).replace(str(tmp), str(path))) from exc.__cause__
+        except OSError as exc:
+            if tmp is None or not str(exc.filename or "").startswith(str(tmp)):
+                raise
+            raise write_error(path / Path(exc.filename).relative_to(tmp), exc) from exc
+        finally:
+            if tmp is not None:
+                _drop(tmp)
+
+
+atexit.register(remove_temporaries)
