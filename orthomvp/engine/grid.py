@@ -266,6 +266,7 @@ def with_world(dem: DemSource, world: WorldFrame) -> DemSource:
         world=world,
         vertical_datum=dem.heights.vertical_datum,
         height_offset=dem.heights.height_offset,
+        radius_values=dem.radius_values,
         name=str(dem.path),
     )
     if shift is not None:

@@ -185,6 +185,7 @@ class Terrain:
             world=world,
             vertical_datum=vertical_datum,
             height_offset=height_offset,
+            radius_values=radius_values,
             name=str(path),
         )
         if shift is not None:
