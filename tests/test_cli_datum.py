@@ -83,12 +83,13 @@ def test_missing_grid_refused_in_one_line(tmp_path: Path, capsys: pytest.Capture
     err = one_line_error(capsys)
     assert f"projsync --file {EGM2008_GRID}" in err and "--height-offset METRES" in err
     assert not out.exists()
-    # an RPC with the DEM's map frame: its heights stay orthometric, and that is said
+    # an RPC in the DEM's map frame takes the DEM's compound CRS, which needs the grid too
     map_frame = ["-o", str(out), "--world", "map"]
     assert main(["-q", "ortho", str(NGI_DEM), str(QB), str(QB), *map_frame]) == 2
-    assert "an RPC camera wants heights above the WGS84 ellipsoid" in one_line_error(capsys)
+    assert "the world CRS 'Lo25 WGS84 + EGM2008 height'" in (err := one_line_error(capsys))
+    assert f"projsync --file {EGM2008_GRID}" in err and not out.exists()
     render = ["-q", "render", str(NGI_DEM), "--camera", str(QB), "--world", "map", "-o"]
-    assert main([*render, str(tmp_path / "r.png")]) == 2  # the in-memory DEM says so too
+    assert main([*render, str(tmp_path / "r.png")]) == 2  # the in-memory commands refuse
     assert "an RPC camera wants heights above" in one_line_error(capsys)
     both = ["--height-offset", "28", "--vertical-datum", "ignore"]
     assert main(["-q", "ortho", str(NGI_DEM), str(QB), str(QB), "-o", str(out), *both]) == 2
@@ -100,8 +101,9 @@ def test_missing_grid_refused_in_one_line(tmp_path: Path, capsys: pytest.Capture
 def test_rpc_orthophoto_with_the_geoid_equals_the_undulation_offset(tmp_path: Path) -> None:
     """The QuickBird orthophoto on EGM96 heights converted with the geoid grid equals the one
     made with --height-offset = the undulation at the grid's centre (which varies by centimetres
-    over it), and differs from the uncorrected one by the shift the RPC predicts for the
-    undulation (about 1.3 px at 6 m)."""
+    over it) and the one in the DEM's map frame (the RPC camera converting its heights itself),
+    and differs from the uncorrected one by the shift the RPC predicts for the undulation (about
+    1.3 px at 6 m)."""
     needs_egm96()
     dem = retagged(tmp_path, EGM96)
     x, y = (BOUNDS[0] + BOUNDS[2]) / 2, (BOUNDS[1] + BOUNDS[3]) / 2
@@ -112,6 +114,8 @@ def test_rpc_orthophoto_with_the_geoid_equals_the_undulation_offset(tmp_path: Pa
     datum = rpc_ortho(dem, tmp_path / "datum.tif", "--processes", "2")  # the grid in workers too
     offset = rpc_ortho(dem, tmp_path / "offset.tif", "--height-offset", f"{undulation!r}")
     ignored = rpc_ortho(dem, tmp_path / "ignored.tif", "--vertical-datum", "ignore")
+    mapped = rpc_ortho(dem, tmp_path / "mapped.tif", "--world", "map")  # PROJ's geoid per point
+    assert np.nanmax(np.abs(mapped - datum)) < 0.01  # grey levels
     ok = np.isfinite(datum) & np.isfinite(offset)
     assert ok.sum() > 0.9 * datum.size
     assert np.corrcoef(datum[ok], offset[ok])[0, 1] > 0.99999

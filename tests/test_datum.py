@@ -213,3 +213,28 @@ def test_the_crs_a_dem_written_from_the_values_carries(tmp_path: Path) -> None:
         egm96 = with_world(scan_dem(retagged(tmp_path, EGM96)), "body")
         assert egm96.shift is not None and vertical_part(egm96.heights_crs()) is None
         assert egm96.heights_crs() == egm96.crs
+
+
+def test_an_rpc_camera_in_a_compound_crs_converts_its_heights() -> None:
+    """An RPC camera whose world CRS is projected + EGM96 height projects points of EGM96
+    heights where its RPC puts their ellipsoidal heights (pyproj's own transformation); with
+    EGM2008, whose grid PROJ lacks here, it is refused naming the grid."""
+    from orthomvp.camera.rpc import RpcCamera
+    from orthomvp.camera.rpc_model import Rpc
+    from tests.test_rpc import synthetic_rpc
+
+    needs_egm96()
+    utm = CRS.from_epsg(32634)
+    crs = CompoundCRS("UTM 34N + EGM96 height", [utm, CRS.from_epsg(EGM96)])
+    camera = RpcCamera(Rpc.from_mapping(synthetic_rpc()), crs=crs)
+    lon, lat = np.meshgrid(np.linspace(19.98, 20.02, 4), np.linspace(9.98, 10.02, 4))
+    x, y = Transformer.from_crs(4326, utm, always_xy=True).transform(lon, lat)
+    xyz = np.stack([x, y, np.full(x.shape, 250.0)], axis=-1)
+    to_3d = Transformer.from_crs(crs, "EPSG:4979", always_xy=True, only_best=True)
+    truth = camera.rpc.project(*to_3d.transform(x, y, xyz[..., 2]))
+    np.testing.assert_allclose(camera.project(xyz)[0], truth, atol=1e-6)
+    np.testing.assert_allclose(camera.to_world(*to_3d.transform(x, y, xyz[..., 2])), xyz, atol=1e-6)
+    if grid_missing(3855) is not None:
+        egm2008 = CompoundCRS("UTM 34N + EGM2008 height", [utm, CRS.from_epsg(3855)])
+        with pytest.raises(InputError, match=EGM2008_GRID):
+            RpcCamera(Rpc.from_mapping(synthetic_rpc()), crs=egm2008)

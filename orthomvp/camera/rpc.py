@@ -8,12 +8,14 @@ Conventions:
   row): no shift. (GDAL's RPC transformer reports pixel corners: its (col, row) are ours + 0.5.)
 - An :class:`RpcCamera` lives in a Cartesian world frame named by a pyproj CRS: geocentric
   (orthomvp's body frame; default WGS84, EPSG:4978) or projected, (easting, northing, height)
-  taken as Cartesian (the map frame). A compound CRS's vertical part is ignored: world heights
-  are ellipsoidal heights minus ``height_offset`` (0 by default). A DEM whose heights are
-  orthometric (a compound CRS with a geoid) has them converted to ellipsoidal ones before they
-  reach the camera (:mod:`orthomvp.geometry.datum`, with PROJ and the geoid's grid), or shifted
-  by the DEM's own ``height_offset``; ``height_offset`` here serves a camera given points of
-  orthometric heights through the API (the undulation N: ellipsoidal = orthometric + N).
+  taken as Cartesian (the map frame). World heights are ellipsoidal heights minus
+  ``height_offset`` (0 by default), or, in a compound CRS with a vertical datum, heights in that
+  datum, which PROJ converts with the geoid's grid (refused without it). A DEM of orthometric
+  heights under body-fixed cameras is converted before it reaches the camera
+  (:mod:`orthomvp.geometry.datum`); with map-frame cameras it keeps its heights, and the RPC
+  camera takes the DEM's compound CRS (:func:`in_vertical_datum`). ``height_offset`` serves
+  points of orthometric heights given through the API (the undulation N: ellipsoidal =
+  orthometric + N).
 - Rays are straight lines in the world frame between the ground points of a pixel at two
   ellipsoidal heights, ``top`` (the ray's origin; default height_off + height_scale, which must
   lie above all terrain the camera sees) and ``bottom`` (default height_off - height_scale).
@@ -33,7 +35,7 @@ from orthomvp.camera.model import FieldError, _points, check_crop, image_size
 from orthomvp.camera.rpc_model import GEODETIC, Rpc, _number
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.geometry.datum import vertical_part
+from orthomvp.geometry.datum import geoid_transformer, vertical_part, whole_crs
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -80,13 +82,26 @@ def _horizontal_3d(crs: CRS) -> CRS:
     )
 
 
+def _to_wgs84(crs: CRS) -> Transformer:
+    """World coordinates in ``crs`` to WGS84 (lon, lat, ellipsoidal height): through the
+    vertical datum of a compound CRS that has one (heights in it; PROJ and its grid), else
+    with the heights taken as ellipsoidal; InputError when PROJ lacks the grid."""
+    from pyproj import Transformer
+
+    if crs.is_compound and vertical_part(crs) is not None:
+        _horizontal_3d(crs)  # a Cartesian world frame still
+        return geoid_transformer(crs, f"the world CRS {crs.name!r}", _epsg(GEODETIC))
+    return Transformer.from_crs(_horizontal_3d(crs), _epsg(GEODETIC), always_xy=True)
+
+
 @dataclass(frozen=True, eq=False)
 class RpcCamera:
     """An RPC camera in a Cartesian world frame (see the module docstring for conventions).
 
     ``rpc``: the :class:`Rpc`. Keyword-only: ``width``, ``height``, image size in pixels (or
-    None); ``crs``: the world frame, anything pyproj reads, geocentric or projected (default
-    WGS84 geocentric, EPSG:4978; :meth:`bind` takes a terrain's); ``height_offset``, metres:
+    None); ``crs``: the world frame, anything pyproj reads, geocentric or projected, or a
+    compound CRS whose vertical datum PROJ converts (default WGS84 geocentric, EPSG:4978;
+    :meth:`bind` takes a terrain's); ``height_offset``, metres:
     ellipsoidal height = world height + ``height_offset`` (the geoid undulation for
     orthometric world heights; 0 for ellipsoidal ones); ``top``, ``bottom``: the ellipsoidal
     heights (m) between which rays run, ``top`` their origin (defaults height_off +- height_scale;
@@ -120,6 +135,8 @@ class RpcCamera:
             ) from None
         _horizontal_3d(crs)
         object.__setattr__(self, "crs", crs)
+        if vertical_part(crs) is not None:
+            _to_wgs84(crs)  # refused now when PROJ lacks the geoid's grid
         rpc = self.rpc
         defaults = {
             "top": rpc.height_off + abs(rpc.height_scale),
@@ -151,9 +168,7 @@ class RpcCamera:
 
     @cached_property
     def _to_geodetic(self) -> Transformer:
-        from pyproj import Transformer
-
-        return Transformer.from_crs(_horizontal_3d(self.crs), _epsg(GEODETIC), always_xy=True)
+        return _to_wgs84(self.crs)
 
     def bind(self, terrain: Terrain) -> RpcCamera:
         """A copy in ``terrain``'s world frame (:func:`world_crs`)."""
@@ -276,19 +291,44 @@ class RpcCamera:
         return uv
 
 
+def map_frame_rpc(
+    cameras: Sequence[tuple[str, object]], world: WorldFrame, dem_crs: object, as_read: bool
+) -> str | None:
+    """The name of the first RPC camera among ``cameras`` ((name, camera) pairs) in the map
+    frame ``world`` of a DEM whose CRS ``dem_crs`` has a vertical part and whose heights are
+    used ``as_read`` (the map frame's rule, :mod:`orthomvp.geometry.datum`): heights in that
+    datum, not the ellipsoidal ones an RPC wants. None when there is none."""
+    if not as_read or world != WorldFrame.MAP or vertical_part(dem_crs) is None:
+        return None
+    return next((name for name, camera in cameras if isinstance(camera, RpcCamera)), None)
+
+
+def in_vertical_datum(
+    cameras: Sequence[tuple[str, object]], world: WorldFrame, dem_crs: object, as_read: bool
+) -> list[object]:
+    """The cameras of ``cameras`` ((name, camera) pairs), each RPC camera that
+    :func:`map_frame_rpc` finds given the DEM's whole CRS ``dem_crs`` as its world CRS, so that
+    PROJ converts its world heights (the DEM's, in its vertical datum) to ellipsoidal ones
+    with the geoid's grid; InputError, naming the grid, when PROJ lacks it."""
+    if map_frame_rpc(cameras, world, dem_crs, as_read) is None:
+        return [camera for _, camera in cameras]
+    crs = whole_crs(dem_crs, "the DEM's CRS")
+    return [
+        replace(camera, crs=crs) if isinstance(camera, RpcCamera) else camera
+        for _, camera in cameras
+    ]
+
+
 def check_map_frame_heights(
     cameras: Sequence[tuple[str, object]], world: WorldFrame, dem_crs: object, as_read: bool
 ) -> None:
-    """InputError for an RPC camera among ``cameras`` ((name, camera) pairs) in the map frame
-    ``world`` of a DEM whose CRS ``dem_crs`` has a vertical part and whose heights are used
-    ``as_read`` (the map frame's rule, :mod:`orthomvp.geometry.datum`): the RPC wants heights
-    above the WGS84 ellipsoid, which those are not."""
-    rpc = [name for name, camera in cameras if isinstance(camera, RpcCamera)]
-    vertical = vertical_part(dem_crs) if rpc and as_read and world == WorldFrame.MAP else None
-    if vertical is not None:
+    """InputError for an RPC camera that :func:`map_frame_rpc` finds, where the cameras are not
+    given the DEM's vertical datum (the in-memory commands)."""
+    name = map_frame_rpc(cameras, world, dem_crs, as_read)
+    if name is not None:
         raise InputError(
-            f"{rpc[0]}: an RPC camera wants heights above the WGS84 ellipsoid, but with cameras "
+            f"{name}: an RPC camera wants heights above the WGS84 ellipsoid, but with cameras "
             f"in the DEM's map frame the DEM's heights stay in its vertical datum "
-            f"({vertical.name!r}): give --height-offset METRES (the geoid undulation, added to "
-            "the DEM's heights for every camera) or --vertical-datum ignore"
+            f"({vertical_part(dem_crs).name!r}): give --height-offset METRES (the geoid "
+            "undulation, added to the DEM's heights for every camera) or --vertical-datum ignore"
         )

@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from orthomvp.camera import Camera, in_world, sensor_positions
-from orthomvp.camera.rpc import check_map_frame_heights
+from orthomvp.camera.rpc import in_vertical_datum
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
 from orthomvp.engine.grid import with_world as dem_with_world
@@ -546,8 +546,9 @@ def read_source(
     its cameras fit, :func:`~orthomvp.geometry.world.detect_world`), its heights shifted to what
     that frame's cameras need as ``heights`` says (:mod:`orthomvp.geometry.datum`), with every
     camera above it; and the views with their cameras in that frame
-    (:func:`~orthomvp.camera.in_world`). InputError for an RPC camera among map-frame cameras
-    on a DEM with a vertical datum (the RPC wants ellipsoidal heights, they the DEM's)."""
+    (:func:`~orthomvp.camera.in_world`); an RPC camera among map-frame cameras on a DEM with a
+    vertical datum takes the DEM's compound CRS (:func:`~orthomvp.camera.rpc.in_vertical_datum`:
+    PROJ converts its heights with the geoid's grid, or it is refused naming the grid)."""
     frame = _frame(world)
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
@@ -559,9 +560,9 @@ def read_source(
     check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
     source = dem_with_world(source, frame)
     as_read = source.heights == HeightOptions()  # auto, no offset: the map frame's rule
-    check_map_frame_heights(
-        [(str(v.path), v.camera) for v in sources], frame, source.file_crs, as_read
-    )
+    named = [(str(v.path), v.camera) for v in sources]
+    cameras = in_vertical_datum(named, frame, source.file_crs, as_read)
+    sources = tuple(replace(v, camera=c) for v, c in zip(sources, cameras, strict=True))
     return source, sources
 
 

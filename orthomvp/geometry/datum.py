@@ -151,10 +151,17 @@ def _add_search_dirs() -> None:
         datadir.set_data_dir(os.pathsep.join([*have, *extra]))
 
 
+def geoid_transformer(crs: CRS, name: str, target: CRS | None = None) -> Transformer:
+    """PROJ's transformation from the compound CRS ``crs`` to ``target`` (default its geodetic
+    3D CRS) that applies the vertical datum, never a "ballpark" one that leaves heights as
+    they are (always_xy, made once per process); InputError naming the missing grid and how to
+    get it, or saying PROJ knows no such transformation, ``name`` first."""
+    return _transformer(crs.to_wkt(), name, None if target is None else target.to_wkt())
+
+
 @functools.cache
-def _transformer(wkt: str, name: str) -> Transformer:
-    """PROJ's transformation from the compound CRS ``wkt`` to its geodetic 3D CRS that applies
-    the vertical datum (never a "ballpark" one); InputError naming the missing grid."""
+def _transformer(wkt: str, name: str, target_wkt: str | None = None) -> Transformer:
+    """:func:`geoid_transformer` of CRSs as WKT (cached by them)."""
     from pyproj import CRS
     from pyproj.transformer import TransformerGroup
 
@@ -162,6 +169,7 @@ def _transformer(wkt: str, name: str) -> Transformer:
     crs = CRS.from_wkt(wkt)
     horizontal = crs.sub_crs_list[0]
     target = (horizontal if horizontal.is_geographic else horizontal.geodetic_crs).to_3d()
+    target = target if target_wkt is None else CRS.from_wkt(target_wkt)
     with warnings.catch_warnings():  # pyproj's "best transformation is not available"
         warnings.simplefilter("ignore", UserWarning)
         group = TransformerGroup(crs, target, always_xy=True, allow_ballpark=False)
