@@ -142,8 +142,16 @@ def test_a_vertical_datum_proj_cannot_convert_is_refused() -> None:
     with pytest.raises(InputError, match="PROJ knows no transformation") as info:
         height_shift(compound, grid, (10, 10), world="body", name="moon.tif")
     assert str(info.value).startswith("moon.tif: its heights are 'Lunar geoid height'")
-    assert height_shift(compound, grid, (10, 10), world="body", height_offset=12.5).offset == 12.5
-    assert height_shift(compound, grid, (10, 10), world="body", vertical_datum="ignore") is None
+    assert (
+        height_shift(
+            compound, grid, (10, 10), world="body", heights=HeightOptions(height_offset=12.5)
+        ).offset
+        == 12.5
+    )
+    assert (
+        height_shift(compound, grid, (10, 10), world="body", heights=HeightOptions("ignore"))
+        is None
+    )
     assert height_shift(moon, grid, (10, 10), world="body") is None  # no vertical part
     assert height_shift(compound, grid, (10, 10), world="body", radius_values=True) is None
 

@@ -24,7 +24,7 @@ from rasterio.windows import Window
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
-from orthomvp.geometry.crs import as_crs, as_pyproj
+from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference
 from orthomvp.geometry.datum import (
     TOLERANCE,
     HeightOptions,
@@ -33,7 +33,7 @@ from orthomvp.geometry.datum import (
     vertical_part,
     whole_crs,
 )
-from orthomvp.geometry.terrain import Terrain, dem_georeference, warn_infinite
+from orthomvp.geometry.terrain import Terrain, warn_infinite
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import held_raster, open_raster, read_values
 
@@ -264,8 +264,7 @@ def with_world(dem: DemSource, world: WorldFrame) -> DemSource:
         dem.transform,
         dem.shape,
         world=world,
-        vertical_datum=dem.heights.vertical_datum,
-        height_offset=dem.heights.height_offset,
+        heights=dem.heights,
         radius_values=dem.radius_values,
         name=str(dem.path),
     )

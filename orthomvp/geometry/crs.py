@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import re
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+from affine import Affine
 from rasterio.crs import CRS as FileCRS
 
 from orthomvp.errors import InputError
@@ -75,3 +77,20 @@ def file_radii(crs: FileCRS) -> tuple[float, float] | None:
     except ValueError:
         return None
     return a, (a if rf == 0 else (1.0 - 1.0 / rf) * a)
+
+
+def dem_georeference(
+    path: str | Path, file_crs: FileCRS | None, transform: Affine, crs: object | None
+) -> CRS | FileCRS:
+    """The CRS of the DEM at ``path``: ``crs`` when given (a pyproj CRS, :func:`parse_crs`),
+    else the file's (rasterio's, read by GDAL: see :class:`Terrain`); InputError for a DEM
+    without CRS or without georeference (identity ``transform``)."""
+    if crs is not None:
+        the_crs = parse_crs(crs, str(path))
+    elif file_crs is None:
+        raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
+    else:
+        the_crs = horizontal_crs(file_crs, str(path))
+    if transform == Affine.identity():
+        raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+    return the_crs

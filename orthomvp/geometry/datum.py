@@ -292,18 +292,17 @@ def height_shift(
     shape: tuple[int, int],
     *,
     world: WorldFrame | str,
-    vertical_datum: str = "auto",
-    height_offset: float | None = None,
+    heights: HeightOptions = HeightOptions(),
     radius_values: bool = False,
     name: str = "DEM",
 ) -> HeightShift | None:
     """What to add to the heights of a DEM with CRS ``crs`` (its whole CRS, the vertical part
     included; pyproj's, a file's as rasterio reads it, or anything pyproj reads), pixel-corner
-    ``transform`` and ``shape`` for cameras in ``world`` (see the module docstring): None when
-    nothing, and for ``radius_values`` (distances from the body's centre, in no vertical
-    datum) unless an offset is given. InputError for bad options, or when the conversion needs
-    a grid PROJ lacks."""
-    check_options(vertical_datum, height_offset)
+    ``transform`` and ``shape`` for cameras in ``world``, as ``heights`` says (see the module
+    docstring): None when nothing, and for ``radius_values`` (distances from the body's centre,
+    in no vertical datum) unless an offset is given. InputError when the conversion needs a
+    grid PROJ lacks."""
+    vertical_datum, height_offset = heights.vertical_datum, heights.height_offset
     if height_offset is not None:
         return HeightShift(float(height_offset), name=name) if height_offset else None
     if vertical_datum == "ignore" or radius_values or WorldFrame(world) == WorldFrame.MAP:

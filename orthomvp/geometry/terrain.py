@@ -29,15 +29,8 @@ from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
-from orthomvp.geometry.crs import (
-    as_crs,
-    as_pyproj,
-    file_radii,
-    horizontal_crs,
-    is_pyproj,
-    parse_crs,
-)
-from orthomvp.geometry.datum import height_shift
+from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference, file_radii, is_pyproj
+from orthomvp.geometry.datum import HeightOptions, height_shift
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
@@ -69,23 +62,6 @@ def _heights(values: object, name: str) -> np.ndarray:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise InputError(f"{name}: DEM values must be real numbers, got {arr.dtype} values")
     return arr.astype(np.float64)
-
-
-def dem_georeference(
-    path: str | Path, file_crs: FileCRS | None, transform: Affine, crs: object | None
-) -> CRS | FileCRS:
-    """The CRS of the DEM at ``path``: ``crs`` when given (a pyproj CRS, :func:`parse_crs`),
-    else the file's (rasterio's, read by GDAL: see :class:`Terrain`); InputError for a DEM
-    without CRS or without georeference (identity ``transform``)."""
-    if crs is not None:
-        the_crs = parse_crs(crs, str(path))
-    elif file_crs is None:
-        raise InputError(f"{path}: the DEM has no CRS; give one with --dem-crs")
-    else:
-        the_crs = horizontal_crs(file_crs, str(path))
-    if transform == Affine.identity():
-        raise InputError(f"{path}: the DEM has no georeference (identity transform)")
-    return the_crs
 
 
 def warn_infinite(path: str | Path, count: int) -> None:
@@ -178,17 +154,10 @@ class Terrain:
             transform = src.transform
         the_crs = dem_georeference(path, file_crs, transform, crs)
         warn_infinite(path, int(np.isinf(values).sum()))
-        shift = height_shift(
-            file_crs if crs is None else crs,
-            transform,
-            values.shape,
-            world=world,
-            vertical_datum=vertical_datum,
-            height_offset=height_offset,
-            radius_values=radius_values,
-            name=str(path),
-        )
-        if shift is not None:
+        heights = HeightOptions(vertical_datum, height_offset)
+        whole, name = file_crs if crs is None else crs, str(path)
+        args = {"world": world, "heights": heights, "radius_values": radius_values, "name": name}
+        if (shift := height_shift(whole, transform, values.shape, **args)) is not None:
             values = values + shift.window((0, values.shape[0], 0, values.shape[1]))
         terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
         terrain.check_convention()
