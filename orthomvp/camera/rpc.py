@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.camera.model import FieldError, _points, check_crop, image_size
-from orthomvp.camera.rpc_model import GEODETIC, Rpc, _number
+from orthomvp.camera.rpc_model import GEODETIC, Rpc, finite_number
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
 from orthomvp.geometry.datum import geoid_transformer, vertical_part, whole_crs
@@ -145,7 +145,7 @@ class RpcCamera:
         for name in ("height_offset", "margin", "top", "bottom"):
             value = getattr(self, name)
             object.__setattr__(
-                self, name, _number(name, defaults[name] if value is None else value)
+                self, name, finite_number(name, defaults[name] if value is None else value)
             )
         if self.margin < 0:
             raise FieldError("margin", f"margin must be >= 0, got {self.margin!r}")

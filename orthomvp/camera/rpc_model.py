@@ -77,7 +77,7 @@ def _poly_gradient(
     return d_lon, d_lat
 
 
-def _number(key: str, value: object) -> float:
+def finite_number(key: str, value: object) -> float:
     """``value`` as a finite float; FieldError naming ``key`` otherwise."""
     if isinstance(value, bool | str | bytes):
         raise FieldError(key, f"{key} must be a number, got {value!r}")
@@ -96,7 +96,7 @@ def _coefficients(key: str, value: object) -> np.ndarray:
     if items is None or len(items) != 20:
         got = f"{len(items)}" if items is not None else repr(value)
         raise FieldError(key, f"{key} must be 20 coefficients, got {got}")
-    arr = np.array([_number(f"{key}[{i}]", v) for i, v in enumerate(items)], dtype=np.float64)
+    arr = np.array([finite_number(f"{key}[{i}]", v) for i, v in enumerate(items)], dtype=np.float64)
     arr.setflags(write=False)
     return arr
 
@@ -129,7 +129,7 @@ class Rpc:
 
     def __post_init__(self) -> None:
         for key in OFFSETS_SCALES:
-            value = _number(key, getattr(self, key))
+            value = finite_number(key, getattr(self, key))
             if key.endswith("_scale") and value == 0:
                 raise FieldError(key, f"{key} must not be 0")
             object.__setattr__(self, key, value)
