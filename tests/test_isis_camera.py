@@ -441,3 +441,49 @@ def test_format_errors_name_the_file_for_a_cube_that_is_not_one(tmp_path: Path) 
     path.write_text("hello\n")
     with pytest.raises(FormatError, match=re.escape(str(path))):
         read_camera(path)
+
+
+def _alpha(text: str, start: tuple[float, float], slope: tuple[float, float], beta: int) -> str:
+    """``text`` with its AlphaCube group's start (sample, line) and reduction (slopes) set."""
+    values = {
+        "AlphaStartingSample": start[0],
+        "AlphaStartingLine": start[1],
+        "AlphaEndingSample": start[0] + slope[0] * beta,
+        "AlphaEndingLine": start[1] + slope[1] * beta,
+    }
+    for key, value in values.items():
+        text = re.sub(rf"({key} +=) \S+", rf"\g<1> {value!r}", text)
+    return text
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(
+    ("name", "start", "slope"),
+    [
+        (APOLLO, (4000.25, 7000.5), (15.976, 15.976)),  # a reduced cube of 15.976x
+        (APOLLO, (4396.5, 7996.5), (3.7, 4.3)),
+        (LRO, (2999.5, 15999.5), (1.5, 1.25)),  # line scanner: longer lines, wider samples
+        (LRO, (2000.5, 15899.5), (2.5, 0.75)),
+    ],
+)
+def test_alpha_cube_reductions(tmp_path: Path, name: str, start: tuple, slope: tuple) -> None:
+    """A cropped and reduced cube (any real factor) sees a ground point at the pixel that the
+    AlphaCube formula alpha = slope (beta - 0.5) + start carries the shared cube's pixel to."""
+    samples, lines = SpiceCube(_cube(name)).size
+    ref = read_cube_camera(_cube(name))
+    alpha_ref = SpiceCube(_cube(name)).alpha
+    path = _edited(tmp_path, name, lambda t: _alpha(t, start, slope, samples))
+    cam = read_cube_camera(path)
+    g = np.linspace(0.0, samples - 1.0, 5)
+    uv = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    ground = ref.image_to_ground(uv, 0.0)
+    # the shared cube's pixel -> 1-based alpha -> the edited cube's pixel (beta - 1)
+    a_s = alpha_ref.sample_slope * (uv[:, 0] + 0.5) + alpha_ref.start_sample
+    a_l = alpha_ref.line_slope * (uv[:, 1] + 0.5) + alpha_ref.start_line
+    want = np.stack([(a_s - start[0]) / slope[0] - 0.5, (a_l - start[1]) / slope[1] - 0.5], -1)
+    got = cam.project(ground)[0]
+    inside = (want[:, 1] > -0.4) & (want[:, 1] < lines - 0.6)
+    np.testing.assert_allclose(got[inside], want[inside], atol=1e-3)
+    if name == LRO:  # a line scanner sees nothing before its first or after its last line
+        outside = (want[:, 1] < -0.6) | (want[:, 1] > lines - 0.4)
+        assert np.isnan(got[outside]).all()

@@ -578,17 +578,17 @@ def line_scan_isd(
     summing: float = 1.0,
     first_sample: float = 0.0,
 ) -> dict[str, Any]:
-    """The ISD of a line scanner whose original image's first line (its centre, CSM line 0.5)
-    is exposed at ET ``start_time`` and each next line ``line_rate`` seconds later: detector
-    ``center`` (line, sample), the instrument's cross-track ``summing`` and ``first_sample``
-    read out, the AlphaCube folded in (the cube's lines start later, and a reduced cube's
-    lines last longer)."""
+    """The ISD of a line scanner whose original image starts (the top edge of its first line,
+    CSM line 0; ISIS's and ALE's start time) at ET ``start_time``, each line lasting
+    ``line_rate`` seconds: detector ``center`` (line, sample), the instrument's cross-track
+    ``summing`` and ``first_sample`` read out, the AlphaCube folded in (the cube's lines start
+    later, and a reduced cube's lines last longer)."""
     if not line_rate > 0:
         raise cube.error(f"the line rate {line_rate!r} s is not positive")
     alpha = cube.alpha
     isd = base_isd(cube, ikid)
     rate = line_rate * alpha.line_slope
-    start = start_time + (alpha.full_line(0.5) - 0.5) * line_rate
+    start = start_time + alpha.full_line(0.0) * line_rate
     middle = start + 0.5 * isd["image_lines"] * rate
     isd.update(
         name_model="USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL",
