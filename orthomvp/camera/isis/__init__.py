@@ -9,8 +9,9 @@ the ISD's. :mod:`.core` is the shared part (tables, times, rotations, AlphaCube,
 instrument is a module with its :class:`~.core.Instrument` (keys, timing rule, distortion),
 listed in :data:`INSTRUMENTS`:
 
-- LRO NAC left and right (:mod:`.lro_nac`), line scanners;
-- Apollo 15, 16 and 17 Metric (:mod:`.apollo_metric`), frame cameras.
+- line scanners: LRO NAC left and right (:mod:`.lro_nac`), MRO CTX (:mod:`.mro_ctx`);
+- frame cameras: Apollo 15, 16 and 17 Metric (:mod:`.apollo_metric`), MESSENGER MDIS NAC and
+  WAC filters (:mod:`.messenger_mdis`).
 
 World = the target's body-fixed frame, metres; pixels (u, v) = (column, row) of the cube, integer
 values at pixel centres.
@@ -23,13 +24,18 @@ from pathlib import Path
 from typing import Any
 
 from orthomvp.camera.csm.isd import CsmCamera, camera_from_isd
-from orthomvp.camera.isis import apollo_metric, lro_nac
+from orthomvp.camera.isis import apollo_metric, lro_nac, messenger_mdis, mro_ctx
 from orthomvp.camera.isis.core import ISD_ROUTE, Instrument, SpiceCube, instrument_key, utc_to_et
 from orthomvp.errors import FormatError
 
 __all__ = ["INSTRUMENTS", "Instrument", "SpiceCube", "cube_isd", "read_cube_camera", "utc_to_et"]
 
-INSTRUMENTS: tuple[Instrument, ...] = (lro_nac.INSTRUMENT, apollo_metric.INSTRUMENT)
+INSTRUMENTS: tuple[Instrument, ...] = (
+    lro_nac.INSTRUMENT,
+    mro_ctx.INSTRUMENT,
+    apollo_metric.INSTRUMENT,
+    messenger_mdis.INSTRUMENT,
+)
 """The instruments the cube reader knows."""
 
 

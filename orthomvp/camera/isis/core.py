@@ -135,9 +135,10 @@ class AlphaCube:
 @dataclass(frozen=True)
 class Instrument:
     """A camera the reader knows: ``name`` for messages, the (``SpacecraftName``,
-    ``InstrumentId``) pairs of the label's Instrument group that select it (upper case, ``_``
-    read as a space), ``isd``: the ISD (a dict) of a cube, and ``distortion``: the lens model to
-    use instead of the ISD's, for models usgscsm lacks (None: the ISD's)."""
+    ``InstrumentId``) pairs of the label's Instrument group that select it (compared as
+    :func:`instrument_key` has them), ``isd``: the ISD (a dict) of a cube, and
+    ``distortion``: the lens model to use instead of the ISD's, for models usgscsm lacks (None:
+    the ISD's)."""
 
     name: str
     ids: tuple[tuple[str, str], ...]
@@ -146,10 +147,9 @@ class Instrument:
 
 
 def instrument_key(spacecraft: str, instrument: str) -> tuple[str, str]:
-    """The normalised (spacecraft, instrument id) pair that :attr:`Instrument.ids` lists."""
-    return tuple(
-        " ".join(str(v).replace("_", " ").upper().split()) for v in (spacecraft, instrument)
-    )
+    """The (spacecraft, instrument id) pair as ISIS's camera factory compares them: upper case,
+    without spaces or underscores."""
+    return tuple(re.sub(r"[\s_]", "", str(v)).upper() for v in (spacecraft, instrument))
 
 
 def _item(node: Any, key: str, kind: type | None = None) -> Any:
@@ -510,7 +510,7 @@ def states_at(cube: SpiceCube, spice: dict[str, Any], time: float) -> dict[str, 
 def base_isd(cube: SpiceCube, ikid: int) -> dict[str, Any]:
     """The ISD keys every instrument shares: image size, names, radii, the focal plane's
     ``focal2pixel`` transforms (``NaifKeywords`` ``INS<ikid>_ITRANSS/ITRANSL``) and focal
-    length, the SPICE tables, and the NaifKeywords themselves."""
+    length (``INS<ikid>_FOCAL_LENGTH``), and the SPICE tables."""
     samples, lines = cube.size
     ins = f"INS{ikid}"
     return {
