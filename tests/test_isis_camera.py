@@ -487,3 +487,117 @@ def test_alpha_cube_reductions(tmp_path: Path, name: str, start: tuple, slope: t
     if name == LRO:  # a line scanner sees nothing before its first or after its last line
         outside = (want[:, 1] < -0.6) | (want[:, 1] > lines - 0.4)
         assert np.isnan(got[outside]).all()
+
+
+def _hex_et(et: float) -> str:
+    """A CLOCK_ET value: the little-endian double's 16 hex digits."""
+    return struct.pack("<d", et).hex()
+
+
+LRO_RATE = 0.3632e-3 * 1.0045  # the LRO crop's line time, s (LineExposureDuration, MULTIPLI)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(("summing", "first"), [(1, 100), (2, 0)])
+def test_ctx_rules(tmp_path: Path, summing: int, first: int) -> None:
+    """CTX's rules on the LRO crop relabelled as CTX (no lens): lines start at the clock time
+    (no preroll) and last LineExposureDuration x SpatialSumming, samples are summed and start
+    at SampleFirstPixel: it sees what the lens-free LRO camera sees, at the sample that the
+    detector mapping carries it to (detector = summing x sample + first, in CSM samples)."""
+    clock = "0911857281:050"
+    lro = json.loads(shared("isis", f"{LRO}.isd.json").read_text())
+    start = struct.unpack("<d", bytes.fromhex("83402a625b6bb441"))[0] + 1024 * LRO_RATE
+
+    def edit(text: str) -> str:
+        text = re.sub(
+            r'SpacecraftName += "LUNAR RECONNAISSANCE ORBITER"',
+            "SpacecraftName = Mars_Reconnaissance_Orbiter",
+            text,
+            count=1,
+        )
+        text = text.replace(
+            "InstrumentId                = NACL",
+            f'InstrumentId = CTX\n    SpacecraftClockCount = "{clock}"',
+        )
+        text = text.replace("= 0.363200 <ms>", f"= {LRO_RATE * 1000 / summing!r} <ms>")
+        text = re.sub(r"SpatialSumming +\= 1", f"SpatialSumming = {summing}", text)
+        text = re.sub(r"SampleFirstPixel +\= 0", f"SampleFirstPixel = {first}", text)
+        text = re.sub(r"INS-85600_OD_K +=.*", "INS-85600_OD_K = (0.0, 0.0, 0.0)", text)
+        return text.replace(
+            "End_Object\n\nObject = OriginalLabel",
+            f"  CLOCK_ET_-74_{clock}_COMPUTED = {_hex_et(start)}\nEnd_Object\n\n"
+            "Object = OriginalLabel",
+        )
+
+    path = _edited(tmp_path, LRO, edit)
+    isd = cube_isd(path)
+    assert isd["line_scan_rate"][0][2] == pytest.approx(LRO_RATE, rel=1e-12)
+    assert isd["starting_ephemeris_time"] == pytest.approx(lro["starting_ephemeris_time"], abs=1e-7)
+    assert isd["detector_sample_summing"] == summing
+    ctx = read_cube_camera(path)
+    plain = camera_from_isd_without_lens(lro)
+    g = np.linspace(0.0, 399.0, 5)
+    uv = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    ground = plain.image_to_ground(uv, 0.0)
+    got = ctx.project(ground)[0]
+    # LRO detector sample (u + 0.5) + 2999 = CTX's summing (u' + 0.5) + summing 2999 + first
+    want_u = ((uv[:, 0] + 0.5 + 2999) - summing * 2999 - first) / summing - 0.5
+    np.testing.assert_allclose(got[:, 0], want_u, atol=1e-6)
+    np.testing.assert_allclose(got[:, 1], uv[:, 1], atol=1e-6)
+
+
+def camera_from_isd_without_lens(isd: dict) -> LineScanCamera:
+    """The camera of ALE's LRO ISD with its lens coefficient set to 0."""
+    from orthomvp.camera.csm import camera_from_isd
+
+    return camera_from_isd({**isd, "optical_distortion": {"lrolrocnac": {"coefficients": [0.0]}}})
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(("pixel_binning", "fpu_binning", "summing"), [(0, 0, 1), (2, 1, 4)])
+def test_mdis_rules(tmp_path: Path, pixel_binning: int, fpu_binning: int, summing: int) -> None:
+    """MDIS's rules on the Hadley frame relabelled as MDIS-NAC (identity Taylor lens): the
+    time is mid-exposure after the clock time, the focal length is the FL_TEMP_COEFFS
+    polynomial at FocalPlaneTemperature, binning sums pixels (doubled by FPU binning); and a
+    camera looking along +z with the Apollo frame's pose sees, without summing, each ground
+    point at the pixel point-reflected about the detector centre from the lens-free Apollo
+    camera's."""
+    clock = "1/0012345678:000"
+    table_et = -896833081.9517406
+    coeffs = "(75.954, -0.005, 0.0, 0.0, 0.0, 0.0)"  # 76.054 mm at -20 C
+
+    def edit(text: str) -> str:
+        text = text.replace('SpacecraftName = "APOLLO 15"', "SpacecraftName = MESSENGER")
+        text = text.replace(
+            "InstrumentId   = METRIC",
+            f'InstrumentId = MDIS-NAC\n    SpacecraftClockCount = "{clock}"\n'
+            f"    ExposureDuration = 10 <ms>\n    FpuBinningMode = {fpu_binning}\n"
+            f"    PixelBinningMode = {pixel_binning}\n    FocalPlaneTemperature = -20.0",
+        )
+        text = text.replace("NaifFrameCode             = -915240", "NaifFrameCode = -236820")
+        text = text.replace("INS-915240_", "INS-236820_")
+        extra = (
+            f"  CLOCK_ET_-236_{clock}_COMPUTED = {_hex_et(table_et - 0.005)}\n"
+            "  INS-236820_BORESIGHT_SAMPLE = 11450.0\n  INS-236820_BORESIGHT_LINE = 11450.0\n"
+            f"  INS-236820_FL_TEMP_COEFFS = {coeffs}\n"
+            "  INS-236820_OD_T_X = (0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)\n"
+            "  INS-236820_OD_T_Y = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)\n"
+        )
+        return text.replace("End_Object\nEnd\n", extra + "End_Object\nEnd\n")
+
+    path = _edited(tmp_path, APOLLO, edit)
+    isd = cube_isd(path)
+    assert isd["center_ephemeris_time"] == pytest.approx(table_et, abs=1e-6)
+    assert isd["focal_length_model"]["focal_length"] == pytest.approx(76.054, abs=1e-12)
+    assert isd["detector_sample_summing"] == isd["detector_line_summing"] == 4 * summing
+    assert isd["detector_center"] == {"line": 11449.5, "sample": 11449.5}
+    if summing > 1:
+        return
+    mdis = read_cube_camera(path)
+    plain = read_isd(shared("isis", f"{APOLLO}.isd.json"))
+    g = np.linspace(0.0, 749.0, 5)
+    uv = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    got = mdis.project(plain.image_to_ground(uv, 0.0))[0]
+    # detector 4 (u + 0.5) + start - 11449.5 negated: u' = (2 (11449.5 - start)) / 4 - 1 - u
+    want = np.stack([3525.75 - uv[:, 0], 1725.75 - uv[:, 1]], -1)
+    np.testing.assert_allclose(got, want, atol=1e-6)
