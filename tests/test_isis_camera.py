@@ -390,6 +390,12 @@ def _no_spice(text: str) -> str:
             None,
             r"the image time .* is \+2\.0+ s from the one record of its",
         ),
+        (
+            LRO,
+            lambda t: _alpha(t, (2999.5, 16800.5), (1.0, 1.0), 400),
+            None,
+            r"the cube's lines are exposed over ET \[.*\], beyond its instrument_pointing table",
+        ),
     ],
     ids=[
         "no-spice",
@@ -399,6 +405,7 @@ def _no_spice(text: str) -> str:
         "truncated",
         "missing-key",
         "time-outside",
+        "lines-outside",
     ],
 )
 def test_bad_cubes(
@@ -463,7 +470,7 @@ def _alpha(text: str, start: tuple[float, float], slope: tuple[float, float], be
         (APOLLO, (4000.25, 7000.5), (15.976, 15.976)),  # a reduced cube of 15.976x
         (APOLLO, (4396.5, 7996.5), (3.7, 4.3)),
         (LRO, (2999.5, 15999.5), (1.5, 1.25)),  # line scanner: longer lines, wider samples
-        (LRO, (2000.5, 15899.5), (2.5, 0.75)),
+        (LRO, (2000.5, 16099.5), (2.5, 0.75)),
     ],
 )
 def test_alpha_cube_reductions(tmp_path: Path, name: str, start: tuple, slope: tuple) -> None:

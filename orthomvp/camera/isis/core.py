@@ -589,6 +589,14 @@ def line_scan_isd(
     isd = base_isd(cube, ikid)
     rate = line_rate * alpha.line_slope
     start = start_time + alpha.full_line(0.0) * line_rate
+    end = start + isd["image_lines"] * rate
+    for key in ("instrument_pointing", "instrument_position"):
+        times = isd[key]["ephemeris_times"]
+        if start < times[0] - 0.5 * rate or end > times[-1] + 0.5 * rate:
+            raise cube.error(
+                f"the cube's lines are exposed over ET [{start:.6f}, {end:.6f}], beyond its "
+                f"{key} table's [{times[0]:.6f}, {times[-1]:.6f}] (never extrapolated)"
+            )
     middle = start + 0.5 * isd["image_lines"] * rate
     isd.update(
         name_model="USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL",
