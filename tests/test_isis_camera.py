@@ -720,3 +720,48 @@ def test_lro_nac_right_flips_the_line_axis(tmp_path: Path) -> None:
     assert left["focal2pixel_lines"] == [0.0, 142.857, 0.0]
     assert right["focal2pixel_lines"] == [-0.0, -142.857, -0.0]
     assert isinstance(read_cube_camera(path), LineScanCamera)
+
+
+@pytest.mark.realdata
+def test_dawn_fc_rules(tmp_path: Path) -> None:
+    """Dawn FC's rules on the Hadley frame relabelled as FC2 (a 1024 x 1024 original image,
+    crop from pixel 100, no lens): mid-exposure time 193 ms after the clock start, detector
+    centre CCD_CENTER + 0.5; looking along +z with the Apollo frame's pose, it sees each ground
+    point at the detector position point-reflected about the centre from the lens-free Apollo
+    camera's."""
+    clock = "488933127:000"
+    table_et = -896833081.9517406
+
+    def edit(text: str) -> str:
+        text = text.replace('SpacecraftName = "APOLLO 15"', "SpacecraftName = DAWN")
+        text = text.replace(
+            "InstrumentId   = METRIC",
+            f'InstrumentId = FC2\n    SpacecraftClockStartCount = "{clock}"\n'
+            "    ExposureDuration = 20 <ms>",
+        )
+        text = text.replace("NaifFrameCode             = -915240", "NaifFrameCode = -203121")
+        text = text.replace("INS-915240_", "INS-203121_")
+        text = _alpha(text, (100.5, 200.5), (1.0, 1.0), 750)
+        text = re.sub(r"Alpha(Samples|Lines) += 22900", r"Alpha\1 = 1024", text)
+        extra = (
+            f"  CLOCK_ET_-203_{clock}_COMPUTED = {_hex_et(table_et - 0.193 - 0.010)}\n"
+            "  INS-203121_CCD_CENTER = (511.5, 511.5)\n  INS-203121_RAD_DIST_COEFF = 0.0\n"
+        )
+        return text.replace("End_Object\nEnd\n", extra + "End_Object\nEnd\n")
+
+    path = _edited(tmp_path, APOLLO, edit)
+    isd = cube_isd(path)
+    assert isd["center_ephemeris_time"] == pytest.approx(table_et, abs=1e-6)
+    assert isd["detector_center"] == {"line": 512.0, "sample": 512.0}
+    assert isd["optical_distortion"] == {"dawnfc": {"coefficients": [0.0]}}
+    assert (isd["starting_detector_sample"], isd["starting_detector_line"]) == (100.0, 200.0)
+    fc = read_cube_camera(path)
+    plain = read_isd(shared("isis", f"{APOLLO}.isd.json"))
+    g = np.linspace(0.0, 749.0, 5)
+    uv = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    got = fc.project(plain.image_to_ground(uv, 0.0))[0]
+    # Apollo: detector 4 (u + 0.5) + start about 11449.5; FC2: (u' + 0.5) + first about 512
+    off_s = 4 * (uv[:, 0] + 0.5) + 4396.0 - 11449.5
+    off_l = 4 * (uv[:, 1] + 0.5) + 7996.0 - 11449.5
+    want = np.stack([512.0 - off_s - 100.0 - 0.5, 512.0 - off_l - 200.0 - 0.5], -1)
+    np.testing.assert_allclose(got, want, atol=1e-6)

@@ -11,7 +11,7 @@ listed in :data:`INSTRUMENTS`:
 
 - line scanners: LRO NAC left and right (:mod:`.lro_nac`), MRO CTX (:mod:`.mro_ctx`);
 - frame cameras: Apollo 15, 16 and 17 Metric (:mod:`.apollo_metric`), MESSENGER MDIS NAC and
-  WAC filters (:mod:`.messenger_mdis`).
+  WAC filters (:mod:`.messenger_mdis`), Dawn FC1 and FC2 (:mod:`.dawn_fc`).
 
 World = the target's body-fixed frame, metres; pixels (u, v) = (column, row) of the cube, integer
 values at pixel centres.
@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from orthomvp.camera.csm.isd import CsmCamera, camera_from_isd
-from orthomvp.camera.isis import apollo_metric, lro_nac, messenger_mdis, mro_ctx
+from orthomvp.camera.isis import apollo_metric, dawn_fc, lro_nac, messenger_mdis, mro_ctx
 from orthomvp.camera.isis.core import ISD_ROUTE, Instrument, SpiceCube, instrument_key, utc_to_et
 from orthomvp.errors import FormatError
 
@@ -35,6 +35,7 @@ INSTRUMENTS: tuple[Instrument, ...] = (
     mro_ctx.INSTRUMENT,
     apollo_metric.INSTRUMENT,
     messenger_mdis.INSTRUMENT,
+    dawn_fc.INSTRUMENT,
 )
 """The instruments the cube reader knows."""
 
