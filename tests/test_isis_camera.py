@@ -765,3 +765,24 @@ def test_dawn_fc_rules(tmp_path: Path) -> None:
     off_l = 4 * (uv[:, 1] + 0.5) + 7996.0 - 11449.5
     want = np.stack([512.0 - off_s - 100.0 - 0.5, 512.0 - off_l - 200.0 - 0.5], -1)
     np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+@pytest.mark.realdata
+def test_ales_apollo_isd_with_its_negative_focal_length() -> None:
+    """ALE's ISD of the Hadley frame (focal length -76.054 mm: the camera looks along -z) read
+    as an ISD gives usgscsm's own numbers: image to ground within 1 cm, ground to image within
+    0.01 px, points in front of the camera at positive depth."""
+    cam = read_isd(shared("isis", f"{APOLLO}.isd.json"))
+    truth = _truth(APOLLO)
+    line, sample = _grid(truth)
+    pts = truth["points"]
+    for k, height in enumerate(truth["settings"]["heights_m"]):
+        want = np.array([p["heights"][k]["ground"] for p in pts])
+        ground = cam.csm_image_to_ground(line, sample, height)
+        assert np.linalg.norm(ground - want, axis=1).max() < 0.01
+        g_line, g_sample, depth = cam.csm_ground_to_image(want)
+        g2i = np.array(
+            [[r["g2i"]["line"], r["g2i"]["sample"]] for r in (p["heights"][k] for p in pts)]
+        )
+        assert np.abs(np.stack([g_line, g_sample], -1) - g2i).max() < 0.01
+        assert (depth > 1e5).all()  # about 106 km below the spacecraft

@@ -210,7 +210,10 @@ class SpiceCube:
         dims = None if core is None else _item(core, "Dimensions", dict)
         if dims is None:
             raise self.error("the label lacks IsisCube > Core > Group = Dimensions")
-        return int(_item(dims, "Samples")), int(_item(dims, "Lines"))
+        size = _item(dims, "Samples"), _item(dims, "Lines")
+        if not all(isinstance(n, int) and n > 0 for n in size):
+            raise self.error(f"Dimensions Samples, Lines = {size} are not positive integers")
+        return size
 
     # NaifKeywords --------------------------------------------------------------------------
 
