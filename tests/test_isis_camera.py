@@ -786,3 +786,33 @@ def test_ales_apollo_isd_with_its_negative_focal_length() -> None:
         )
         assert np.abs(np.stack([g_line, g_sample], -1) - g2i).max() < 0.01
         assert (depth > 1e5).all()  # about 106 km below the spacecraft
+
+
+@pytest.mark.realdata
+def test_frame_states_between_records() -> None:
+    """A frame camera's state from multi-record tables (here the LRO crop's) at a time between
+    records: positions by cubic Hermite on positions and velocities, rotations by SLERP
+    (checked with scipy's), and InputError outside the tables (never extrapolated)."""
+    from scipy.interpolate import CubicHermiteSpline
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from orthomvp.camera.isis.core import states_at
+
+    cube = SpiceCube(_cube(LRO))
+    spice = cube.spice
+    pos = spice["instrument_position"]
+    t = np.asarray(pos["ephemeris_times"])
+    time = 0.3 * t[0] + 0.7 * t[1]
+    state = states_at(cube, spice, time)
+    spline = CubicHermiteSpline(t, np.asarray(pos["positions"]), np.asarray(pos["velocities"]))
+    np.testing.assert_allclose(
+        state["instrument_position"]["positions"][0], spline(time), atol=1e-9
+    )
+    point = spice["instrument_pointing"]
+    q = np.asarray(point["quaternions"])
+    slerp = Slerp(np.asarray(point["ephemeris_times"]), Rotation.from_quat(q[:, [1, 2, 3, 0]]))
+    want = slerp([time]).as_quat()[0][[3, 0, 1, 2]]
+    got = np.asarray(state["instrument_pointing"]["quaternions"][0])
+    np.testing.assert_allclose(got * np.sign(got @ want), want, atol=1e-12)
+    with pytest.raises(InputError, match="outside its instrument_pointing table"):
+        states_at(cube, spice, t[0] - 0.01)
