@@ -178,8 +178,8 @@ def test_apollo_differs_from_the_lensless_truth_by_isis_lens() -> None:
         dt = J1 * rr + J2 * rr**2
         ux, uy = dr * x - dt * np.sin(T0), dr * y + dt * np.cos(T0)
         tx, ty = _focal_mm(t_line, t_sample)
-        assert np.abs(ux - tx).max() * 50 < 1e-3  # mm to cube pixels (0.02 mm each)
-        assert np.abs(uy - ty).max() * 50 < 1e-3
+        assert np.abs(ux - tx).max() * 50 < 1e-6  # mm to cube pixels (0.02 mm each)
+        assert np.abs(uy - ty).max() * 50 < 1e-6
         shift = np.hypot(o_line - t_line, o_sample - t_sample)
         assert 0.2 < shift.min() and 1.5 < shift.max() < 1.8  # the lens moves every point
     # image to ground: our ray through a pixel is the lens-free ray through the pixel whose
