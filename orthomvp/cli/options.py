@@ -30,7 +30,8 @@ CAMERA_HELP = (
     ".geojson; the row of IMAGE, the one .yaml beside it) or RPC .yaml; an OpenSfM "
     "reconstruction.json or ODM shots.geojson (the shot of IMAGE); a USGS CSM ISD or model "
     "state .json (line scan, frame, push frame); an RPC camera: the image itself when its "
-    "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file"
+    "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file; a spiceinit'd ISIS3 .cub (the cube "
+    "itself: LRO NAC, MRO CTX, Apollo Metric, MESSENGER MDIS, Dawn FC)"
 )
 """What a CAMERA may be: every kind of :data:`orthomvp.camera.FORMATS` (not imported: --help
 stays fast; a test checks that every kind is named)."""
