@@ -204,6 +204,7 @@ COMMANDS = {
     "fit": ("orthomvp.cli.fit", "fit"),
     "eps-study": ("orthomvp.cli.eps_study", "eps_study"),
     "check": ("orthomvp.cli.check", "check"),
+    "isd": ("orthomvp.cli.isd", "isd"),
     "bench": ("orthomvp.cli.bench", "bench"),
 }
 """Each command's (module, attribute), in the order --help lists them."""
