@@ -60,6 +60,7 @@ def _plan(
     dem: DemInput,
     views: list[tuple[Path, Path | Camera]],
     engine: EngineInput,
+    output: Path,
     *,
     occlusion: bool = True,
     eps: float | None = None,
@@ -72,9 +73,11 @@ def _plan(
         dem.path,
         views,
         tile=engine.tile,
+        grid=engine.grid,
         res=engine.res,
         bounds=engine.bounds,
         crs=engine.crs,
+        output_dir=output.parent,
         occlusion=occlusion,
         eps=eps,
         interp=interp,
@@ -113,12 +116,13 @@ def visibility(
     engine: EngineInput,
     overwrite: bool,
 ) -> None:
-    """Classify every post of the output grid (the DEM's, or --res/--bounds/--crs) for one
+    """Classify every post of the output grid (by default the part of the DEM the image
+    sees, at its own ground sample distance; --grid dem, --res, --bounds, --crs) for one
     camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
     Written as a uint8 GeoTIFF."""
     check_outputs([Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite)
     with warnings_as_lines():
-        plan = _plan(dem, [(image, camera)], engine, eps=eps)
+        plan = _plan(dem, [(image, camera)], engine, output, eps=eps)
         report = _run(plan, engine, visibility=output)
     warn_partial(report, 0, str(image))
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
@@ -159,14 +163,21 @@ def ortho(
     engine: EngineInput,
     overwrite: bool,
 ) -> None:
-    """Orthorectify IMAGE through CAMERA onto the output grid (the DEM's, or
-    --res/--bounds/--crs). Posts that are not visible (occluded, facing away, outside) are
-    nodata unless --no-occlusion asks for the naive orthophoto."""
+    """Orthorectify IMAGE through CAMERA onto the output grid (by default the part of the DEM
+    the image sees, at its own ground sample distance; --grid dem, --res, --bounds, --crs).
+    Posts that are not visible (occluded, facing away, outside) are nodata unless
+    --no-occlusion asks for the naive orthophoto."""
     outputs = [Output("-o", output), Output("--visibility", visibility_out)]
     check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite)
     with warnings_as_lines():
         plan = _plan(
-            dem, [(image, camera)], engine, occlusion=not no_occlusion, eps=eps, interp=interp
+            dem,
+            [(image, camera)],
+            engine,
+            output,
+            occlusion=not no_occlusion,
+            eps=eps,
+            interp=interp,
         )
         report = _run(plan, engine, ortho=output, visibility=visibility_out)
     warn_partial(report, 0, str(image))
@@ -266,8 +277,9 @@ def mosaic(
     engine: EngineInput,
     overwrite: bool,
 ) -> None:
-    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
-    or --res/--bounds/--crs) into one seamless mosaic: each post prefers the visible image
+    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (by default
+    the union of the images' footprints on the DEM, at their ground sample distance; --grid
+    dem, --res, --bounds, --crs) into one seamless mosaic: each post prefers the visible image
     of --priority, seamlines run away from occlusion boundaries and disagreement, seams are
     feathered over --blend posts, optionally balanced; an image never gives a post it does
     not see (except --fill naive, flagged). --source records which image (1-based, in
@@ -297,7 +309,7 @@ def mosaic(
         fill=fill,
     )
     with warnings_as_lines():
-        plan = _plan(dem, pairs, engine, eps=eps, interp=interp, mosaic=options)
+        plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
     rows, cols = plan.grid.shape
     parts = ", ".join(

@@ -31,7 +31,7 @@ _HOMES = {
     "run_fit": "fit",
     "FitPlan": "fit_plan",
     "plan_fit": "fit_plan",
-    "HaloWarning": "plan",
+    "HaloWarning": "grid_choice",
     "Plan": "plan",
     "TileJob": "plan",
     "plan_ortho": "plan",
@@ -70,7 +70,8 @@ if TYPE_CHECKING:
     from orthomvp.engine.check_plan import CheckPlan, plan_check
     from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
     from orthomvp.engine.fit_plan import FitPlan, plan_fit
-    from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
+    from orthomvp.engine.grid_choice import HaloWarning
+    from orthomvp.engine.plan import Plan, TileJob, plan_ortho
     from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
     from orthomvp.engine.writer import Outputs
 
