@@ -119,7 +119,7 @@ def test_tiled_engine_equals_in_memory(scene_dir: Path, scene, tmp_path: Path) -
     """Tiles of 12 posts, whose DEM windows reach beyond them by the occluder halo, give the
     in-memory codes and orthophoto, with the camera read from the ISD by path."""
     dem, image, isd = scene_dir / "dem.tif", scene_dir / "linescan.tif", scene_dir / "linescan.json"
-    plan = plan_ortho(dem, [(image, isd)], tile=12)
+    plan = plan_ortho(dem, [(image, isd)], tile=12, grid="dem")
     grown = [
         job for job in plan.tiles if job.dem is not None and _size(job.dem) > _size(job.window)
     ]
@@ -144,8 +144,9 @@ def _size(window: tuple[int, int, int, int]) -> int:
 def test_command_line_on_the_scene(scene_dir: Path, scene, tmp_path: Path) -> None:
     """``orthomvp visibility`` and ``ortho`` take the scene's ISD as the frame scenes' .tsai."""
     files = [str(scene_dir / n) for n in ("dem.tif", "linescan.tif", "linescan.json")]
-    assert main(["visibility", *files, "-o", tmp_path / "v.tif"]) == 0
-    assert main(["ortho", *files, "-o", tmp_path / "o.tif"]) == 0
+    dem_grid = ["--grid", "dem"]
+    assert main(["visibility", *files, "-o", tmp_path / "v.tif", *dem_grid]) == 0
+    assert main(["ortho", *files, "-o", tmp_path / "o.tif", *dem_grid]) == 0
     assert np.isfinite(rasterio.open(tmp_path / "o.tif").read(1)).mean() > 0.8
     truth = scene.views["linescan"].truth
     with rasterio.open(tmp_path / "v.tif") as src:

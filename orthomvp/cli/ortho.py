@@ -124,7 +124,7 @@ def visibility(
     with warnings_as_lines():
         plan = _plan(dem, [(image, camera)], engine, output, eps=eps)
         report = _run(plan, engine, visibility=output)
-    warn_partial(report, 0, str(image))
+    warn_partial(report, 0, str(image), engine)
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
     print(f"wrote {output}: {counts}")
 
@@ -180,7 +180,7 @@ def ortho(
             interp=interp,
         )
         report = _run(plan, engine, ortho=output, visibility=visibility_out)
-    warn_partial(report, 0, str(image))
+    warn_partial(report, 0, str(image), engine)
     rows, cols = plan.grid.shape
     print(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
 
@@ -319,11 +319,14 @@ def mosaic(
     print(f"wrote {output}: {parts}; {none:,} posts from no image")
 
 
-def warn_partial(report: RunReport, view: int, what: str) -> None:
-    """A warning on stderr when the image covers only part of the grid's posts with heights."""
-    if report.valid and report.inside[view] < report.valid:
+def warn_partial(report: RunReport, view: int, what: str, engine: EngineInput) -> None:
+    """A warning on stderr when the image covers only part of the grid's posts with heights,
+    on a grid whose extent was not chosen from the image (--grid dem, or --bounds)."""
+    from_image = engine.grid == "camera" and engine.bounds is None
+    if not from_image and report.valid and report.inside[view] < report.valid:
         share = 100 * report.inside[view] / report.valid
         print(
-            f"orthomvp: warning: {what} covers {share:.1f}% of the DEM's posts; the rest is nodata",
+            f"orthomvp: warning: {what} covers {share:.1f}% of the output grid's posts with "
+            "heights; the rest is nodata",
             file=sys.stderr,
         )

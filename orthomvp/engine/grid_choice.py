@@ -149,7 +149,7 @@ def choose_grid(
     if lengths is not None:
         units, metres = to_units(lengths, out_pyproj, radius)
         check_res(lengths, metres, out_pyproj, radius, dem_extent_metres(dem, radius))
-    if grid == "dem":
+    if grid == "dem" or (units is not None and bounds is not None):
         return output_grid(dem, units, bounds, crs)
     if footprints is None:
         footprints = [image_footprint(dem, view) for view in sources]
