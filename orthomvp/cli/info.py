@@ -11,13 +11,25 @@ from typing import Any
 import click
 
 from orthomvp.cli.command import Command
-from orthomvp.cli.options import PATH, DemInput, dem_argument, dem_options
+from orthomvp.cli.options import CAMERA_HELP, PATH, DemInput, dem_argument, dem_options
 
 
 @click.command(cls=Command, short_help="what a DEM is, and what an image sees of it")
 @dem_argument
-@click.argument("image", type=PATH, required=False, metavar="[IMAGE]")
-@click.argument("camera", type=PATH, required=False, metavar="[CAMERA]")
+@click.argument(
+    "image",
+    type=PATH,
+    required=False,
+    metavar="[IMAGE]",
+    help="an image: any raster GDAL reads, or an ISIS3 .cub (gives the image size)",
+)
+@click.argument(
+    "camera",
+    type=PATH,
+    required=False,
+    metavar="[CAMERA]",
+    help=f"its {CAMERA_HELP}; default: the image's own RPCs",
+)
 @click.option(
     "--json",
     "as_json",

@@ -87,7 +87,8 @@ def image_footprint(dem: DemSource, view: ImageSource) -> Footprint:
         pick = pick[np.linspace(0, len(pick) - 1, GSD_SAMPLES).astype(int)]
     p, uv_seen = points.reshape(-1, 3)[pick], uv.reshape(-1, 2)[pick]
     gsd, emission = ground_gsd(dem, view.camera, p, uv_seen)
-    return Footprint(found, step, int(seen.sum()), outline, gsd, emission, _times(view, uv_seen))
+    time = _times(view, uv[seen])
+    return Footprint(found, step, int(seen.sum()), outline, gsd, emission, time)
 
 
 def _empty() -> Footprint:
