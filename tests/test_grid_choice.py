@@ -289,3 +289,27 @@ def test_info_text_for_a_lunar_frame() -> None:
     assert "geographic, degrees" in text and "1,737,400.0" in text
     assert "GSD:           median 28.6 m" in text and "default grid:" in text
     one_line_error(cli("info", dem, image, dem.parent / "nope.tsai"), "nope.tsai")
+
+
+def test_plan_ortho_defaults_to_the_camera_grid(crater_dir: Path) -> None:
+    """The API's default is the command line's: the footprint at the image's clean GSD; "dem"
+    is the DEM's own grid; a resolution with a unit is converted on the DEM's body."""
+    from orthomvp.engine import plan_ortho
+
+    dem, view = crater_dir / "dem.tif", (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
+    plan = plan_ortho(dem, [view], progress=False)
+    source, views = read_source(dem, [image_source(*view)], None, False, "auto", False)
+    fp = image_footprint(source, views[0])
+    radius = source.preview.radii[0]
+    degree = radius * math.pi / 180  # metres per degree on the body
+    assert source.crs.is_geographic
+    assert plan.grid.transform.a == pytest.approx(clean_metres(np.median(fp.gsd)) / degree)
+    assert plan.grid == choose_grid(source, views)
+    assert not plan.grid.on_dem and plan.grid.shape != source.shape
+    assert plan_ortho(dem, [view], grid="dem", progress=False).grid.on_dem
+    fine = plan_ortho(dem, [view], res="100m", progress=False).grid
+    assert fine.transform.a == pytest.approx(100 / degree) == -fine.transform.e
+    with pytest.raises(InputError, match="grid must be one of camera, dem"):
+        plan_ortho(dem, [view], grid="image", progress=False)
+    with pytest.raises(InputError, match="probably meant metres: 30m"):
+        plan_ortho(dem, [view], res=30, progress=False)

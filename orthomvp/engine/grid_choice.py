@@ -201,7 +201,12 @@ def check_grid_size(
     posts = rows * cols
     bands = max(v.bands for v in sources) if sources else 1
     nbytes = posts * 4 * bands * 4 / 3
-    size = f"{cols:,} x {rows:,} posts ({count_text(posts)}, {size_text(nbytes)} as float32)"
+    per_unit, unit = unit_scale(as_pyproj(grid.crs), dem.preview.radii[0])
+    res = abs(grid.transform.a)
+    size = (
+        f"{cols:,} x {rows:,} posts of {res:.3g} {unit} ({res * per_unit:.3g} m on the ground; "
+        f"{count_text(posts)} posts, {size_text(nbytes)} as float32)"
+    )
     advice = "choose a coarser res or smaller bounds"
     if max(rows, cols) > GDAL_MAX_SIDE:
         raise InputError(f"the output grid would be {size}, beyond GDAL's rasters: {advice}")
