@@ -145,30 +145,18 @@ def _search(dem: DemSource, camera: Camera) -> WindowT | None:
 def _hull(rr: np.ndarray, cc: np.ndarray, seen: np.ndarray, step: int) -> np.ndarray:
     """The convex hull (n, 2), DEM pixel (c, r), of the cells (``step`` posts a side, centred
     on the posts) of the seen lattice posts; only each lattice row's outermost seen posts can
-    be on it."""
-    from scipy.spatial import ConvexHull, QhullError
+    be on it. (OpenCV's hull, on doubled coordinates, which are integers: OpenCV is loaded for
+    sampling anyway, scipy's would load scipy into every orthophoto.)"""
+    import cv2
 
     i = np.nonzero(seen.any(axis=1))[0]
     first = seen[i].argmax(axis=1)
     last = seen.shape[1] - 1 - seen[i, ::-1].argmax(axis=1)
-    c = np.concatenate([cc[first], cc[last]]).astype(np.float64)
-    r = np.concatenate([rr[i], rr[i]]).astype(np.float64)
-    half = step / 2
-    corners = np.array([(dc, dr) for dc in (-half, half) for dr in (-half, half)])
-    centres = np.stack([c, r], axis=-1)[:, None, :]
-    points = np.unique((centres + corners[None]).reshape(-1, 2), axis=0)
-    try:
-        hull = ConvexHull(points)
-    except QhullError:  # a single row or column of posts: its box
-        return np.array(
-            [
-                [points[:, 0].min(), points[:, 1].min()],
-                [points[:, 0].max(), points[:, 1].min()],
-                [points[:, 0].max(), points[:, 1].max()],
-                [points[:, 0].min(), points[:, 1].max()],
-            ]
-        )
-    return points[hull.vertices]
+    centres = 2 * np.stack([np.r_[cc[first], cc[last]], np.r_[rr[i], rr[i]]], axis=-1)
+    corners = np.array([(dc, dr) for dc in (-step, step) for dr in (-step, step)])
+    points = (centres[:, None, :] + corners[None]).reshape(-1, 2).astype(np.int32)
+    hull = cv2.convexHull(points).reshape(-1, 2) / 2.0
+    return hull.astype(np.float64)
 
 
 def ground_gsd(
