@@ -313,3 +313,36 @@ def test_plan_ortho_defaults_to_the_camera_grid(crater_dir: Path) -> None:
         plan_ortho(dem, [view], grid="image", progress=False)
     with pytest.raises(InputError, match="probably meant metres: 30m"):
         plan_ortho(dem, [view], res=30, progress=False)
+
+
+def test_a_grid_beyond_the_free_space_is_refused_before_planning(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Free space: refused when even 10:1 compression would not fit; the DEM's own grid is
+    never refused for its posts per pixel, a finer grid is."""
+    import shutil
+
+    from orthomvp.engine import grid_choice
+
+    dem, view = crater_dir / "dem.tif", (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
+    source, views = read_source(dem, [image_source(*view)], None, False, "auto", False)
+    grid = choose_grid(source, views)
+    rows, cols = grid.shape
+    need = rows * cols * 4 * views[0].bands * 4 / 3 / grid_choice.COMPRESSION
+    usage = shutil.disk_usage(tmp_path)
+    for free, refused in ((int(need) - 1, True), (int(need) + 1, False)):
+        monkeypatch.setattr(
+            grid_choice.shutil, "disk_usage", lambda _, f=free: usage._replace(free=f)
+        )
+        if refused:
+            with pytest.raises(InputError, match=f"free in {tmp_path}"):
+                grid_choice.check_grid_size(grid, source, views, tmp_path)
+        else:
+            grid_choice.check_grid_size(grid, source, views, tmp_path)
+    monkeypatch.undo()
+    pixels = views[0].width * views[0].height
+    own = choose_grid(source, views, grid="dem")
+    monkeypatch.setattr(grid_choice, "POSTS_PER_PIXEL", own.shape[0] * own.shape[1] / pixels / 2)
+    grid_choice.check_grid_size(own, source, views)  # the DEM's own grid: always written
+    with pytest.raises(InputError, match="posts per pixel"):
+        grid_choice.check_grid_size(choose_grid(source, views, res="1m"), source, views)
