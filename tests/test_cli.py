@@ -23,7 +23,7 @@ from orthomvp.cli import cli, main
 from orthomvp.cli.command import spell_out
 
 COMMANDS = (
-    "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
+    "demo", "info", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
     "eps-study", "check", "isd", "bench",
 )  # fmt: skip
 

@@ -37,7 +37,10 @@ def test_readme_engine_example(tmp_path: Path) -> None:
     assert namespace["report"].filled > 0
     threaded, dask = read_image(tmp_path / "ortho.tif"), read_image(tmp_path / "ortho-dask.tif")
     np.testing.assert_array_equal(threaded, dask)
-    assert read_image(tmp_path / "vis.tif").shape == (1, 48, 48)
+    # on the camera's grid: the part of the 48 x 48-post DEM the image sees, at its GSD
+    grid = namespace["plan"].grid
+    assert read_image(tmp_path / "vis.tif").shape == (1, *grid.shape)
+    assert grid.transform.a < 100.0 and not grid.on_dem
     check = namespace["check"]
     assert check.pairs == [(1, 2)] and check.pooled(4, "visible")["scored"] > 500
     assert (tmp_path / "check.csv").is_file() and (tmp_path / "check.png").is_file()

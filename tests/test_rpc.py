@@ -513,13 +513,13 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
     dem, image = shared("ngi-aerial", "dem.tif"), shared(QB, IMAGE)
     frame = "3324c_2015_1004_05_0182_RGB"
     aerial = (shared("ngi-aerial", f"{frame}.tif"), shared("ngi-aerial", f"{frame}.converted.tsai"))
-    plan = plan_ortho(dem, [(image, image)], tile=128, progress=False)
+    plan = plan_ortho(dem, [(image, image)], tile=128, progress=False, grid="dem")
     assert plan.dem.world == WorldFrame.BODY
     run_plan(
         plan, Outputs(ortho=tmp_path / "qb.tif", visibility=tmp_path / "v.tif"), progress=False
     )
     run_plan(
-        plan_ortho(dem, [aerial], progress=False),
+        plan_ortho(dem, [aerial], progress=False, grid="dem"),
         Outputs(ortho=tmp_path / "ngi.tif"),
         progress=False,
     )

@@ -194,6 +194,7 @@ def main_entry() -> None:
 
 COMMANDS = {
     "demo": ("orthomvp.cli.demo", "demo"),
+    "info": ("orthomvp.cli.info", "info"),
     "synth": ("orthomvp.cli.synth", "synth"),
     "mesh": ("orthomvp.cli.mesh", "mesh"),
     "render": ("orthomvp.cli.render", "render"),
