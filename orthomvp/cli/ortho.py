@@ -28,6 +28,7 @@ from orthomvp.cli.options import (
     optional_dem_argument,
     output_option,
     overwrite_options,
+    own_camera,
     pairs_argument,
     quiet,
     say,
@@ -114,7 +115,7 @@ def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
 def visibility(
     dem: DemInput,
     image: Path,
-    camera: Path,
+    camera: Path | None,
     output: Path,
     eps: float | None,
     engine: EngineInput,
@@ -126,10 +127,14 @@ def visibility(
     camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
     Written as a uint8 GeoTIFF."""
     check_outputs(
-        [Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite, replace_input
+        [Output("-o", output)],
+        view_inputs(dem, [(image, camera or image)]),
+        overwrite,
+        replace_input,
     )
+    view = (image, camera or own_camera(image))
     with warnings_as_lines():
-        plan = _plan(dem, [(image, camera)], engine, output, eps=eps)
+        plan = _plan(dem, [view], engine, output, eps=eps)
         report = _run(plan, engine, visibility=output)
     warn_partial(report, 0, str(image), engine)
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
@@ -161,7 +166,7 @@ def visibility(
 def ortho(
     dem: DemInput,
     image: Path,
-    camera: Path,
+    camera: Path | None,
     output: Path,
     visibility_out: Path | None,
     interp: Interp,
@@ -176,11 +181,12 @@ def ortho(
     Posts that are not visible (occluded, facing away, outside) are nodata unless
     --no-occlusion asks for the naive orthophoto."""
     outputs = [Output("-o", output), Output("--visibility", visibility_out)]
-    check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite, replace_input)
+    check_outputs(outputs, view_inputs(dem, [(image, camera or image)]), overwrite, replace_input)
+    view = (image, camera or own_camera(image))
     with warnings_as_lines():
         plan = _plan(
             dem,
-            [(image, camera)],
+            [view],
             engine,
             output,
             occlusion=not no_occlusion,
