@@ -98,3 +98,43 @@ def test_visibility_computes_only_the_fields_asked_for(scene, fields: tuple) -> 
                 assert np.isnan(got).all() and not got.flags.writeable
     with pytest.raises(InputError, match="fields"):
         compute_visibility(grid, camera, caster=caster, fields=frozenset({"normals"}))
+
+
+def test_carried_codes_through_another_crs_equal_casting_every_post(scene) -> None:  # noqa: ANN001
+    """A finer grid in another CRS of the body (equidistant cylindrical), wider than the DEM on
+    every side (its edge posts have no height): the codes carried from the DEM's posts through
+    the two CRSs are those of casting every grid post."""
+    from affine import Affine
+    from pyproj import CRS, Transformer
+
+    from orthomvp.geometry.terrain import Terrain
+
+    dem, camera = scene.terrain, scene.cameras["oblique"]
+    eqc = CRS.from_proj4("+proj=eqc +R=1737400 +no_defs")
+    to_eqc = Transformer.from_crs(dem.crs, eqc, always_xy=True)
+    rows_dem, cols_dem = dem.shape
+    corners = dem.transform @ (
+        np.array([0, cols_dem, 0, cols_dem]),
+        np.array([0, 0, rows_dem, rows_dem]),
+    )
+    left, bottom, right, top = to_eqc.transform_bounds(
+        min(corners[0]), min(corners[1]), max(corners[0]), max(corners[1])
+    )
+    step = float(np.mean(dem.post_spacing())) / 3
+    pad = 3 * step
+    cols, rows = int((right - left + 2 * pad) / step), int((top - bottom + 2 * pad) / step)
+    transform = Affine(step, 0, left - pad, 0, -step, top + pad)
+    c, r = np.meshgrid(np.arange(cols) + 0.5, np.arange(rows) + 0.5)
+    x, y = transform @ (c, r)
+    lon, lat = Transformer.from_crs(eqc, dem.crs, always_xy=True).transform(x, y)
+    values = dem.interpolate(*dem.crs_to_pixel(lon, lat))
+    assert np.isnan(values[0]).all() and np.isfinite(values).mean() > 0.8
+    grid = Terrain(values, transform, eqc)
+    scale = step / float(np.mean(dem.post_spacing()))
+    caster = CountingCaster(occluder_mesh(dem))
+    every = compute_visibility(grid, camera, caster=caster, post_scale=scale)
+    rays_every, caster.rays = caster.rays, 0
+    carried = compute_visibility(grid, camera, caster=caster, post_scale=scale, dem=dem)
+    assert (every.codes == Code.OCCLUDED).sum() > 1000
+    np.testing.assert_array_equal(carried.codes, every.codes)
+    assert caster.rays * 2 < rays_every

@@ -23,8 +23,8 @@ from orthomvp.cli import cli, main
 from orthomvp.cli.command import spell_out
 
 COMMANDS = (
-    "demo", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
-    "eps-study", "check", "bench",
+    "demo", "info", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
+    "eps-study", "check", "isd", "bench",
 )  # fmt: skip
 
 

@@ -27,6 +27,8 @@ def test_ortho_visibility_and_naive(crater_dir: Path, tmp_path: Path) -> None:
         str(out),
         "--visibility",
         str(vis),
+        "--grid",
+        "dem",
     )
     assert proc.returncode == 0, proc.stderr
     naive = tmp_path / "naive.tif"
@@ -38,6 +40,8 @@ def test_ortho_visibility_and_naive(crater_dir: Path, tmp_path: Path) -> None:
         "-o",
         str(naive),
         "--no-occlusion",
+        "--grid",
+        "dem",
         "--interp",
         "cubic",
     )
@@ -64,6 +68,8 @@ def test_ortho_visibility_and_naive(crater_dir: Path, tmp_path: Path) -> None:
         "--res",
         str(res_x),
         str(res_y),
+        "--grid",
+        "dem",
     )
     assert proc.returncode == 0, proc.stderr
     assert read_image(coarse).shape == (1, 32, 32)
@@ -81,6 +87,8 @@ def test_visibility_and_mosaic_commands(crater_dir: Path, tmp_path: Path) -> Non
         str(tmp_path / "v.tif"),
         "--eps",
         "2",
+        "--grid",
+        "dem",
     )
     assert proc.returncode == 0, proc.stderr
     assert "occluded" in proc.stdout
@@ -95,6 +103,8 @@ def test_visibility_and_mosaic_commands(crater_dir: Path, tmp_path: Path) -> Non
         str(tmp_path / "m.tif"),
         "--source",
         str(tmp_path / "s.tif"),
+        "--grid",
+        "dem",
     )
     assert proc.returncode == 0, proc.stderr
     m = read_image(tmp_path / "m.tif")[0]
@@ -167,7 +177,8 @@ def test_partial_coverage_warns(crater_dir: Path, tmp_path: Path) -> None:
     ) as dst:
         dst.write(image[:, :, : cols // 2])
     out = tmp_path / "o.tif"
-    proc = run("ortho", str(d / "dem.tif"), str(half), str(tmp_path / "half.tsai"), "-o", str(out))
+    half_cam = str(tmp_path / "half.tsai")
+    proc = run("ortho", str(d / "dem.tif"), str(half), half_cam, "-o", str(out), "--grid", "dem")
     assert proc.returncode == 0, proc.stderr
     assert "warning" in proc.stderr and "covers" in proc.stderr
     o = read_image(out)[0]

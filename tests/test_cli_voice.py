@@ -285,6 +285,7 @@ CAMERA_KINDS = {
     "GeoTIFF RPC metadata": "the image itself when its GeoTIFF holds RPC metadata",
     "RPC text (_RPC.TXT)": "an _RPC.TXT",
     "RPB": "an .RPB file",
+    "an ISIS3 cube": "a spiceinit'd ISIS3 .cub",
 }
 """Each camera format of the registry, and the words by which --help names it."""
 

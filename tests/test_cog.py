@@ -281,7 +281,9 @@ def cascade(data: np.ndarray, levels: int) -> list[np.ndarray]:
 def crater_plan(crater_dir: Path, tile: int):  # noqa: ANN201
     view = (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
     res = (0.0003, 0.0003)
-    return plan_ortho(crater_dir / "dem.tif", [view], tile=tile, res=res, progress=False)
+    return plan_ortho(
+        crater_dir / "dem.tif", [view], tile=tile, res=res, progress=False, grid="dem"
+    )
 
 
 def test_engine_cog_overviews_are_block_means_of_the_level_before(

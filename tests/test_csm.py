@@ -353,7 +353,9 @@ def test_csm_cameras_through_the_command_line(name: str, tmp_path: Path) -> None
     ) as dst:
         dst.write(np.zeros((1, n_r, n_c), np.float32))
     out = tmp_path / "o.tif"
-    assert main(["-q", "ortho", str(dem), str(image), str(isd), "-o", str(out)]) == 0
+    assert (
+        main(["-q", "ortho", str(dem), str(image), str(isd), "-o", str(out), "--grid", "dem"]) == 0
+    )
     with rasterio.open(out) as src:
         ortho = src.read().astype(np.float64)
     checked = 0

@@ -73,8 +73,8 @@ def run(plan, tmp_path: Path, name: str, **kw) -> dict[str, np.ndarray]:  # noqa
 
 def test_tiled_equals_untiled_and_in_memory(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
-    tiled = plan_ortho(crater["dem"], [view], tile=16, progress=False)
-    whole = plan_ortho(crater["dem"], [view], tile=64, progress=False)
+    tiled = plan_ortho(crater["dem"], [view], tile=16, progress=False, grid="dem")
+    whole = plan_ortho(crater["dem"], [view], tile=64, progress=False, grid="dem")
     # the halo matters: occluders lie farther from a tile than the tile is wide
     assert tiled.reach[0] > 16 and len(tiled.tiles) == 16 and len(whole.tiles) == 1
     assert any(job.dem_posts > 2 * (16 + 2) ** 2 for job in tiled.tiles)
@@ -91,7 +91,7 @@ def test_tiled_equals_untiled_and_in_memory(crater: dict, tmp_path: Path) -> Non
 
 def test_mosaic_tiled_equals_in_memory(crater: dict, tmp_path: Path) -> None:
     views = [crater["views"]["oblique"], crater["views"]["nadir"]]
-    plan = plan_ortho(crater["dem"], views, tile=16, progress=False)
+    plan = plan_ortho(crater["dem"], views, tile=16, progress=False, grid="dem")
     got = run(plan, tmp_path, "mos", kinds=("ortho", "source", "visibility"), threads=2)
     expected = mosaic(crater["terrain"], [load_view(*v) for v in views])
     np.testing.assert_array_equal(got["source"][0], expected.source)
@@ -104,8 +104,8 @@ def test_mosaic_tiled_equals_in_memory(crater: dict, tmp_path: Path) -> None:
 def test_other_grid_and_crs(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
     res = (0.0009, 0.0007)
-    tiled = plan_ortho(crater["dem"], [view], tile=16, res=res, progress=False)
-    whole = plan_ortho(crater["dem"], [view], tile=1024, res=res, progress=False)
+    tiled = plan_ortho(crater["dem"], [view], tile=16, res=res, progress=False, grid="dem")
+    whole = plan_ortho(crater["dem"], [view], tile=1024, res=res, progress=False, grid="dem")
     a, b = run(tiled, tmp_path, "a"), run(whole, tmp_path, "b")
     np.testing.assert_array_equal(a["visibility"], b["visibility"])
     same(a["ortho"], b["ortho"])
@@ -121,15 +121,23 @@ def test_other_grid_and_crs(crater: dict, tmp_path: Path) -> None:
     np.testing.assert_allclose(a["ortho"], ortho.data, rtol=1e-5, equal_nan=True)
     # a projected CRS on the same body
     eqc = "+proj=eqc +lat_ts=26 +lon_0=3.6 +R=1737400 +units=m +no_defs"
-    c1 = run(plan_ortho(crater["dem"], [view], tile=16, crs=eqc, progress=False), tmp_path, "c")
-    c2 = run(plan_ortho(crater["dem"], [view], tile=64, crs=eqc, progress=False), tmp_path, "d")
+    c1 = run(
+        plan_ortho(crater["dem"], [view], tile=16, crs=eqc, progress=False, grid="dem"),
+        tmp_path,
+        "c",
+    )
+    c2 = run(
+        plan_ortho(crater["dem"], [view], tile=64, crs=eqc, progress=False, grid="dem"),
+        tmp_path,
+        "d",
+    )
     np.testing.assert_array_equal(c1["visibility"], c2["visibility"])
     same(c1["ortho"], c2["ortho"])
     with rasterio.open(tmp_path / "c-ortho.tif") as src:
         assert src.crs.to_dict().get("proj") == "eqc"
         assert abs(src.transform.a - 80.0) < 1.0  # the DEM's 80 m posts
     with pytest.raises(InputError, match="another body"):
-        plan_ortho(crater["dem"], [view], crs="EPSG:4326", progress=False)
+        plan_ortho(crater["dem"], [view], crs="EPSG:4326", progress=False, grid="dem")
 
 
 def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
@@ -140,7 +148,7 @@ def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None
 
     monkeypatch.setattr("orthomvp.occlusion.occluders.occluder_mesh", refuse)
     monkeypatch.setattr("orthomvp.occlusion.visibility.occluder_mesh", refuse)
-    plan = plan_ortho(crater["dem"], [view], tile=16, occlusion=False, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=16, occlusion=False, progress=False, grid="dem")
     got = run(plan, tmp_path, "naive", kinds=("ortho",))
     image, camera = load_view(*view)
     same(got["ortho"], orthorectify(crater["terrain"], image, camera, occlusion=False).data)
@@ -152,7 +160,7 @@ def test_visibility_alone_reads_no_image(crater: dict, tmp_path: Path, monkeypat
 
     monkeypatch.setattr(ImageSource, "read", refuse)
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False, grid="dem")
     got = run(plan, tmp_path, "vis", kinds=("visibility",))
     expected = compute_visibility(crater["terrain"], load_view(*view)[1])
     np.testing.assert_array_equal(got["visibility"][0], expected.codes)
@@ -169,7 +177,9 @@ def test_uncovered_tiles_are_skipped(crater: dict, tmp_path: Path, monkeypatch) 
     monkeypatch.setattr(
         engine_grid.DemSource, "read", lambda self, w: reads.append(w) or original(self, w)
     )
-    plan = plan_ortho(crater["dem"], [(tmp_path / "part.tif", camera)], tile=16, progress=False)
+    plan = plan_ortho(
+        crater["dem"], [(tmp_path / "part.tif", camera)], tile=16, progress=False, grid="dem"
+    )
     got = run(plan, tmp_path, "part", threads=1)
     assert got["report"].tiles_skipped > 0
     assert len(reads) == got["report"].tiles_run < len(plan.tiles)
@@ -184,7 +194,7 @@ def test_huge_image_windows_are_sampled_in_pieces(
     monkeypatch,  # noqa: ANN001
 ) -> None:
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False, grid="dem")
     whole = run(plan, tmp_path, "whole", kinds=("ortho",))
     reads = []
     original = ImageSource.read
@@ -218,7 +228,7 @@ def grazing_view(terrain: Terrain, tmp_path: Path) -> tuple[Path, PinholeCamera]
 def test_grazing_view_warns_and_stays_correct(crater: dict, tmp_path: Path) -> None:
     path, camera = grazing_view(crater["terrain"], tmp_path)
     with pytest.warns(HaloWarning, match="degrees above the horizon"):
-        plan = plan_ortho(crater["dem"], [(path, camera)], tile=16, progress=False)
+        plan = plan_ortho(crater["dem"], [(path, camera)], tile=16, progress=False, grid="dem")
     assert plan.elevation[0] < 5.0
     got = run(plan, tmp_path, "grazing")
     expected = compute_visibility(crater["terrain"], camera)
@@ -228,7 +238,9 @@ def test_grazing_view_warns_and_stays_correct(crater: dict, tmp_path: Path) -> N
 
 def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=64, res=(0.0009, 0.0007), progress=False)
+    plan = plan_ortho(
+        crater["dem"], [view], tile=64, res=(0.0009, 0.0007), progress=False, grid="dem"
+    )
     cog = tmp_path / "cog.tif"
     run_plan(plan, Outputs(ortho=cog, blocksize=64), progress=False)  # zstd, level 1: the default
     with rasterio.open(cog) as src:
@@ -253,7 +265,7 @@ def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
     with rasterio.open(slow) as src:
         assert src.compression.name == "deflate"
         np.testing.assert_array_equal(src.read(1), reference)
-    plan16 = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    plan16 = plan_ortho(crater["dem"], [view], tile=16, progress=False, grid="dem")
     out = Outputs(ortho=tmp_path / "i16.tif", compress="none", dtype="int16")
     run_plan(plan16, out, progress=False)
     with rasterio.open(tmp_path / "i16.tif") as src:
@@ -267,14 +279,14 @@ def test_outputs_cog_gtiff_dtypes(crater: dict, tmp_path: Path) -> None:
 
 def test_failures_leave_no_output(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=32, progress=False, grid="dem")
     with pytest.raises(InputError, match="does not exist"):
         run_plan(plan, Outputs(ortho=tmp_path / "a.tif", visibility=tmp_path / "no/v.tif"))
     assert list(tmp_path.iterdir()) == []
     camera = load_view(*view)[1]
     away = replace(camera, rotation=camera.rotation @ np.diag([1.0, -1.0, -1.0]))
     with pytest.raises(GeometryError, match="looks away"):
-        plan_ortho(crater["dem"], [(view[0], away)], progress=False)
+        plan_ortho(crater["dem"], [(view[0], away)], progress=False, grid="dem")
 
 
 class DyingCamera(PinholeCamera):
@@ -288,13 +300,13 @@ class DyingCamera(PinholeCamera):
 
 def test_processes_equal_threads_and_dead_worker(crater: dict, tmp_path: Path) -> None:
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False, grid="dem")
     a, b = run(plan, tmp_path, "thr", threads=2), run(plan, tmp_path, "proc", processes=2)
     np.testing.assert_array_equal(a["visibility"], b["visibility"])
     np.testing.assert_array_equal(a["ortho"], b["ortho"])
     camera = load_view(*view)[1]
     dying = DyingCamera(**{k: getattr(camera, k) for k in camera.__dataclass_fields__})
-    plan = plan_ortho(crater["dem"], [(view[0], dying)], tile=16, progress=False)
+    plan = plan_ortho(crater["dem"], [(view[0], dying)], tile=16, progress=False, grid="dem")
     before = set(tmp_path.iterdir())
     with pytest.raises(WorkerError, match="worker died"):
         run_plan(plan, Outputs(ortho=tmp_path / "dead.tif"), processes=2, progress=False)
@@ -304,7 +316,7 @@ def test_processes_equal_threads_and_dead_worker(crater: dict, tmp_path: Path) -
 def test_dask_local_cluster_equals_threads(crater: dict, tmp_path: Path) -> None:
     pytest.importorskip("distributed")
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=False, grid="dem")
     a = run(plan, tmp_path, "thr", threads=2)
     with dask_client(workers=2) as client:
         b = run(plan, tmp_path, "dask", client=client)
@@ -358,13 +370,20 @@ def test_dask_retries_a_dead_workers_tile_or_fails_cleanly(
     view = crater["views"]["oblique"]
     camera = load_view(*view)[1]
     fields = {k: getattr(camera, k) for k in camera.__dataclass_fields__}
-    a = run(plan_ortho(crater["dem"], [view], tile=16, progress=False), tmp_path, "thr", threads=2)
+    a = run(
+        plan_ortho(crater["dem"], [view], tile=16, progress=False, grid="dem"),
+        tmp_path,
+        "thr",
+        threads=2,
+    )
     marker = tmp_path / "died"
     monkeypatch.setenv("ORTHOMVP_TEST_DIED", str(marker))
     once = plan_ortho(
-        crater["dem"], [(view[0], DyingOnceCamera(**fields))], tile=16, progress=False
+        crater["dem"], [(view[0], DyingOnceCamera(**fields))], tile=16, progress=False, grid="dem"
     )
-    always = plan_ortho(crater["dem"], [(view[0], DyingCamera(**fields))], tile=16, progress=False)
+    always = plan_ortho(
+        crater["dem"], [(view[0], DyingCamera(**fields))], tile=16, progress=False, grid="dem"
+    )
     with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
         with dask_client(workers=2) as client:
             b = run(once, tmp_path, "retried", client=client)
@@ -383,7 +402,7 @@ def test_dask_retries_a_dead_workers_tile_or_fails_cleanly(
 def test_preflight_and_progress(crater: dict, tmp_path: Path, monkeypatch, capfd) -> None:  # noqa: ANN001
     view = crater["views"]["oblique"]
     monkeypatch.setattr("orthomvp.engine.progress.LOG_AFTER", 0.0)  # log even short phases
-    plan = plan_ortho(crater["dem"], [view], tile=16, progress=True)
+    plan = plan_ortho(crater["dem"], [view], tile=16, progress=True, grid="dem")
     err = capfd.readouterr().err
     assert "reading the DEM's heights" in err and "planning tiles: 16/16" in err
     run_plan(plan, Outputs(ortho=tmp_path / "o.tif"), threads=1, progress=True)
@@ -407,9 +426,9 @@ def test_bad_options(crater: dict) -> None:
         ({"world": "moon"}, "world frame"),
     ):
         with pytest.raises(InputError, match=match):
-            plan_ortho(crater["dem"], [view], progress=False, **kw)
+            plan_ortho(crater["dem"], [view], progress=False, **kw, grid="dem")
     with pytest.raises(InputError, match="at least one image"):
-        plan_ortho(crater["dem"], [], progress=False)
+        plan_ortho(crater["dem"], [], progress=False, grid="dem")
 
 
 def test_cube_windows_match_the_whole_cube(tmp_path: Path) -> None:
@@ -443,7 +462,7 @@ def rss_of_run(dem: Path, image: Path, camera: PinholeCamera, tile: int) -> tupl
     engine_grid.SCAN_POSTS = 1 << 16
     Path("/proc/self/clear_refs").write_text("5")
     base = vm("VmRSS")
-    plan = plan_ortho(dem, [(image, camera)], tile=tile, progress=False)
+    plan = plan_ortho(dem, [(image, camera)], tile=tile, progress=False, grid="dem")
     run_plan(plan, Outputs(ortho=dem.parent / "o.tif"), threads=1, progress=False)
     return base, vm("VmHWM")
 
@@ -462,7 +481,7 @@ def test_memory_is_bounded_by_the_tile(tmp_path: Path, monkeypatch) -> None:  # 
         folder.mkdir()
         scene = write_scale_scene(folder, n)
         tracemalloc.start()
-        plan_ortho(scene[0], [scene[1:]], tile=256, progress=False)
+        plan_ortho(scene[0], [scene[1:]], tile=256, progress=False, grid="dem")
         planning.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
         ctx = multiprocessing.get_context("spawn")
@@ -549,7 +568,7 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
         assert stack <= MMAP_THRESHOLD and (tile == 1024 or bigger > MMAP_THRESHOLD)
     assert auto_tile((5000, 3000), 2, largest=768) == 768
     view = [(crater_dir / "nadir.tif", crater_dir / "nadir.tsai")]
-    plan = plan_ortho(crater_dir / "dem.tif", view, progress=False)
+    plan = plan_ortho(crater_dir / "dem.tif", view, progress=False, grid="dem")
     assert (
         plan.tile == auto_tile(plan.grid.shape, smallest=SINGLE_VIEW_TILE) and len(plan.tiles) == 1
     )
@@ -564,7 +583,7 @@ def test_a_tile_leaves_no_reference_cycles(crater_dir: Path, views: tuple[str, .
     from orthomvp.engine.tile import run_tile
 
     pairs = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in views]
-    plan = plan_ortho(crater_dir / "dem.tif", pairs, tile=32, progress=False)
+    plan = plan_ortho(crater_dir / "dem.tif", pairs, tile=32, progress=False, grid="dem")
     run_tile(plan, 0, frozenset({"ortho", "source"}))  # first calls: caches, lazy imports
     gc.collect()
     gc.disable()
@@ -623,10 +642,10 @@ def test_a_small_dem_is_held_and_read_from_memory(
     from orthomvp.engine import grid as grid_module
 
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], tile=24, progress=False)
+    plan = plan_ortho(crater["dem"], [view], tile=24, progress=False, grid="dem")
     assert plan.dem.held is not None
     monkeypatch.setattr(grid_module, "HELD_POSTS", 100)
-    unheld = plan_ortho(crater["dem"], [view], tile=24, progress=False)
+    unheld = plan_ortho(crater["dem"], [view], tile=24, progress=False, grid="dem")
     assert unheld.dem.held is None
     for window in ((0, 64, 0, 64), (3, 40, 10, 33), (60, 64, 0, 5)):
         np.testing.assert_array_equal(plan.dem.read(window), unheld.dem.read(window))
@@ -647,7 +666,7 @@ def test_prefetched_image_windows_sample_as_reads(
     from orthomvp.engine.images import ImageSource
 
     view = crater["views"]["oblique"]
-    plan = plan_ortho(crater["dem"], [view], progress=False)
+    plan = plan_ortho(crater["dem"], [view], progress=False, grid="dem")
     assert len(plan.tiles) == 1 and plan.tiles[0].image_windows
     job = plan.tiles[0]
     with tile_module._prefetch(plan, job, 1) as none:

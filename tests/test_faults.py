@@ -379,10 +379,12 @@ def test_a_disk_that_fills_up_while_writing(
     output."""
     dem, (image, camera, *_) = scene / "dem.tif", views(scene)
     cases = [
-        (lambda d: ["ortho", dem, image, camera, "-o", d / "o.tif", "--visibility", d / "v.tif"]),
+        (lambda d: ["ortho", dem, image, camera, "-o", d / "o.tif", "--visibility", d / "v.tif",
+                    "--grid", "dem"]),
         (lambda d: ["ortho", dem, image, camera, "-o", d / "o.tif", "--format", "gtiff",
-                    "--compress", "none"]),
-        (lambda d: ["mosaic", dem, *views(scene), "-o", d / "m.tif", "--source", d / "s.tif"]),
+                    "--compress", "none", "--grid", "dem"]),
+        (lambda d: ["mosaic", dem, *views(scene), "-o", d / "m.tif", "--source", d / "s.tif",
+                    "--grid", "dem"]),
         (lambda d: ["mesh", dem, "-o", d / "m.obj", "--texture", dem]),
         (lambda d: ["mesh", dem, "-o", d / "m.ply", "--texture", dem]),
         (lambda d: ["mesh", dem, "-o", d / "m.glb"]),

@@ -139,7 +139,9 @@ def test_engine_plans_and_runs_generic_cameras(
     camera gives the in-memory codes and orthophoto; tiles beyond the strip read no image."""
     terrain, image, camera = oblique
     strip = Generic(camera, rows=(40.0, 80.0))
-    plan = plan_ortho(crater_dir / "dem.tif", [(crater_dir / "oblique.tif", strip)], tile=16)
+    plan = plan_ortho(
+        crater_dir / "dem.tif", [(crater_dir / "oblique.tif", strip)], tile=16, grid="dem"
+    )
     outputs = Outputs(ortho=tmp_path / "o.tif", visibility=tmp_path / "v.tif")
     run_plan(plan, outputs, progress=False)
     with rasterio.open(tmp_path / "v.tif") as src:

@@ -145,3 +145,28 @@ def test_imports_go_down_the_layers() -> None:
             if dep_layer > layer or (dep_layer == layer and dep_unit != unit):
                 bad.append(f"{module} imports {dep}")
     assert not bad, "upward or sideways imports: " + "; ".join(sorted(bad))
+
+
+def test_cube_camera_reader() -> None:
+    """The cube camera reader (orthomvp.camera.isis: a shared core and one module per
+    instrument) builds on the CSM models and the cube label reader only, and the camera
+    registry imports it (and pvl) only when a cube is read."""
+    import subprocess
+    import sys
+
+    graph = _imports()
+    reader = {
+        m for m in graph if m == "orthomvp.camera.isis" or m.startswith("orthomvp.camera.isis.")
+    }
+    assert {"orthomvp.camera.isis.core", "orthomvp.camera.isis.lro_nac"} <= reader
+    for module in reader:
+        outside = {d for d in graph[module] if d not in reader and d != "orthomvp.errors"}
+        assert all(
+            d.startswith("orthomvp.camera.csm") or d == "orthomvp.io.isis" for d in outside
+        ), f"{module} imports {sorted(outside)}"
+    code = (
+        "import sys, orthomvp.camera; "
+        "print('orthomvp.camera.isis' in sys.modules, 'pvl' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]

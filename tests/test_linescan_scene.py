@@ -119,7 +119,7 @@ def test_tiled_engine_equals_in_memory(scene_dir: Path, scene, tmp_path: Path) -
     """Tiles of 12 posts, whose DEM windows reach beyond them by the occluder halo, give the
     in-memory codes and orthophoto, with the camera read from the ISD by path."""
     dem, image, isd = scene_dir / "dem.tif", scene_dir / "linescan.tif", scene_dir / "linescan.json"
-    plan = plan_ortho(dem, [(image, isd)], tile=12)
+    plan = plan_ortho(dem, [(image, isd)], tile=12, grid="dem")
     grown = [
         job for job in plan.tiles if job.dem is not None and _size(job.dem) > _size(job.window)
     ]
@@ -144,11 +144,33 @@ def _size(window: tuple[int, int, int, int]) -> int:
 def test_command_line_on_the_scene(scene_dir: Path, scene, tmp_path: Path) -> None:
     """``orthomvp visibility`` and ``ortho`` take the scene's ISD as the frame scenes' .tsai."""
     files = [str(scene_dir / n) for n in ("dem.tif", "linescan.tif", "linescan.json")]
-    assert main(["visibility", *files, "-o", tmp_path / "v.tif"]) == 0
-    assert main(["ortho", *files, "-o", tmp_path / "o.tif"]) == 0
+    dem_grid = ["--grid", "dem"]
+    assert main(["visibility", *files, "-o", tmp_path / "v.tif", *dem_grid]) == 0
+    assert main(["ortho", *files, "-o", tmp_path / "o.tif", *dem_grid]) == 0
     assert np.isfinite(rasterio.open(tmp_path / "o.tif").read(1)).mean() > 0.8
     truth = scene.views["linescan"].truth
     with rasterio.open(tmp_path / "v.tif") as src:
         codes = src.read(1)
     keep = away_from_boundaries(truth)
     assert classification_scores(codes, truth, keep)["f1_visible"] >= 0.99
+
+
+def test_info_gives_the_time_range_of_the_lines_that_see_the_dem(scene_dir: Path) -> None:
+    """``describe``'s time range is that of the first and last lines into which the camera
+    projects a DEM post (usgscsm's getImageTime of those lines), its GSD the camera's own."""
+    from orthomvp.engine.grid_choice import read_source
+    from orthomvp.engine.images import image_source
+    from orthomvp.engine.info import describe
+    from orthomvp.geometry.terrain import Terrain
+
+    dem, image, isd = (scene_dir / n for n in ("dem.tif", "linescan.tif", "linescan.json"))
+    feature = describe(dem, image, isd)
+    props = feature["properties"]["image"]
+    assert props["camera"] == "LineScanCamera"
+    source, views = read_source(dem, [image_source(image, isd)], None, False, "auto", False)
+    camera = views[0].camera
+    uv, _ = camera.project(Terrain.read(dem, world=source.world).world_points())
+    rows = uv[..., 1][np.isfinite(uv).all(axis=-1) & camera.in_image(uv)]
+    t = camera.image_time(np.array([rows.min(), rows.max()]) + 0.5)
+    assert props["time_s"] == pytest.approx(list(t), abs=1e-9)
+    assert t[1] - t[0] > 0.5 * (camera.image_time(camera.lines) - camera.image_time(0.0))

@@ -43,7 +43,9 @@ def read(path: Path) -> np.ndarray:
 def engine_mosaic(
     dem: Path, views: list, tmp_path: Path, name: str, tile: int = 64, **options: object
 ) -> dict:
-    plan = plan_ortho(dem, views, tile=tile, progress=False, mosaic=MosaicOptions(**options))
+    plan = plan_ortho(
+        dem, views, tile=tile, progress=False, mosaic=MosaicOptions(**options), grid="dem"
+    )
     kinds = ("ortho", "source", "visibility")
     outputs = Outputs(**{k: tmp_path / f"{name}-{k}.tif" for k in kinds})
     report = run_plan(plan, outputs, threads=2, progress=False)
@@ -511,11 +513,11 @@ def test_plan_fuses_large_mosaics_and_the_outputs_stay(
     import orthomvp.ortho.orthophoto as ortho_module
 
     dem = crater_dir / "dem.tif"
-    plan = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions())
+    plan = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions(), grid="dem")
     posts = sum((r1 - r0) * (c1 - c0) for r0, r1, c0, c1 in (j.window for j in plan.tiles))
     for threshold, fused in ((posts, True), (posts + 1, False)):
         monkeypatch.setattr(plan_module, "FUSED_POSTS", threshold)
-        again = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions())
+        again = plan_ortho(dem, views, tile=16, progress=False, mosaic=MosaicOptions(), grid="dem")
         assert again.fused is fused
     assert not plan.fused and plan.grid.shape[0] * plan.grid.shape[1] == posts
     numpy_run = engine_mosaic(dem, views, tmp_path, "numpy", tile=16)
@@ -557,7 +559,7 @@ def test_fused_engine_mosaic_of_the_city_is_numpys(
     for threshold in (10**12, 1):
         monkeypatch.setattr(plan_module, "FUSED_POSTS", threshold)
         plan = plan_ortho(dem, views, res=(res, res), tile=48, progress=False,
-                          mosaic=MosaicOptions(blend=4))  # fmt: skip
+                          mosaic=MosaicOptions(blend=4), grid="dem")  # fmt: skip
         assert plan.fused is (threshold == 1)
         kinds = ("ortho", "source", "visibility")
         out = Outputs(**{k: tmp_path / f"{threshold}-{k}.tif" for k in kinds})
@@ -664,14 +666,21 @@ def test_tiles_compose_only_their_views(
     the whole grid's, where every view takes part: sources, weights and the posts taken
     refer to all views, and the balance corrects each view its own way."""
     dem = crater_dir / "dem.tif"
-    plan = plan_ortho(dem, partial_views, tile=16, progress=False, mosaic=MosaicOptions(**options))
+    plan = plan_ortho(
+        dem, partial_views, tile=16, progress=False, mosaic=MosaicOptions(**options), grid="dem"
+    )
     tile_views = {job.views for job in plan.tiles}
     assert (0, 2) in tile_views and (0, 1, 2) in tile_views  # tiles without the nadir view
     kinds = ("ortho", "source", "visibility")
     results = {}
     for tile in (16, 64):
         plan = plan_ortho(
-            dem, partial_views, tile=tile, progress=False, mosaic=MosaicOptions(**options)
+            dem,
+            partial_views,
+            tile=tile,
+            progress=False,
+            mosaic=MosaicOptions(**options),
+            grid="dem",
         )
         out = Outputs(**{k: tmp_path / f"{tile}-{k}.tif" for k in kinds})
         report = run_plan(plan, out, threads=2, progress=False)

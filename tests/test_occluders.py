@@ -279,7 +279,7 @@ def test_engine_mosaic_of_the_city_with_the_proof_is_the_in_memory_one(
     names = list(summary["views"])
     views = [(city_dir / v["image"], city_dir / v["camera"]) for v in summary["views"].values()]
     plan = plan_ortho(city_dir / summary["dem"], views, tile=24, progress=False,
-                      mosaic=MosaicOptions())  # fmt: skip
+                      mosaic=MosaicOptions(), grid="dem")  # fmt: skip
     out = Outputs(ortho=tmp_path / "m.tif", source=tmp_path / "s.tif")
     run_plan(plan, out, threads=2, progress=False)
     with rasterio.open(out.ortho) as a, rasterio.open(out.source) as b:

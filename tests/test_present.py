@@ -194,7 +194,7 @@ def test_without_libusb_only_decimation_and_the_open3d_backend_fail(
     )
     commands = {
         "visibility": ["visibility", dem, *views[:2], "-o", tmp_path / "v.tif"],
-        "ortho": ["ortho", dem, *views[:2], "-o", tmp_path / "o.tif"],
+        "ortho": ["ortho", dem, *views[:2], "-o", tmp_path / "o.tif", "--grid", "dem"],
         "mosaic": ["mosaic", dem, *views, "-o", tmp_path / "m.tif"],
         "fit": ["fit", dem, *views, "-o", tmp_path / "f.tif", "--hwin", "3", "--levels", "1"],
         "mesh": ["mesh", dem, "-o", tmp_path / "m.ply", "--texture", tmp_path / "o.tif"],

@@ -112,6 +112,7 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     for name in NGI_FRAMES:
         out, vis = tmp_path / f"{name}.tif", tmp_path / f"{name}.vis.tif"
         args = ["-q", "ortho", str(dem), str(d / f"{name}.tif"), str(exterior), "-o", str(out)]
+        args += ["--grid", "dem"]  # the figures above are of the DEM's grid
         assert main([*args, "--visibility", str(vis)]) == 0
         orthos.append(read_image(out))
         codes.append(read_image(vis)[0])
@@ -127,7 +128,21 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     out, source = tmp_path / "mosaic.tif", tmp_path / "source.tif"
     hard = ["--no-seamlines", "--blend", "0"]  # each post from its best view alone
     assert (
-        main(["-q", "mosaic", str(dem), *pairs, "-o", str(out), "--source", str(source), *hard])
+        main(
+            [
+                "-q",
+                "mosaic",
+                str(dem),
+                *pairs,
+                "-o",
+                str(out),
+                "--source",
+                str(source),
+                *hard,
+                "--grid",
+                "dem",
+            ]
+        )
         == 0
     )
     mosaic, src = read_image(out), np.nan_to_num(read_image(source)[0]).astype(int)

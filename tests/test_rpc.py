@@ -528,13 +528,14 @@ def test_rpc_orthophoto_onto_the_ngi_dem(tmp_path: Path) -> None:
     bias = (raw.project(raw.to_world(lon, lat, h))[0] - measured).mean(axis=0)
     rpc = replace(raw.rpc, samp_off=raw.rpc.samp_off - bias[0], line_off=raw.rpc.line_off - bias[1])
     refined = replace(raw, rpc=rpc)
-    plan = plan_ortho(dem, [(image, refined)], tile=128, progress=False, height_offset=UNDULATION)
+    heights = {"height_offset": UNDULATION}
+    plan = plan_ortho(dem, [(image, refined)], tile=128, progress=False, grid="dem", **heights)
     assert plan.dem.world == WorldFrame.BODY
     run_plan(
         plan, Outputs(ortho=tmp_path / "qb.tif", visibility=tmp_path / "v.tif"), progress=False
     )
     run_plan(
-        plan_ortho(dem, [aerial], progress=False),
+        plan_ortho(dem, [aerial], progress=False, grid="dem"),
         Outputs(ortho=tmp_path / "ngi.tif"),
         progress=False,
     )

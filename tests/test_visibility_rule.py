@@ -211,7 +211,7 @@ def test_tiled_equals_untiled_on_the_city(city_dir: Path, tmp_path: Path) -> Non
     view = (city_dir / "sw.tif", city_dir / "sw.tsai")
     codes = []
     for tile in (16, 64):
-        plan = plan_ortho(city_dir / "dem.tif", [view], tile=tile, progress=False)
+        plan = plan_ortho(city_dir / "dem.tif", [view], tile=tile, progress=False, grid="dem")
         out = tmp_path / f"vis{tile}.tif"
         run_plan(plan, Outputs(visibility=out), progress=False)
         codes.append(read_image(out)[0])

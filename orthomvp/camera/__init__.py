@@ -10,8 +10,9 @@ RPC cameras in :mod:`orthomvp.camera.rpc`.
 binary ``.pinhole`` (:mod:`.formats.tsai`), OpenSfM's ``reconstruction.json`` and ODM's
 ``shots.geojson`` (:mod:`.formats.opensfm`), Orthority's parameter files
 (:mod:`.formats.orthority`), USGS CSM ISDs and model states (:mod:`.formats.csm`, the line-scan,
-frame and push-frame models of :mod:`orthomvp.camera.csm`), RPCs (GeoTIFF metadata,
-``_RPC.TXT``, ``.RPB``, Orthority's RPC YAML: :mod:`.formats.rpc`) and our JSON
+frame and push-frame models of :mod:`orthomvp.camera.csm`), spiceinit'd ISIS3 cubes
+(:mod:`.formats.isis`, the cube's own camera by :mod:`orthomvp.camera.isis`), RPCs (GeoTIFF
+metadata, ``_RPC.TXT``, ``.RPB``, Orthority's RPC YAML: :mod:`.formats.rpc`) and our JSON
 (:mod:`.formats.json`). Each format module lists the formats it reads (name, file name
 extensions, reader, content test); a file goes to the first format that names its extension and
 recognises its content, else to the last one naming its extension (whose reader reports what is
@@ -41,6 +42,7 @@ from orthomvp.camera.distortion import (
     distortion_class,
 )
 from orthomvp.camera.formats import csm as csm_format
+from orthomvp.camera.formats import isis as isis_format
 from orthomvp.camera.formats import json as json_format
 from orthomvp.camera.formats import opensfm, orthority, tsai
 from orthomvp.camera.formats import rpc as rpc_format
@@ -103,6 +105,7 @@ FORMATS: tuple[CameraFormat, ...] = (
     *opensfm.FORMATS,
     *orthority.FORMATS,
     *csm_format.FORMATS,
+    *isis_format.FORMATS,
     *json_format.FORMATS,
     *tsai.FORMATS,
 )
@@ -114,7 +117,8 @@ def read_camera(
 ) -> Camera:
     """Read a camera: ``.tsai`` text, binary ``.pinhole``, our ``.json``, Orthority or
     OpenSfM/ODM files, a USGS CSM ISD or model state (a line-scan, frame or push-frame model of
-    :mod:`orthomvp.camera.csm`), or an RPC camera (:class:`RpcCamera`).
+    :mod:`orthomvp.camera.csm`), a spiceinit'd ISIS3 cube (its own camera, a CSM model; see
+    :mod:`orthomvp.camera.isis`), or an RPC camera (:class:`RpcCamera`).
 
     Single-camera files (``.tsai``, ``.pinhole``, ``.json``; other extensions are recognised by
     their content) ignore ``image`` and ``interior``.

@@ -194,6 +194,7 @@ def main_entry() -> None:
 
 COMMANDS = {
     "demo": ("orthomvp.cli.demo", "demo"),
+    "info": ("orthomvp.cli.info", "info"),
     "synth": ("orthomvp.cli.synth", "synth"),
     "mesh": ("orthomvp.cli.mesh", "mesh"),
     "render": ("orthomvp.cli.render", "render"),
@@ -204,6 +205,7 @@ COMMANDS = {
     "fit": ("orthomvp.cli.fit", "fit"),
     "eps-study": ("orthomvp.cli.eps_study", "eps_study"),
     "check": ("orthomvp.cli.check", "check"),
+    "isd": ("orthomvp.cli.isd", "isd"),
     "bench": ("orthomvp.cli.bench", "bench"),
 }
 """Each command's (module, attribute), in the order --help lists them."""

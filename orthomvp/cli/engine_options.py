@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from orthomvp.cli.options import FINITE, POSITIVE, usage_error
+from orthomvp.cli.command import Variadic
+from orthomvp.cli.options import FINITE, usage_error
 
 if TYPE_CHECKING:
     from orthomvp.engine import Outputs, Plan, RunReport
@@ -25,14 +26,42 @@ F = TypeVar("F", bound=Callable[..., Any])
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
 DTYPES = ("float32", "uint8", "uint16", "int16")
-"""As :data:`orthomvp.engine.writer.FORMATS`, ``COMPRESSIONS`` and ``NODATA`` (not imported:
---help stays fast; a test checks that they agree)."""
+GRIDS = ("camera", "dem")
+"""As :data:`orthomvp.engine.writer.FORMATS`, ``COMPRESSIONS`` and ``NODATA``, and
+:data:`orthomvp.engine.grid_choice.GRIDS` (not imported: --help stays fast; a test checks that
+they agree)."""
+
+
+class Length(click.ParamType):
+    """A resolution: a positive number (the CRS's units) or a length with a unit suffix
+    (``5m``, ``0.0003deg``; :func:`orthomvp.engine.units.parse_length`); kept as written."""
+
+    name = "length"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        from orthomvp.engine.units import parse_length
+        from orthomvp.errors import InputError
+
+        try:
+            parse_length(value)
+        except InputError as exc:
+            self.fail(str(exc), param, ctx)
+        return str(value)
+
+
+LENGTH = Length()
+
+
+def _res(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> tuple | None:
+    """--res as given: None when absent (a Variadic option gives an empty tuple)."""
+    return tuple(value) or None
 
 
 @dataclass(frozen=True)
 class EngineInput:
-    """The engine options of one command: output grid (``res`` x, y and ``bounds`` left,
-    bottom, right, top in the units of ``crs``, default the DEM's), ``tile`` size in posts,
+    """The engine options of one command: output grid (``grid``, the default's kind; ``res``;
+    ``bounds`` left, bottom, right, top in the units of ``crs``, default the DEM's: see
+    :func:`orthomvp.engine.grid_choice.choose_grid`), ``tile`` size in posts,
     ``threads``/``processes``/``dask`` (at most one), output ``format``, ``compress`` and
     ``dtype`` (the defaults for a command that writes no raster)."""
 
@@ -43,9 +72,14 @@ class EngineInput:
     format: str = "cog"
     compress: str = "zstd"
     dtype: str = "float32"
-    res: tuple[float, float] | None = None
+    res: tuple[str, ...] | None = None
+    """one or two values (x, y), each a number in the output CRS's units or a length with its
+    unit ("5m", "0.0003deg"), as :func:`orthomvp.engine.units.parse_length` reads them"""
     bounds: tuple[float, float, float, float] | None = None
     crs: str | None = None
+    grid: str = "camera"
+    """the default output grid: "camera" (the images' footprint at their ground sample
+    distance) or "dem" (the DEM's own)"""
 
     def run(
         self, plan: Plan, outputs: Outputs, *, progress: bool, runner: Callable | None = None
@@ -115,8 +149,11 @@ def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> C
                 raise usage_error(
                     f"--bounds must be LEFT BOTTOM RIGHT TOP, got {' '.join(map(str, bounds))}"
                 )
+            res = kwargs.get("res")
+            if res is not None and len(res) > 2:
+                raise usage_error(f"--res takes one value or two (X Y), got {len(res)}")
             engine = EngineInput(
-                **{k: kwargs.pop(k) for k in ("res", "bounds", "crs") if grid},
+                **{k: kwargs.pop(k) for k in ("res", "bounds", "crs", "grid") if grid},
                 **{k: kwargs.pop(k) for k in ("tile", "threads", "processes", "dask")},
                 **{k: kwargs.pop(k) for k in ("format", "compress") if rasters},
                 **({"dtype": kwargs.pop("dtype")} if dtype else {}),
@@ -125,26 +162,38 @@ def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> C
 
         grid_options = [
             click.option(
+                "--grid",
+                "grid",
+                type=click.Choice(GRIDS),
+                default="camera",
+                help="default output grid: the part of the DEM the images see at their own "
+                "ground sample distance (rounded to 1, 2, 2.5 or 5 x 10^k m; edges on the "
+                "DEM's lattice of that size), or the DEM's own grid; --res and --bounds "
+                "replace either choice",
+            ),
+            click.option(
                 "--res",
-                type=POSITIVE,
-                nargs=2,
-                metavar="X Y",
-                show_default="the DEM's",
-                help="output post size in the output CRS's units",
+                cls=Variadic,
+                type=LENGTH,
+                metavar="X [Y]",
+                callback=_res,
+                show_default="the images' ground sample distance (--grid camera) or the DEM's",
+                help="output post size: a number in the output CRS's units, or with a unit: "
+                "5m, 2.5km, 0.0003deg, 1arcsec (one value for both axes)",
             ),
             click.option(
                 "--bounds",
                 type=FINITE,
                 nargs=4,
                 metavar="LEFT BOTTOM RIGHT TOP",
-                show_default="the DEM's",
+                show_default="the images' footprint (--grid camera) or the DEM's",
                 help="output extent in the output CRS's units, LEFT < RIGHT and BOTTOM < TOP",
             ),
             click.option(
                 "--crs",
                 metavar="CRS",
                 show_default="the DEM's",
-                help="output CRS (anything pyproj reads, on the DEM's body); needs --res",
+                help="output CRS (anything pyproj reads, on the DEM's body)",
             ),
         ]
         options = [

@@ -30,7 +30,8 @@ CAMERA_HELP = (
     ".geojson; the row of IMAGE, the one .yaml beside it) or RPC .yaml; an OpenSfM "
     "reconstruction.json or ODM shots.geojson (the shot of IMAGE); a USGS CSM ISD or model "
     "state .json (line scan, frame, push frame); an RPC camera: the image itself when its "
-    "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file"
+    "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file; a spiceinit'd ISIS3 .cub (the cube "
+    "itself: LRO NAC, MRO CTX, Apollo Metric, MESSENGER MDIS, Dawn FC)"
 )
 """What a CAMERA may be: every kind of :data:`orthomvp.camera.FORMATS` (not imported: --help
 stays fast; a test checks that every kind is named)."""
@@ -265,7 +266,15 @@ image_argument = click.argument(
     metavar="IMAGE",
     help="the image: any raster GDAL reads, or an ISIS3 .cub (gives the image size)",
 )
-camera_argument = click.argument("camera", type=PATH, metavar="CAMERA", help=f"its {CAMERA_HELP}")
+camera_argument = click.argument(
+    "camera",
+    type=PATH,
+    required=False,
+    metavar="[CAMERA]",
+    help="its camera; omit it where IMAGE is its own camera (a GeoTIFF with RPC metadata, a "
+    f"spiceinit'd ISIS3 cube). A {CAMERA_HELP}",
+)
+"""The optional CAMERA of a one-image command: the command takes IMAGE itself where absent."""
 
 
 def pairs_argument(minimum: int = 1, *, optional: bool = False) -> Callable[[F], F]:
@@ -422,6 +431,18 @@ def check_outputs(
                 f"{' or '.join(out.suffixes)}" + (f", not {path.suffix}" if path.suffix else "")
             )
         check_directory(path, f"{path}: {out.option}")
+
+
+def own_camera(image: Path) -> Camera:
+    """The camera IMAGE carries (its RPC metadata, a spiceinit'd cube's tables), for a command
+    whose CAMERA was left out; a usage error that says so where IMAGE carries none."""
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import InputError
+
+    try:
+        return read_camera(image)
+    except InputError as exc:
+        raise usage_error(f"no CAMERA given, and IMAGE is not its own camera: {exc}") from None
 
 
 def view_inputs(dem: DemInput, pairs: Sequence[tuple[Path, Path]]) -> list[tuple[str, Path]]:

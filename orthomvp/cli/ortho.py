@@ -28,6 +28,7 @@ from orthomvp.cli.options import (
     optional_dem_argument,
     output_option,
     overwrite_options,
+    own_camera,
     pairs_argument,
     quiet,
     say,
@@ -64,6 +65,7 @@ def _plan(
     dem: DemInput,
     views: list[tuple[Path, Path | Camera]],
     engine: EngineInput,
+    output: Path,
     *,
     occlusion: bool = True,
     eps: float | None = None,
@@ -76,9 +78,11 @@ def _plan(
         dem.path,
         views,
         tile=engine.tile,
+        grid=engine.grid,
         res=engine.res,
         bounds=engine.bounds,
         crs=engine.crs,
+        output_dir=output.parent,
         occlusion=occlusion,
         eps=eps,
         interp=interp,
@@ -111,23 +115,28 @@ def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
 def visibility(
     dem: DemInput,
     image: Path,
-    camera: Path,
+    camera: Path | None,
     output: Path,
     eps: float | None,
     engine: EngineInput,
     overwrite: bool,
     replace_input: bool,
 ) -> None:
-    """Classify every post of the output grid (the DEM's, or --res/--bounds/--crs) for one
+    """Classify every post of the output grid (by default the part of the DEM the image
+    sees, at its own ground sample distance; --grid dem, --res, --bounds, --crs) for one
     camera: 0 no data / outside the image, 1 visible, 2 occluded by terrain, 3 facing away.
     Written as a uint8 GeoTIFF."""
     check_outputs(
-        [Output("-o", output)], view_inputs(dem, [(image, camera)]), overwrite, replace_input
+        [Output("-o", output)],
+        view_inputs(dem, [(image, camera or image)]),
+        overwrite,
+        replace_input,
     )
+    view = (image, camera or own_camera(image))
     with warnings_as_lines():
-        plan = _plan(dem, [(image, camera)], engine, eps=eps)
+        plan = _plan(dem, [view], engine, output, eps=eps)
         report = _run(plan, engine, visibility=output)
-    warn_partial(report, 0, str(image))
+    warn_partial(report, 0, str(image), engine)
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
     say(f"wrote {output}: {sum(report.counts[0]):,} posts, {counts}")
 
@@ -157,7 +166,7 @@ def visibility(
 def ortho(
     dem: DemInput,
     image: Path,
-    camera: Path,
+    camera: Path | None,
     output: Path,
     visibility_out: Path | None,
     interp: Interp,
@@ -167,17 +176,25 @@ def ortho(
     overwrite: bool,
     replace_input: bool,
 ) -> None:
-    """Orthorectify IMAGE through CAMERA onto the output grid (the DEM's, or
-    --res/--bounds/--crs). Posts that are not visible (occluded, facing away, outside) are
-    nodata unless --no-occlusion asks for the naive orthophoto."""
+    """Orthorectify IMAGE through CAMERA onto the output grid (by default the part of the DEM
+    the image sees, at its own ground sample distance; --grid dem, --res, --bounds, --crs).
+    Posts that are not visible (occluded, facing away, outside) are nodata unless
+    --no-occlusion asks for the naive orthophoto."""
     outputs = [Output("-o", output), Output("--visibility", visibility_out)]
-    check_outputs(outputs, view_inputs(dem, [(image, camera)]), overwrite, replace_input)
+    check_outputs(outputs, view_inputs(dem, [(image, camera or image)]), overwrite, replace_input)
+    view = (image, camera or own_camera(image))
     with warnings_as_lines():
         plan = _plan(
-            dem, [(image, camera)], engine, occlusion=not no_occlusion, eps=eps, interp=interp
+            dem,
+            [view],
+            engine,
+            output,
+            occlusion=not no_occlusion,
+            eps=eps,
+            interp=interp,
         )
         report = _run(plan, engine, ortho=output, visibility=visibility_out)
-    warn_partial(report, 0, str(image))
+    warn_partial(report, 0, str(image), engine)
     rows, cols = plan.grid.shape
     say(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
 
@@ -275,8 +292,9 @@ def mosaic(
     overwrite: bool,
     replace_input: bool,
 ) -> None:
-    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (the DEM's,
-    or --res/--bounds/--crs) into one seamless mosaic: each post prefers the visible image
+    """Orthorectify every IMAGE CAMERA pair (mvpgui order) onto the output grid (by default
+    the union of the images' footprints on the DEM, at their ground sample distance; --grid
+    dem, --res, --bounds, --crs) into one seamless mosaic: each post prefers the visible image
     of --priority, seamlines run away from occlusion boundaries and disagreement, seams are
     feathered over --blend posts, optionally balanced; an image never gives a post it does
     not see (except --fill naive, flagged). --source records which image (1-based, in
@@ -306,7 +324,7 @@ def mosaic(
         fill=fill,
     )
     with warnings_as_lines():
-        plan = _plan(dem, pairs, engine, eps=eps, interp=interp, mosaic=options)
+        plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)
         report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
     rows, cols = plan.grid.shape
     none = rows * cols - sum(report.taken)
@@ -330,11 +348,14 @@ def taken_text(taken: list[int], images: list[Path]) -> str:
     )
 
 
-def warn_partial(report: RunReport, view: int, what: str) -> None:
-    """A warning on stderr when the image covers only part of the grid's posts with heights."""
-    if report.valid and report.inside[view] < report.valid:
+def warn_partial(report: RunReport, view: int, what: str, engine: EngineInput) -> None:
+    """A warning on stderr when the image covers only part of the grid's posts with heights,
+    on a grid whose extent was not chosen from the image (--grid dem, or --bounds)."""
+    from_image = engine.grid == "camera" and engine.bounds is None
+    if not from_image and report.valid and report.inside[view] < report.valid:
         share = 100 * report.inside[view] / report.valid
         print(
-            f"orthomvp: warning: {what} covers {share:.1f}% of the DEM's posts; the rest is nodata",
+            f"orthomvp: warning: {what} covers {share:.1f}% of the output grid's posts with "
+            "heights; the rest is nodata",
             file=sys.stderr,
         )

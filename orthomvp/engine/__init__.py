@@ -13,6 +13,12 @@ The MVP fit runs the same way (:mod:`orthomvp.engine.fit_plan`, :mod:`orthomvp.e
     plan = plan_fit("dem.tif", [("a.tif", "a.tsai"), ("b.tif", "b.tsai")], FitOptions())
     report = run_fit(plan, FitOutputs(heights="fitted.tif", uncertainty="sigma.tif"))
 
+By default the output grid is the part of the DEM the images see, at their own ground sample
+distance (:func:`choose_grid`; ``plan_ortho(..., grid="dem")`` for the DEM's own grid), and
+:func:`describe` says what an image sees of a DEM (``orthomvp info``):
+
+    feature = describe("dem.tif", "image.tif", "image.tsai")  # a GeoJSON Feature
+
 And the truth-free check (:mod:`orthomvp.engine.check_plan`, :mod:`orthomvp.engine.check`):
 
     result = run_check(plan_check("dem.tif", [("a.tif", "a.tsai"), ("b.tif", "b.tsai")]))
@@ -31,7 +37,10 @@ _HOMES = {
     "run_fit": "fit",
     "FitPlan": "fit_plan",
     "plan_fit": "fit_plan",
-    "HaloWarning": "plan",
+    "HaloWarning": "grid_choice",
+    "choose_grid": "grid_choice",
+    "describe": "info",
+    "image_footprint": "footprint",
     "Plan": "plan",
     "TileJob": "plan",
     "plan_ortho": "plan",
@@ -56,7 +65,10 @@ __all__ = [
     "RunReport",
     "TileJob",
     "WorkerError",
+    "choose_grid",
     "dask_client",
+    "describe",
+    "image_footprint",
     "plan_check",
     "plan_fit",
     "plan_ortho",
@@ -70,7 +82,10 @@ if TYPE_CHECKING:
     from orthomvp.engine.check_plan import CheckPlan, plan_check
     from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
     from orthomvp.engine.fit_plan import FitPlan, plan_fit
-    from orthomvp.engine.plan import HaloWarning, Plan, TileJob, plan_ortho
+    from orthomvp.engine.footprint import image_footprint
+    from orthomvp.engine.grid_choice import HaloWarning, choose_grid
+    from orthomvp.engine.info import describe
+    from orthomvp.engine.plan import Plan, TileJob, plan_ortho
     from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
     from orthomvp.engine.writer import Outputs
 

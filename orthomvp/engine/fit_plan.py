@@ -42,6 +42,7 @@ import numpy as np
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
+from orthomvp.engine.grid_choice import check_plan, read_source
 from orthomvp.engine.halo import footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
@@ -50,12 +51,10 @@ from orthomvp.engine.plan import (
     WINDOW_BYTES,
     _sees,
     _union,
-    check_plan,
     check_tile,
     largest_dem_window,
     peak_bytes,
     plan_tiles,
-    read_source,
 )
 from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError

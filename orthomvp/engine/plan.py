@@ -9,36 +9,36 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from orthomvp.camera import Camera, in_world, sensor_positions
-from orthomvp.camera.rpc import in_vertical_datum
+from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
-from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem, output_grid, scan_dem
-from orthomvp.engine.grid import with_world as dem_with_world
+from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem
+from orthomvp.engine.grid_choice import (
+    Box,
+    check_grid_size,
+    check_plan,
+    choose_grid,
+    grid_spacing,
+    read_source,
+)
 from orthomvp.engine.halo import Halo, ToDem, footprint, image_box, tile_halo
 from orthomvp.engine.heap import MMAP_THRESHOLD
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import InputError
 from orthomvp.geometry.datum import HeightOptions
-from orthomvp.geometry.vectors import nan_median
-from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.occlusion.occluders import BOUND_BYTES
 from orthomvp.occlusion.paths import Geometry, Rays, VisibilityPath
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import FUSED_POSTS, MosaicOptions
 from orthomvp.ortho.orthophoto import INTERPOLATION
-
-Box = tuple[float, float, float, float]
-"""Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
 
 TILE = 1024
 """Default tile side, posts."""
@@ -78,10 +78,6 @@ MOSAIC_BYTES = 80
 BASE_BYTES = 300 << 20
 """An interpreter with numpy, rasterio, pyproj, trimesh and Embree loaded, and GDAL's block
 cache (bounded by :data:`orthomvp.engine.grid.GDAL_CACHE`)."""
-
-
-class HaloWarning(UserWarning):
-    """A camera whose lines of sight are so low that each tile needs most of the DEM."""
 
 
 @dataclass(frozen=True)
@@ -224,35 +220,6 @@ def _views(
     return sources
 
 
-def _frame(world: WorldFrame | str) -> WorldFrame | None:
-    """The world frame asked for, None for "auto"."""
-    if world == "auto":
-        return None
-    try:
-        return WorldFrame(world)
-    except ValueError:
-        names = ", ".join(["auto", *(w.value for w in WorldFrame)])
-        raise InputError(f"world frame must be one of {names}, not {world!r}") from None
-
-
-def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> str:
-    """Why no tile of the grid can be seen in ``view``, in one line."""
-    preview = dem.preview
-    points = preview.world_points()[preview.valid]
-    centre = points.mean(axis=0)
-    if (np.dot(sensor_positions(view.camera) - centre, preview.up_vectors(centre)) < 0).all():
-        return f"{view.path}: the camera is below the surface of the DEM"
-    seen = [b for b in boxes if b is not None]
-    if not seen:
-        return f"{view.path}: the camera looks away from the DEM: every post is behind it"
-    c0, c1 = min(b[0] for b in seen), max(b[1] for b in seen)
-    r0, r1 = min(b[2] for b in seen), max(b[3] for b in seen)
-    return (
-        f"{view.path}: the image ({view.width} x {view.height} px) does not cover the output "
-        f"grid: its posts project to columns {c0:.0f}..{c1:.0f}, rows {r0:.0f}..{r1:.0f}"
-    )
-
-
 def pixel_window(view: ImageSource, low: Sequence[float], high: Sequence[float]) -> WindowT:
     """The window (r0, r1, c0, c1) of the image pixels that positions from ``low`` to ``high``
     (u, v) sample, with :data:`IMAGE_MARGIN` pixels around, clipped to the image (infinite
@@ -328,9 +295,11 @@ def plan_ortho(
     views: Sequence[tuple[str | Path, str | Path | Camera]],
     *,
     tile: int | None = None,
-    res: tuple[float, float] | None = None,
+    grid: str = "camera",
+    res: object = None,
     bounds: tuple[float, float, float, float] | None = None,
     crs: object | None = None,
+    output_dir: str | Path | None = None,
     occlusion: bool = True,
     eps: float | None = None,
     interp: str = "bilinear",
@@ -345,8 +314,14 @@ def plan_ortho(
     """Plan orthophotos, visibility codes or a mosaic of ``views`` ((image path, camera or
     camera path) pairs) on the DEM at path ``dem``.
 
-    The output grid is the DEM's, or ``res`` (x, y) and ``bounds`` (left, bottom, right, top)
-    in the units of ``crs`` (default the DEM's; any CRS pyproj knows on the same body), cut
+    The output grid (:func:`orthomvp.engine.grid_choice.choose_grid`) is by default
+    (``grid="camera"``) the part of the DEM the images see at their own ground sample distance
+    (rounded to 1, 2, 2.5 or 5 x 10^k m), or with ``grid="dem"`` the DEM's own; ``res`` (one
+    value or (x, y): numbers in the units of ``crs``, or lengths with a unit such as "5m" or
+    "0.0003deg") and ``bounds`` (left, bottom, right, top in the units of ``crs``; default
+    the DEM's CRS, or any CRS pyproj knows on the same body) replace either choice. A grid
+    that cannot be written (:func:`~orthomvp.engine.grid_choice.check_grid_size`, with the
+    free space of ``output_dir`` when given) is refused before any tile is planned. It is cut
     into tiles of ``tile`` x ``tile`` posts (default :func:`auto_tile`: 1024, smaller on a grid
     too small to give every core a tile; for a mosaic at most :func:`mosaic_tile`).
     ``occlusion``, ``eps`` (DEM posts) and ``interp`` are those of
@@ -364,8 +339,8 @@ def plan_ortho(
     :func:`~orthomvp.engine.run_plan`; False prints nothing.
 
     Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
-    sees none of the grid, and warns (:class:`HaloWarning`) when a camera's occluder halo is
-    larger than the DEM.
+    sees none of the grid, and warns (:class:`~orthomvp.engine.grid_choice.HaloWarning`)
+    when a camera's occluder halo is larger than the DEM.
     """
     tile = check_tile(tile)
     if eps is not None and not eps > 0:
@@ -381,9 +356,11 @@ def plan_ortho(
     if mosaic is not None:
         largest = mosaic_tile(len(sources), max(v.bands for v in sources), margin)
         smallest = SMALL_TILE
-    source, sources, grid, jobs, reach, elevation, tile = tile_grid(
+    source, sources, out, jobs, reach, elevation, tile = tile_grid(
         dem,
         sources,
+        grid=grid,
+        output_dir=output_dir,
         tile=tile,
         occlusion=occlusion,
         margin=margin,
@@ -399,10 +376,10 @@ def plan_ortho(
         heights=HeightOptions(vertical_datum, height_offset),
     )
     spacing = source.post_spacing()
-    post_scale = 1.0 if grid.on_dem else _grid_spacing(grid, source) / spacing
+    post_scale = 1.0 if out.on_dem else grid_spacing(out, source) / spacing
     return Plan(
         source,
-        grid,
+        out,
         sources,
         tuple(jobs),
         tile,
@@ -433,16 +410,6 @@ def largest_dem_window(run: Sequence[Any]) -> str:
         return ""
     r0, r1, c0, c1 = biggest.dem
     return f", DEM windows up to {c1 - c0:,} x {r1 - r0:,} posts"
-
-
-def _grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
-    """Metres between neighbouring output posts at the grid centre (mean of both directions)
-    at the DEM's median height, as :meth:`Terrain.post_spacing` gives for a regridded DEM."""
-    rows, cols = grid.shape
-    c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-    c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
-    p = dem.to_world(c, r, np.full(3, nan_median(dem.preview.values)))
-    return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
 
 
 def auto_tile(
@@ -506,64 +473,36 @@ def tile_grid(
     radius_values: bool,
     world: WorldFrame | str,
     progress: bool,
-    res: tuple[float, float] | None = None,
+    res: object = None,
     bounds: tuple[float, float, float, float] | None = None,
     crs: object | None = None,
+    grid: str = "dem",
+    output_dir: str | Path | None = None,
     largest: int = TILE,
     smallest: int = SMALL_TILE,
     heights: HeightOptions | None = None,
 ) -> TiledGrid:
-    """What every engine plan starts with: the DEM and views (:func:`read_source`), the output
-    grid (the DEM's, or ``res``, ``bounds``, ``crs``), and its tiles of ``tile`` posts (None:
+    """What every engine plan starts with: the DEM and views
+    (:func:`~orthomvp.engine.grid_choice.read_source`), the output grid (``grid``, ``res``,
+    ``bounds``, ``crs``: :func:`~orthomvp.engine.grid_choice.choose_grid`), checked for size
+    (with the free space of ``output_dir``), and its tiles of ``tile`` posts (None:
     :func:`auto_tile`, from ``smallest`` to ``largest``), each with ``margin`` posts around it,
     its DEM window (with the occluder halo when ``occlusion``) and its image boxes
     (:func:`plan_tiles`), checked (:func:`check_plan`)."""
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
-    grid = output_grid(source, res, bounds, crs)
-    tile = auto_tile(grid.shape, largest=largest, smallest=smallest) if tile is None else tile
-    to_dem = grid_to_dem(grid, source)
+    out = choose_grid(source, sources, grid=grid, res=res, bounds=bounds, crs=crs)
+    check_grid_size(out, source, sources, output_dir)
+    tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
+    to_dem = grid_to_dem(out, source)
     jobs, boxes, reach, elevation = plan_tiles(
-        grid.tiles(tile),
-        lambda index, window: _job(source, to_dem, grid, sources, index, window, occlusion, margin),
+        out.tiles(tile),
+        lambda index, window: _job(source, to_dem, out, sources, index, window, occlusion, margin),
         len(sources),
         progress,
     )
     seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
     check_plan(source, sources, boxes, seen, reach, elevation)
-    return TiledGrid(source, sources, grid, jobs, reach, elevation, tile)
-
-
-def read_source(
-    dem: str | Path,
-    sources: Sequence[ImageSource],
-    dem_crs: object | None,
-    radius_values: bool,
-    world: WorldFrame | str,
-    progress: bool,
-    heights: HeightOptions | None = None,
-) -> tuple[DemSource, tuple[ImageSource, ...]]:
-    """The DEM scanned once in blocks, in the world frame ``world`` asks for ("auto": the one
-    its cameras fit, :func:`~orthomvp.geometry.world.detect_world`), its heights shifted to what
-    that frame's cameras need as ``heights`` says (:mod:`orthomvp.geometry.datum`), with every
-    camera above it; and the views with their cameras in that frame
-    (:func:`~orthomvp.camera.in_world`); an RPC camera among map-frame cameras on a DEM with a
-    vertical datum takes the DEM's compound CRS (:func:`~orthomvp.camera.rpc.in_vertical_datum`:
-    PROJ converts its heights with the geoid's grid, or it is refused naming the grid)."""
-    frame = _frame(world)
-    centres = np.concatenate([sensor_positions(v.camera) for v in sources])
-    with Progress("reading the DEM's heights", progress, unit="row") as bar:
-        source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
-    if frame is None:
-        frame = detect_world(source.preview, centres)
-    preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough
-    sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
-    check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
-    source = dem_with_world(source, frame)
-    as_read = source.heights == HeightOptions()  # auto, no offset: the map frame's rule
-    named = [(str(v.path), v.camera) for v in sources]
-    cameras = in_vertical_datum(named, frame, source.file_crs, as_read)
-    sources = tuple(replace(v, camera=c) for v, c in zip(sources, cameras, strict=True))
-    return source, sources
+    return TiledGrid(source, sources, out, jobs, reach, elevation, tile)
 
 
 def plan_tiles(
@@ -589,27 +528,3 @@ def plan_tiles(
                     elevation[k] = min(elevation[k], halo.elevation)
             bar.update()
     return jobs, boxes, reach, elevation
-
-
-def check_plan(
-    source: DemSource,
-    sources: Sequence[ImageSource],
-    boxes: list[list[Box | None]],
-    seen: list[bool],
-    reach: list[float],
-    elevation: list[float],
-) -> None:
-    """GeometryError for a view that no tile sees (``seen``), saying why; a
-    :class:`HaloWarning` for a view whose occluder halo is larger than the DEM."""
-    for k, view in enumerate(sources):
-        if not seen[k]:
-            raise GeometryError(_no_overlap(view, boxes[k], source))
-        if reach[k] > max(source.shape):
-            warnings.warn(
-                f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
-                f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
-                f"than the DEM's {max(source.shape):,} posts: every tile reads and meshes most "
-                "of the DEM, so memory grows with it (results stay correct)",
-                HaloWarning,
-                stacklevel=3,
-            )

@@ -135,7 +135,7 @@ def _measure(conn: object, dem: Path, image: Path, camera: PinholeCamera, option
     from orthomvp.engine import Outputs, dask_client, plan_ortho, run_plan
 
     t0 = time.perf_counter()
-    plan = plan_ortho(dem, [(image, camera)], tile=options["tile"], progress=False)
+    plan = plan_ortho(dem, [(image, camera)], grid="dem", tile=options["tile"], progress=False)
     planning = time.perf_counter() - t0
     out = Outputs(ortho=Path(options["folder"]) / "ortho.tif")
     if options.get("dask"):

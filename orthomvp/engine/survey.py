@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from orthomvp.engine.grid import grid_to_dem, output_grid
-from orthomvp.engine.plan import Plan, _grid_spacing, _job, plan_tiles
+from orthomvp.engine.grid_choice import grid_spacing
+from orthomvp.engine.plan import Plan, _job, plan_tiles
 from orthomvp.ortho.balance import pair_stats, solve_balance
 from orthomvp.ortho.composite import clamp_blend, overlap_width
 
@@ -44,7 +45,7 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
         res = (abs(t.a) * step, abs(t.e) * step)
         box = (min(left, right), min(top, bottom), max(left, right), max(top, bottom))
         grid = output_grid(plan.dem, res, box, plan.grid.crs)
-        post_scale = _grid_spacing(grid, plan.dem) / plan.spacing
+        post_scale = grid_spacing(grid, plan.dem) / plan.spacing
     to_dem = grid_to_dem(grid, plan.dem)
     jobs, *_ = plan_tiles(
         grid.tiles(plan.tile),

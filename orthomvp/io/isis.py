@@ -176,6 +176,11 @@ class CubeLayout:
 
 def read_label(path: str | Path) -> PVLModule:
     """The parsed label of the ISIS3 cube at ``path``."""
+    return parse_label(path, label_text(path))
+
+
+def label_text(path: str | Path) -> str:
+    """The label of the ISIS3 cube at ``path`` as text, up to and including its End line."""
     path = Path(path)
     try:
         with path.open("rb") as handle:
@@ -197,7 +202,7 @@ def read_label(path: str | Path) -> PVLModule:
     label = head[: match.end()]
     if b"\0" in label:
         raise FormatError(path, "corrupt cube label (NUL bytes before its End line)")
-    return parse_label(path, label.decode("latin-1"))
+    return label.decode("latin-1")
 
 
 def cube_layout(path: str | Path, label: PVLModule) -> CubeLayout:

@@ -20,7 +20,11 @@ def dem_window(grid: Terrain, dem: Terrain) -> tuple[int, int, int, int]:
     DEM: the posts next to a grid post then have the central-difference normals of the whole
     DEM, so their codes do not depend on the window (or on how a larger grid was tiled)."""
     c, r = perimeter((0, grid.shape[0], 0, grid.shape[1]))
-    dc, dr = dem_pixels(grid, dem, c, r, grid.values[r.astype(int), c.astype(int)])
+    # a post off the DEM has no height; its position on the DEM does not need one (both CRSs
+    # are of one body, and a height moves a point along its vertical only)
+    values = grid.values[r.astype(int), c.astype(int)]
+    values = np.where(np.isfinite(values), values, 0.0)
+    dc, dr = dem_pixels(grid, dem, c, r, values)
     rows, cols = dem.shape
     r0 = int(np.clip(np.floor(np.nanmin(dr, initial=np.inf)) - 2, 0, rows))
     r1 = int(np.clip(np.floor(np.nanmax(dr, initial=-np.inf)) + 4, 0, rows))
@@ -58,7 +62,10 @@ class DemCodes:
         else:
             r, c = np.mgrid[rs, cs].astype(np.float64)
             dc, dr = dem_pixels(grid, self.dem, c, r, p=g.points(np.ones(c.shape, bool)))
+            dc, dr = dc.reshape(c.shape), dr.reshape(c.shape)  # (the points come flat)
         rows, cols = self.codes.shape
+        if rows < 2 or cols < 2:  # no DEM cell under the grid: nothing to carry
+            return np.zeros(np.broadcast_shapes(dc.shape, dr.shape), np.uint8)
         with np.errstate(invalid="ignore"):
             i, j = np.floor(dr) - self.r0, np.floor(dc) - self.c0
             ok = (i >= 0) & (i < rows - 1) & (j >= 0) & (j < cols - 1)

@@ -59,7 +59,7 @@ class CsmFrameCamera(CsmImage):
         fp = self.focal_plane
         line = fp.detector_line(dx, dy)
         sample = fp.detector_sample(dx, dy)
-        depth = self.look_sign * cam[..., 2]
+        depth = self.look_sign * self.focal_plane.axis_sign * cam[..., 2]
         front = (depth > 0) & np.isfinite(line)
         return (
             np.where(front, line, np.nan),

@@ -60,7 +60,8 @@ def as_points(value: object, what: str, n: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class FocalPlane:
-    """usgscsm's detector geometry: ``focal_length`` (mm), the focal-plane-to-detector affine
+    """usgscsm's detector geometry: ``focal_length`` (mm; negative for a camera that looks along
+    its -z axis, as ALE writes ISIS's Apollo Metric camera), the focal-plane-to-detector affine
     transforms ``i_trans_s``/``i_trans_l`` (pixels from mm: detector sample/line =
     t[0] + t[1] x + t[2] y), the detector origin (``sample_origin``, ``line_origin``, the ISD's
     ``detector_center``), pixel summing, the first detector sample/line read out
@@ -85,7 +86,9 @@ class FocalPlane:
             object.__setattr__(self, name, value)
         if abs(self.i_trans_l[1] * self.i_trans_s[2] - self.i_trans_l[2] * self.i_trans_s[1]) == 0:
             raise InputError("the focal-plane-to-pixel transforms are singular")
-        for name in ("focal_length", "sample_summing", "line_summing"):
+        if not (np.isfinite(self.focal_length) and self.focal_length != 0):
+            raise InputError(f"focal_length must be non-zero, got {self.focal_length!r}")
+        for name in ("sample_summing", "line_summing"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name} must be positive, got {getattr(self, name)!r}")
 
@@ -133,11 +136,17 @@ class FocalPlane:
         return self.distortion.distort(fx, fy, self.focal_length)
 
     @property
+    def axis_sign(self) -> float:
+        """+1 if the camera looks along its +z axis (positive focal length), else -1: a
+        camera-frame point's depth along the view is ``look_sign * axis_sign * z``."""
+        return 1.0 if self.focal_length > 0 else -1.0
+
+    @property
     def focal_pixels(self) -> float:
         """The focal length in image pixels (mean over the two detector axes)."""
         scale_s = np.hypot(self.i_trans_s[1], self.i_trans_s[2]) / self.sample_summing
         scale_l = np.hypot(self.i_trans_l[1], self.i_trans_l[2]) / self.line_summing
-        return float(self.focal_length * 0.5 * (scale_s + scale_l))
+        return float(abs(self.focal_length) * 0.5 * (scale_s + scale_l))
 
 
 @dataclass(frozen=True)

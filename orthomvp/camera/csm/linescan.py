@@ -145,7 +145,7 @@ class LineScanCamera(CsmImage):
             rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2] for i in range(3)
         ]
         dx, dy = self.focal_plane.view(np.stack(cam, -1))
-        view = np.stack([dx, dy, self.look_sign * cam[2]], -1)
+        view = np.stack([dx, dy, self.look_sign * self.focal_plane.axis_sign * cam[2]], -1)
         return self.focal_plane.detector_line(dx, dy), view
 
     @cached_property

@@ -127,7 +127,7 @@ class PushFrameCamera(CsmImage):
             "mji,mj->mi", self.trajectory.rotation(t), xyz - self.trajectory.position(t)
         )
         dx, dy = self.focal_plane.view(cam)
-        return dx, dy, self.look_sign * cam[:, 2]
+        return dx, dy, self.look_sign * self.focal_plane.axis_sign * cam[:, 2]
 
     def _frame_distance(self, framelet: np.ndarray, xyz: np.ndarray) -> np.ndarray:
         """usgscsm ``calcFrameDistance``: detector line offset from the framelet's middle
