@@ -31,8 +31,6 @@ from orthomvp.camera.csm.ephemeris import matrix_wxyz
 
 ISD_ROUTE = "give an ISD from ALE's isd_generate instead"
 NO_SPICE = "run spiceinit (attach=yes), or give an ISD from ALE's isd_generate"
-TABLES = ("InstrumentPointing", "InstrumentPosition", "BodyRotation", "SunPosition")
-"""The tables spiceinit attaches (attach=yes)."""
 
 _FIELD_TYPES = {"double": ("f8", 8), "integer": ("i4", 4), "real": ("f4", 4), "text": ("S", 1)}
 
