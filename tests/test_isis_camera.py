@@ -796,7 +796,7 @@ def test_frame_states_between_records() -> None:
     from scipy.interpolate import CubicHermiteSpline
     from scipy.spatial.transform import Rotation, Slerp
 
-    from orthomvp.camera.isis.core import states_at
+    from orthomvp.camera.isis.isd import states_at
 
     cube = SpiceCube(_cube(LRO))
     spice = cube.spice

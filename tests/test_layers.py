@@ -148,9 +148,9 @@ def test_imports_go_down_the_layers() -> None:
 
 
 def test_cube_camera_reader() -> None:
-    """The cube camera reader (orthomvp.camera.isis: a shared core and one module per
-    instrument) builds on the CSM models and the cube label reader only, and the camera
-    registry imports it (and pvl) only when a cube is read."""
+    """The cube camera reader (orthomvp.camera.isis: shared core, tables, times and isd
+    modules, and one module per instrument) builds on the CSM models and the cube label reader
+    only, and the camera registry imports it (and pvl) only when a cube is read."""
     import subprocess
     import sys
 
@@ -158,7 +158,8 @@ def test_cube_camera_reader() -> None:
     reader = {
         m for m in graph if m == "orthomvp.camera.isis" or m.startswith("orthomvp.camera.isis.")
     }
-    assert {"orthomvp.camera.isis.core", "orthomvp.camera.isis.lro_nac"} <= reader
+    shared = {"core", "tables", "times", "isd"}
+    assert {f"orthomvp.camera.isis.{m}" for m in [*shared, "lro_nac"]} <= reader
     for module in reader:
         outside = {d for d in graph[module] if d not in reader and d != "orthomvp.errors"}
         assert all(

@@ -5,9 +5,11 @@ kernels or network): its attached tables ``InstrumentPointing``, ``InstrumentPos
 The cube becomes the USGS CSM ISD that ALE's driver for its instrument writes (with the cube's
 AlphaCube crop and reduction folded in, which ALE leaves out), and that ISD the line-scan or
 frame model of :mod:`orthomvp.camera.csm`; a lens model usgscsm lacks (Apollo Metric) replaces
-the ISD's. :mod:`.core` is the shared part (tables, times, rotations, AlphaCube, summing); each
-instrument is a module with its :class:`~.core.Instrument` (keys, timing rule, distortion),
-listed in :data:`INSTRUMENTS`:
+the ISD's. The shared part: :mod:`.core` (the cube: label, NaifKeywords, AlphaCube),
+:mod:`.tables` (the binary tables and their polynomial cache, as ISD rotations and positions),
+:mod:`.times` (UTC to ephemeris time) and :mod:`.isd` (the frame and line-scan ISDs, summing);
+each instrument is a module with its :class:`~.core.Instrument` (keys, timing rule,
+distortion), listed in :data:`INSTRUMENTS`:
 
 - line scanners: LRO NAC left and right (:mod:`.lro_nac`), MRO CTX (:mod:`.mro_ctx`);
 - frame cameras: Apollo 15, 16 and 17 Metric (:mod:`.apollo_metric`), MESSENGER MDIS NAC and
@@ -25,7 +27,9 @@ from typing import Any
 
 from orthomvp.camera.csm.isd import CsmCamera, camera_from_isd
 from orthomvp.camera.isis import apollo_metric, dawn_fc, lro_nac, messenger_mdis, mro_ctx
-from orthomvp.camera.isis.core import ISD_ROUTE, Instrument, SpiceCube, instrument_key, utc_to_et
+from orthomvp.camera.isis.core import Instrument, SpiceCube, instrument_key
+from orthomvp.camera.isis.tables import ISD_ROUTE
+from orthomvp.camera.isis.times import utc_to_et
 from orthomvp.errors import FormatError
 
 __all__ = ["INSTRUMENTS", "Instrument", "SpiceCube", "cube_isd", "read_cube_camera", "utc_to_et"]

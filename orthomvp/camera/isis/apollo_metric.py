@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from orthomvp.camera.isis.core import Instrument, SpiceCube, frame_isd, ikid_of
+from orthomvp.camera.isis.core import Instrument, SpiceCube
+from orthomvp.camera.isis.isd import frame_isd, ikid_of
 
 _CAMERAS = {-915240: "Apollo 15", -916240: "Apollo 16", -917240: "Apollo 17"}
 _TOLERANCE = 1e-6  # mm, ISIS's convergence tolerance

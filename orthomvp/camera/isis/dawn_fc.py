@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from orthomvp.camera.isis.core import Instrument, SpiceCube, frame_isd, ikid_of
+from orthomvp.camera.isis.core import Instrument, SpiceCube
+from orthomvp.camera.isis.isd import frame_isd, ikid_of
 
 _CLEARING = 0.193  # s between the clock start count and the exposure's start
 

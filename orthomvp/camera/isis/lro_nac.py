@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from orthomvp.camera.csm.ephemeris import matrix_wxyz, qmul, wxyz_matrix
-from orthomvp.camera.isis.core import Instrument, SpiceCube, ikid_of, line_scan_isd
+from orthomvp.camera.isis.core import Instrument, SpiceCube
+from orthomvp.camera.isis.isd import ikid_of, line_scan_isd
 
 _CAMERAS = {-85600: "NACL", -85610: "NACR"}
 

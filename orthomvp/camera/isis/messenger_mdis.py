@@ -19,7 +19,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from orthomvp.camera.isis.core import Instrument, SpiceCube, frame_isd, ikid_of
+from orthomvp.camera.isis.core import Instrument, SpiceCube
+from orthomvp.camera.isis.isd import frame_isd, ikid_of
 
 _NAC, _WAC = -236820, -236800
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from orthomvp.camera.isis.core import Instrument, SpiceCube, ikid_of, line_scan_isd
+from orthomvp.camera.isis.core import Instrument, SpiceCube
+from orthomvp.camera.isis.isd import ikid_of, line_scan_isd
 
 
 def isd(cube: SpiceCube) -> dict[str, Any]:
