@@ -349,3 +349,19 @@ def test_a_grid_beyond_the_free_space_is_refused_before_planning(
     grid_choice.check_grid_size(own, source, views)  # the DEM's own grid: always written
     with pytest.raises(InputError, match="posts per pixel"):
         grid_choice.check_grid_size(choose_grid(source, views, res="1m"), source, views)
+
+
+@pytest.mark.parametrize(
+    "crs", ["EPSG:4326", "EPSG:32633", "+proj=longlat +R=1737400 +no_defs", "EPSG:2236"]
+)
+def test_unit_scale_is_the_same_from_rasterio_and_pyproj(crs: str) -> None:
+    """A file's CRS as rasterio reads it gives the units pyproj gives (without pyproj)."""
+    from pyproj import CRS as ProjCRS
+    from rasterio.crs import CRS as FileCRS
+
+    from orthomvp.engine.units import unit_scale
+
+    file_scale = unit_scale(FileCRS.from_user_input(crs), 1737400.0)
+    proj_scale = unit_scale(ProjCRS.from_user_input(crs), 1737400.0)
+    assert file_scale[1] == proj_scale[1]
+    assert file_scale[0] == pytest.approx(proj_scale[0], rel=1e-12)

@@ -128,7 +128,7 @@ def grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
 
 def dem_extent_metres(dem: DemSource, radius: float) -> float:
     """The DEM's longer side on the ground, metres (nominal, see :mod:`orthomvp.engine.units`)."""
-    per_unit, _ = unit_scale(as_pyproj(dem.crs), radius)
+    per_unit, _ = unit_scale(dem.crs, radius)
     rows, cols = dem.shape
     return max(cols * abs(dem.transform.a), rows * abs(dem.transform.e)) * per_unit
 
@@ -154,11 +154,10 @@ def choose_grid(
     lengths = parse_res(res)
     radius = dem.preview.radii[0]
     out_crs = dem.crs if crs is None else as_crs(crs, "output CRS")
-    out_pyproj = as_pyproj(out_crs)
     units = None
     if lengths is not None:
-        units, metres = to_units(lengths, out_pyproj, radius)
-        check_res(lengths, metres, out_pyproj, radius, dem_extent_metres(dem, radius))
+        units, metres = to_units(lengths, out_crs, radius)
+        check_res(lengths, metres, out_crs, radius, dem_extent_metres(dem, radius))
     if grid == "dem" or (units is not None and bounds is not None):
         return output_grid(dem, units, bounds, crs)
     if footprints is None:
@@ -168,7 +167,7 @@ def choose_grid(
         return output_grid(dem, units, bounds, crs)
     if units is None:
         gsd = np.concatenate([f.gsd for f in footprints])
-        per_unit, _ = unit_scale(out_pyproj, radius)
+        per_unit, _ = unit_scale(out_crs, radius)
         side = clean_metres(float(nan_median(gsd))) / per_unit
         units = (side, side)
     if bounds is None:
@@ -178,7 +177,7 @@ def choose_grid(
         else:
             from pyproj import Transformer
 
-            to_out = Transformer.from_crs(as_pyproj(dem.crs), out_pyproj, always_xy=True)
+            to_out = Transformer.from_crs(as_pyproj(dem.crs), as_pyproj(out_crs), always_xy=True)
             bounds = to_out.transform_bounds(*bounds, densify_pts=21)
     return output_grid(dem, units, bounds, crs)
 
@@ -211,7 +210,7 @@ def check_grid_size(
     posts = rows * cols
     bands = max(v.bands for v in sources) if sources else 1
     nbytes = posts * 4 * bands * 4 / 3
-    per_unit, unit = unit_scale(as_pyproj(grid.crs), dem.preview.radii[0])
+    per_unit, unit = unit_scale(grid.crs, dem.preview.radii[0])
     res = abs(grid.transform.a)
     size = (
         f"{cols:,} x {rows:,} posts of {res:.3g} {unit} ({res * per_unit:.3g} m on the ground; "
