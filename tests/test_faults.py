@@ -194,7 +194,7 @@ def test_exit_status_of_each_kind_of_failure(
     args = ["visibility", dem, image, camera, "-o", out]
     check = ["check", dem, *views(scene), "-o", tmp_path / "chk"]
     before = state(tmp_path)
-    assert_refused(run("visibility", dem, image, "-o", out), 2, "Missing argument")  # usage
+    assert_refused(run("visibility", dem, image, "-o", out), 2, "no CAMERA given")  # usage
     assert_refused(run(*args[:-2], "--eps=-1", "-o", out), 2, "--eps")
     assert_refused(run("visibility", tmp_path / "no.tif", image, camera, "-o", out), 2, "no.tif")
 
