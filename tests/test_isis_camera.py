@@ -648,7 +648,8 @@ def test_lro_cube_as_camera_through_the_command_line(tmp_path: Path) -> None:
     ) as dst:
         dst.write(np.zeros((1, n_r, n_c), np.float32))
     out = tmp_path / "o.tif"
-    assert main(["-q", "ortho", str(dem), str(image), str(cube), "-o", str(out)]) == 0
+    args = ["-q", "ortho", str(dem), str(image), str(cube), "-o", str(out), "--grid", "dem"]
+    assert main(args) == 0
     with rasterio.open(out) as src:
         ortho = src.read().astype(np.float64)
     checked = 0
@@ -690,9 +691,10 @@ def test_hadley_cube_as_its_own_camera(tmp_path: Path) -> None:
     cube = _cube(APOLLO)
     tsai = shared("as15-hadley", f"{APOLLO}.converted.tsai")
     a, b = tmp_path / "cube.tif", tmp_path / "tsai.tif"
-    assert main(["-q", "ortho", str(dem), str(cube), str(cube), "-o", str(a)]) == 0
+    grid = ["--grid", "dem"]  # both on one grid
+    assert main(["-q", "ortho", str(dem), str(cube), str(cube), "-o", str(a), *grid]) == 0
     tif = shared("as15-hadley", f"{APOLLO}.tif")
-    assert main(["-q", "ortho", str(dem), str(tif), str(tsai), "-o", str(b)]) == 0
+    assert main(["-q", "ortho", str(dem), str(tif), str(tsai), "-o", str(b), *grid]) == 0
     with rasterio.open(a) as src_a, rasterio.open(b) as src_b:
         one, two = src_a.read(1).astype(float), src_b.read(1).astype(float)
         nodata = src_a.nodata
