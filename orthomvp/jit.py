@@ -24,18 +24,17 @@ def cache_dir() -> str:
     return os.path.join(base, "orthomvp", "numba")
 
 
-# before numba's import, where this is the first (its configuration reads the environment), and
-# in its configuration, where it is not; child processes inherit the variable
+# numba's configuration through the environment, which it reads at its import and reads again
+# whenever the NUMBA_ variables change (a value set on numba.config alone would be reset then);
+# child processes inherit it. The cache in the user's cache folder. OpenMP before TBB: the
+# layer numba takes here anyway, and the older TBB that Open3D loads (when its ray caster or the
+# bench ran first) would otherwise print a warning at the first parallel call.
 os.environ["NUMBA_CACHE_DIR"] = cache_dir()
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "omp tbb workqueue")
 
 import numba  # noqa: E402
 
-numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
-
-# OpenMP first: the layer numba takes here anyway, and the older TBB that Open3D loads (when
-# its ray caster or the bench ran first) would otherwise print a warning at the first
-# parallel call
-numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+numba.config.reload_config()  # (where numba was imported before this module)
 
 BLAS = "scipy.linalg.cython_blas"
 

@@ -98,3 +98,24 @@ def test_kernels_cache_in_the_users_cache_folder_never_in_the_package(tmp_path: 
     assert _cache_files(tmp_path / "xdg" / "orthomvp" / "numba")
     _run_kernel({**env, "HOME": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "own")})
     assert _cache_files(tmp_path / "own")
+
+
+def test_the_configuration_survives_numba_reading_its_environment_again(tmp_path: Path) -> None:
+    """numba re-reads its NUMBA_ variables whenever they change; the cache folder and OpenMP
+    before TBB (else the older TBB of Open3D prints a warning) hold after such a reload, also
+    when numba was imported before orthomvp.jit."""
+    code = (
+        "import os, numba\n"
+        "import orthomvp.jit\n"
+        "os.environ['NUMBA_SOMETHING_ELSE'] = '1'\n"
+        "numba.config.reload_config()\n"
+        "print(numba.config.THREADING_LAYER_PRIORITY[0], numba.config.CACHE_DIR)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["HOME"] = str(tmp_path)
+    env.pop("XDG_CACHE_HOME", None)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    layer, folder = out.stdout.split()
+    assert layer == "omp" and folder == str(tmp_path / ".cache" / "orthomvp" / "numba")
