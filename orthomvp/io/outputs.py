@@ -17,6 +17,7 @@ import contextlib
 import itertools
 import os
 import shutil
+import stat
 import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -38,21 +39,33 @@ def _umask() -> int:
     return mask
 
 
-_pending: dict[Path, None] = {}
-"""This process's temporary outputs (files and directories) not yet renamed or removed."""
+_pending: dict[Path, int | None] = {}
+"""This process's temporary outputs (files and directories) not yet renamed or removed, with
+a file descriptor of the directory they are in (None where it cannot be opened): they are
+removed through it, so that those of a directory renamed or moved during the run are removed
+too."""
 
 
 def _new_temp(path: Path, tag: str = "") -> Path:
     """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
     tmp = temp_name(path, tag)
-    _pending[tmp] = None
+    try:
+        fd: int | None = os.open(tmp.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        fd = None
+    _pending[tmp] = fd
     return tmp
 
 
 def _drop(tmp: Path) -> None:
-    """Remove a temporary output (call with signals held)."""
-    _remove(tmp)
-    _pending.pop(tmp, None)
+    """Remove a temporary output (call with signals held): where its directory is now, if it
+    was renamed or moved meanwhile."""
+    fd = _pending.pop(tmp, None)
+    try:
+        _remove(tmp, fd)
+    finally:
+        if fd is not None:
+            os.close(fd)
 
 
 def remove_temporaries() -> None:
@@ -111,21 +124,40 @@ def remove_stale(path: Path) -> list[Path]:
     return removed
 
 
-def _remove(tmp: Path) -> None:
+def _remove(tmp: Path, dir_fd: int | None = None) -> None:
     """Remove a temporary file (with the .aux.xml sidecar GDAL may leave) or directory, if
-    there. A failure is not reported: the error that led here is the one to report (and on
-    a read-only file system even removing what is not there fails)."""
-    if tmp.is_dir() and not tmp.is_symlink():
-        shutil.rmtree(tmp, ignore_errors=True)
-    for name in (tmp, Path(f"{tmp}.aux.xml")):
+    there: ``tmp``, or its name in the directory of file descriptor ``dir_fd``. A failure is
+    not reported: the error that led here is the one to report (and on a read-only file system
+    even removing what is not there fails)."""
+    name = tmp.name if dir_fd is not None else os.fspath(tmp)
+    with contextlib.suppress(OSError):
+        if stat.S_ISDIR(os.stat(name, dir_fd=dir_fd, follow_symlinks=False).st_mode):
+            _remove_tree(name, dir_fd)
+    for each in (name, f"{name}.aux.xml"):
         with contextlib.suppress(OSError):
-            name.unlink()
+            os.unlink(each, dir_fd=dir_fd)
+
+
+def _remove_tree(name: str, dir_fd: int | None) -> None:
+    """Remove directory ``name`` (in the directory of ``dir_fd``) and everything in it, not
+    following symbolic links (``shutil.rmtree`` takes ``dir_fd`` from Python 3.11 only)."""
+    for _, dirs, files, fd in os.fwalk(name, topdown=False, dir_fd=dir_fd):
+        for file in files:
+            with contextlib.suppress(OSError):
+                os.unlink(file, dir_fd=fd)
+        for sub in dirs:  # (a symbolic link to a directory is listed here too)
+            with contextlib.suppress(OSError):
+                try:
+                    os.rmdir(sub, dir_fd=fd)
+                except NotADirectoryError:
+                    os.unlink(sub, dir_fd=fd)
+    os.rmdir(name, dir_fd=dir_fd)
 
 
 @contextlib.contextmanager
 def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Iterator[list[Path]]:
     """Yield temporary paths beside ``paths``; rename them onto ``paths``, one after another,
-    when the block succeeds; on any failure (SIGINT and SIGTERM too) remove them all and
+    when the block succeeds; on any failure (SIGINT, SIGTERM and SIGHUP too) remove them all and
     touch no target.
 
     First the temporary files that killed runs left beside the targets are removed (see
@@ -207,7 +239,7 @@ def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
 def atomic_dir(path: str | Path) -> Iterator[Path]:
     """Yield a temporary directory beside ``path``; on success move its files into ``path``.
 
-    On failure (SIGINT and SIGTERM too) the temporary directory is removed and ``path`` is
+    On failure (SIGINT, SIGTERM and SIGHUP too) the temporary directory is removed and ``path`` is
     left as it was; errors name the files under ``path``, not under the temporary directory.
     Temporary directories of killed runs are removed first (see :func:`remove_stale`).
     """
