@@ -184,3 +184,333 @@ def test_a_closed_stderr_keeps_errors_off_stdout(scene: Path, tmp_path: Path) ->
     assert proc.returncode == 2
     assert proc.stdout == ""
     assert list(tmp_path.iterdir()) == [scene]
+
+
+# ------------------------------------------------------------ 12: camera files, bounded
+CAMERA_SUFFIXES = (
+    ".tsai", ".pinhole", ".json", ".csv", ".geojson", ".yaml", ".yml", ".rpb", ".txt", ".tif",
+    ".tiff", ".cub", "",
+)  # fmt: skip
+"""A suffix of every camera format in orthomvp.camera.FORMATS (and none: sniffed)."""
+
+
+def test_every_camera_suffix_is_covered() -> None:
+    from orthomvp.camera import FORMATS
+
+    assert {s for fmt in FORMATS for s in fmt.suffixes} <= set(CAMERA_SUFFIXES)
+
+
+def _bounded(call: object, timeout: float = 20) -> BaseException | None:
+    """Run ``call`` in a daemon thread for at most ``timeout`` s; returns what it raised
+    (None if nothing). Fails if it is still running (blocked on a FIFO, reading endlessly)."""
+    import threading
+
+    raised: list[BaseException | None] = [None]
+
+    def target() -> None:
+        try:
+            call()  # type: ignore[operator]
+        except BaseException as exc:  # noqa: BLE001 (returned to the test)
+            raised[0] = exc
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    thread.join(timeout)
+    assert not thread.is_alive(), f"still running after {timeout} s"
+    return raised[0]
+
+
+@pytest.mark.parametrize("suffix", CAMERA_SUFFIXES)
+def test_a_camera_that_is_dev_zero_or_a_fifo_is_refused_at_once(
+    tmp_path: Path, suffix: str
+) -> None:
+    """Every camera reader refuses a symbolic link to /dev/zero (which grew until memory ran
+    out) and a FIFO (which waited for a writer) by what it is, at once."""
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import InputError
+
+    zero, fifo = tmp_path / f"zero{suffix}", tmp_path / f"fifo{suffix}"
+    zero.symlink_to("/dev/zero")
+    os.mkfifo(fifo)
+    for path, words in ((zero, "a character device (/dev/zero)"), (fifo, "a FIFO")):
+        exc = _bounded(lambda path=path: read_camera(path, "image.tif"))
+        assert isinstance(exc, InputError), repr(exc)
+        assert str(exc).startswith(f"{path}: ") and words in str(exc), str(exc)
+        assert "not a regular file" in str(exc)
+
+
+@pytest.mark.parametrize(
+    "suffix", [s for s in CAMERA_SUFFIXES if s not in (".tif", ".tiff", ".cub")]
+)
+def test_a_camera_file_larger_than_the_limit_is_refused_before_it_is_read(
+    tmp_path: Path, suffix: str
+) -> None:
+    """A sparse 2 GB camera file (zeros, as in the issue: it peaked at 14.7 GB as a .tsai) is
+    refused from its size, reading nothing: well under 1 MB of memory and a second."""
+    import tracemalloc
+
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import InputError
+    from orthomvp.io.files import MAX_SMALL_FILE
+
+    big = tmp_path / f"big{suffix}"
+    with open(big, "wb") as fh:
+        fh.truncate(2_000_000_000)
+    tracemalloc.start()
+    start = time.monotonic()
+    try:
+        with pytest.raises(InputError) as caught:
+            read_camera(big, "image.tif")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert time.monotonic() - start < 5 and peak < 1_000_000
+    assert str(caught.value) == (
+        f"{big}: 2 GB is more than a camera file may be ({MAX_SMALL_FILE >> 20} MiB at most)"
+    )
+
+
+def test_the_bounded_read_takes_up_to_the_limit_and_no_more(tmp_path: Path) -> None:
+    from orthomvp.errors import InputError
+    from orthomvp.io.files import read_bounded
+
+    f = tmp_path / "f.txt"
+    f.write_bytes(b"x" * 1000)
+    assert read_bounded(f, "test file", limit=1000) == b"x" * 1000
+    with pytest.raises(InputError, match=r"f.txt: 1 kB is more than a test file may be"):
+        read_bounded(f, "test file", limit=999)
+    with pytest.raises(InputError, match=r"test file not found \(no such file\)"):
+        read_bounded(tmp_path / "none", "test file")
+    with pytest.raises(InputError, match=r"the test file is a directory, not a regular file"):
+        read_bounded(tmp_path, "test file")
+
+
+def test_the_isis_label_reader_is_bounded(tmp_path: Path) -> None:
+    """An ISIS3 label without its End line in its first 64 MiB (a sparse 80 MB file), /dev/zero
+    and a FIFO as a cube: refused, in bounded time."""
+    from orthomvp.errors import InputError
+    from orthomvp.io.isis import label_text
+
+    endless = tmp_path / "endless.cub"
+    with open(endless, "wb") as fh:
+        fh.write(b"Object = IsisCube\n")
+        fh.truncate(80_000_000)
+    exc = _bounded(lambda: label_text(endless))
+    assert isinstance(exc, InputError) and "no End line in the label's first 64 MiB" in str(exc)
+    zero, fifo = tmp_path / "zero.cub", tmp_path / "fifo.cub"
+    zero.symlink_to("/dev/zero")
+    os.mkfifo(fifo)
+    for path, words in ((zero, "a character device (/dev/zero)"), (fifo, "a FIFO")):
+        exc = _bounded(lambda path=path: label_text(path))
+        assert isinstance(exc, InputError) and words in str(exc), repr(exc)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "null"])
+def test_an_image_that_is_a_fifo_or_dev_null_is_named_as_such(
+    scene: Path, tmp_path: Path, kind: str
+) -> None:
+    """Not "no such file" (as before): what the file is."""
+    image = tmp_path / "image.tif"
+    if kind == "fifo":
+        os.mkfifo(image)
+    else:
+        image.symlink_to(os.devnull)
+    _, camera, *_ = views(scene)
+    words = "a FIFO" if kind == "fifo" else f"a character device ({os.devnull})"
+    result = _run_bounded("ortho", scene / "dem.tif", image, camera, "-o", tmp_path / "o.tif")
+    assert_refused(result, 2, image, words, "not a regular file")
+    assert not (tmp_path / "o.tif").exists() and hidden(tmp_path) == []
+
+
+def _run_bounded(*args: object) -> tuple[int, str, str]:
+    """:func:`run` in a thread, failing after 60 s."""
+    result: list[tuple[int, str, str]] = []
+    exc = _bounded(lambda: result.append(run(*args)), 60)
+    assert exc is None, repr(exc)
+    return result[0]
+
+
+# ------------------------------------------------------------- 13: names and messages
+def test_a_long_output_name_is_written_not_refused(scene: Path, tmp_path: Path) -> None:
+    """A 244-byte output name (valid: at most 255) was refused because its temporary's name
+    was too long, with an atexit traceback; now the temporary's name is shortened."""
+    image, camera, *_ = views(scene)
+    out = tmp_path / ("a" * 240 + ".tif")
+    assert len(out.name) == 244
+    code, _, err = run("ortho", scene / "dem.tif", image, camera, "-o", out,
+                       "--visibility", tmp_path / ("v" * 250 + ".tif"))  # fmt: skip
+    assert code == 0, err
+    assert out.is_file() and hidden(tmp_path) == []
+    with rasterio.open(out) as src:
+        assert src.count >= 1
+
+
+def test_the_temporaries_of_a_long_name_fit_and_are_recognised_when_stale(
+    tmp_path: Path,
+) -> None:
+    """A temporary's name stays within 255 bytes for any valid output name (long, multi-byte,
+    with a long suffix), and :func:`remove_stale` still recognises it as the output's."""
+    from orthomvp.io.outputs import remove_stale, temp_name
+
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    for name in ("é" * 125 + ".tif", "x." + "y" * 250, "b" * 255, os.fsdecode(b"\xff" * 200)):
+        out = tmp_path / name
+        tmp = temp_name(out, ".ovr16")
+        assert len(os.fsencode(tmp.name)) <= 200
+        stale = tmp.with_name(tmp.name.replace(f"-{os.getpid()}-", f"-{gone.pid}-", 1))
+        stale.write_bytes(b"left by a killed run")
+        assert remove_stale(out) == [stale] and not stale.exists()
+
+
+def test_a_non_utf8_output_name_is_written(scene: Path, tmp_path: Path) -> None:
+    """An output name that is not UTF-8 (bytes 0xff 0xfe) was a UnicodeEncodeError (GDAL takes
+    UTF-8 names): the temporary's name is UTF-8 and is renamed onto the name as given."""
+    image, camera, *_ = views(scene)
+    out = tmp_path / os.fsdecode(b"\xff\xfe.tif")
+    code, _, err = run("ortho", scene / "dem.tif", image, camera, "-o", out)
+    assert code == 0, err
+    assert b"\xff\xfe.tif" in os.listdir(os.fsencode(tmp_path)) and hidden(tmp_path) == []
+    assert_refused(
+        run("ortho", out, image, camera, "-o", tmp_path / "o.tif"), 2, "whose name is not UTF-8"
+    )
+
+
+def test_a_camera_json_nested_200000_deep_is_a_format_error(tmp_path: Path) -> None:
+    """A RecursionError before; now one FormatError naming the file."""
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import FormatError
+
+    for name, text in (
+        ("deep.json", '{"fu": ' + "[" * 200_000 + "]" * 200_000 + "}"),
+        ("list.json", "[" * 200_000 + "]" * 200_000),
+    ):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(FormatError, match="nested too deeply to be a camera file"):
+            read_camera(tmp_path / name)
+
+
+def _cut(src: Path, dst: Path, size: float) -> int:
+    """Write the first ``size`` bytes of ``src`` (a fraction of it, if below 1) to ``dst``;
+    returns how many."""
+    data = src.read_bytes()
+    n = int(len(data) * size) if size < 1 else int(size)
+    assert n < len(data)
+    dst.write_bytes(data[:n])
+    return n
+
+
+@pytest.mark.parametrize("size", [400, 2000, 0.3, 0.6, 0.9])
+def test_a_truncated_dem_or_image_names_gdals_cause(
+    scene: Path, tmp_path: Path, size: float
+) -> None:
+    """A DEM or an image cut short (at 400 B, 2000 B, 30 %, 60 %, 90 % of it): "corrupt or
+    truncated", GDAL's own cause (libtiff's read error, not "Read failed. See previous
+    exception for details."), and the file's size. A DEM cut at 400 B was reported as having
+    "no CRS"."""
+    image, camera, *_ = views(scene)
+    dem, cut = tmp_path / "dem.tif", tmp_path / "image.tif"
+    cases = (
+        (("ortho", dem, image, camera), dem, _cut(scene / "dem.tif", dem, size)),
+        (("ortho", scene / "dem.tif", cut, camera), cut, _cut(image, cut, size)),
+    )
+    for args, path, n in cases:
+        line = assert_refused(
+            run(*args, "-o", tmp_path / "o.tif"), 2, path, "corrupt or truncated",
+            f"the file has {n:,} bytes",
+        )  # fmt: skip
+        assert "See previous" not in line and "no CRS" not in line
+        assert "IO error" in line or "Read error" in line, line
+    assert hidden(tmp_path) == [] and not (tmp_path / "o.tif").exists()
+
+
+def test_corrupt_data_gives_the_deepest_cause() -> None:
+    from rasterio.errors import RasterioIOError
+
+    from orthomvp.io.raster import corrupt_data
+
+    try:
+        try:
+            raise OSError("TIFFFillStrip:Read error at scanline 0; got 1 bytes, expected 9")
+        except OSError as inner:
+            raise RasterioIOError("Read failed. See previous exception for details.") from inner
+    except RasterioIOError as exc:
+        text = str(corrupt_data("/nonexistent/x.tif", exc))
+    assert text == (
+        "/nonexistent/x.tif: corrupt or truncated raster data (TIFFFillStrip:Read error at "
+        "scanline 0; got 1 bytes, expected 9)"
+    )
+
+
+def _dem_variant(scene: Path, out: Path, change: str) -> Path:
+    import numpy as np
+    from affine import Affine
+
+    with rasterio.open(scene / "dem.tif") as src:
+        profile, values = src.profile, src.read(1)
+    if change == "checkerboard":
+        values[::2, ::2] = np.nan
+        values[1::2, 1::2] = np.nan
+    elif change == "columns":
+        values[:, ::2] = np.nan
+    elif change == "past the pole":
+        t = profile["transform"]
+        profile["transform"] = Affine(t.a, t.b, t.c, t.d, t.e, 95.0)
+    elif change == "complex":
+        profile.update(dtype="complex64", nodata=None)
+        values = values.astype(np.complex64) * (1 + 1j)
+    with rasterio.open(out, "w", **profile) as dst:
+        dst.write(values, 1)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        ("checkerboard", "no 2 x 2 posts of the DEM all have heights"),
+        ("columns", "no 2 x 2 posts of the DEM all have heights"),
+        ("past the pole", "past the pole"),
+        ("complex", "band 1 holds complex numbers (complex64)"),
+    ],
+)
+def test_a_dem_is_refused_for_its_real_cause(
+    scene: Path, tmp_path: Path, change: str, words: str
+) -> None:
+    """NaN on every other post and a DEM past latitude 90 were reported as "camera 1 is beyond
+    the DEM's horizon"; a complex DEM was taken as its real part."""
+    dem = _dem_variant(scene, tmp_path / "dem.tif", change)
+    image, camera, *_ = views(scene)
+    line = assert_refused(run("ortho", dem, image, camera, "-o", tmp_path / "o.tif"), 2, dem, words)
+    assert "horizon" not in line
+    assert not (tmp_path / "o.tif").exists() and hidden(tmp_path) == []
+
+
+def test_the_body_frame_test_samples_valid_posts(scene: Path, tmp_path: Path) -> None:
+    """:func:`body_plausible` on a DEM with NaN on every other post: a camera 100 km above the
+    DEM's centre post (the DEM's own transformation to body-fixed metres) is above it, one at
+    the body's centre is not."""
+    import numpy as np
+
+    from orthomvp.geometry.terrain import Terrain
+    from orthomvp.geometry.world import body_plausible
+
+    terrain = Terrain.read(_dem_variant(scene, tmp_path / "dem.tif", "checkerboard"))
+    rows, cols = terrain.shape
+    c, r = terrain.grid()
+    centre = terrain.to_world(c[rows // 2, cols // 2 + 1], r[rows // 2, cols // 2 + 1], 0.0)
+    above = centre * (1 + 100_000 / np.linalg.norm(centre))
+    assert body_plausible(terrain, np.array([above, [0.0, 0.0, 0.0]])).tolist() == [True, False]
+
+
+def test_an_output_name_ending_in_a_slash_is_refused(scene: Path, tmp_path: Path) -> None:
+    """``-o o.tif/`` wrote ``o.tif``: a trailing slash names a directory."""
+    image, camera, *_ = views(scene)
+    dem = scene / "dem.tif"
+    for args in (
+        ["ortho", dem, image, camera, "-o", f"{tmp_path / 'o.tif'}/"],
+        ["ortho", dem, image, camera, "-o", tmp_path / "o.tif", "--visibility",
+         f"{tmp_path / 'v.tif'}/"],
+        ["fit", dem, *views(scene), "-o", tmp_path / "f.tif", "--cost", f"{tmp_path / 'c.tif'}/"],
+    ):  # fmt: skip
+        assert_refused(run(*args), 2, "ends in '/', so names a directory")
+    assert list(tmp_path.iterdir()) == [scene]

@@ -194,7 +194,7 @@ def standard_streams() -> None:
     set them to None for it: so no file the command opens takes their number (what GDAL or a
     print writes would land in it), the messages of a closed stream are dropped (an error is
     not printed on stdout instead of a closed stderr: ``print(file=None)`` would), and the exit
-    status is the command's."""
+    status is the command's. File names that are not UTF-8 are printed as their bytes."""
     for fd in (0, 1, 2):
         try:
             os.fstat(fd)
@@ -206,6 +206,9 @@ def standard_streams() -> None:
     for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
         if getattr(sys, name) is None:
             setattr(sys, name, open(fd, mode, closefd=False))  # noqa: SIM115 (for the process)
+    for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8, byte for byte
+        with suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="surrogateescape")
 
 
 def main_entry() -> None:

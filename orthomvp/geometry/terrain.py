@@ -33,7 +33,7 @@ from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
-from orthomvp.io.raster import open_raster, read_values, write_geotiff
+from orthomvp.io.raster import corrupt_data, open_raster, read_values, write_geotiff
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -123,11 +123,17 @@ def _heights(values: object, name: str) -> np.ndarray:
 
 
 def dem_georeference(
-    path: str | Path, file_crs: FileCRS | None, transform: Affine, crs: object | None
+    path: str | Path,
+    file_crs: FileCRS | None,
+    transform: Affine,
+    crs: object | None,
+    *,
+    shape: tuple[int, int] | None = None,
 ) -> CRS | FileCRS:
     """The CRS of the DEM at ``path``: ``crs`` when given (a pyproj CRS, :func:`parse_crs`),
     else the file's (rasterio's, read by GDAL: see :class:`Terrain`); InputError for a DEM
-    without CRS or without georeference (identity ``transform``)."""
+    without CRS or without georeference (identity ``transform``), or (given its ``shape``,
+    rows and columns) a geographic DEM whose posts lie past latitude 90 degrees."""
     if crs is not None:
         the_crs = parse_crs(crs, str(path))
     elif file_crs is None:
@@ -136,6 +142,15 @@ def dem_georeference(
         the_crs = horizontal_crs(file_crs, str(path))
     if transform == Affine.identity():
         raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+    if shape is not None and the_crs.is_geographic:
+        rows, cols = shape
+        corners = [transform @ (c + 0.5, r + 0.5) for r in (0, rows - 1) for c in (0, cols - 1)]
+        lat = max((y for _, y in corners), key=abs)
+        if not abs(lat) <= 90:
+            raise InputError(
+                f"{path}: the DEM's posts reach latitude {lat:.6g} degrees, past the pole: "
+                "is its georeferencing (or its CRS's axis order) right?"
+            )
     return the_crs
 
 
@@ -275,11 +290,13 @@ class Terrain:
         with open_raster(path) as src:
             try:
                 values = read_values(src, 1, None, np.float64)
+            except InputError:
+                raise
             except Exception as exc:  # rasterio raises several unrelated types on corrupt data
-                raise InputError(f"{path}: corrupt raster data ({exc})") from exc
+                raise corrupt_data(path, exc) from exc
             file_crs = src.crs
             transform = src.transform
-        the_crs = dem_georeference(path, file_crs, transform, crs)
+        the_crs = dem_georeference(path, file_crs, transform, crs, shape=values.shape)
         warn_infinite(path, int(np.isinf(values).sum()))
         terrain = cls(values, transform, the_crs, radius_values, world, name=str(path))
         terrain.check_convention()

@@ -28,7 +28,8 @@ from orthomvp.io.signals import HeldSignals
 from orthomvp.io.write_errors import release_stderr, write_error, writing
 
 TEMP_TAG = "orthomvp"
-"""Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME."""
+"""Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME (a long
+NAME shortened: :func:`_name_part`)."""
 _HOST = f"{zlib.crc32(os.uname().nodename.encode()):08x}"
 
 
@@ -82,11 +83,31 @@ def remove_temporaries() -> None:
     release_stderr()
 
 
+NAME_PART = 100
+"""Bytes of the output's name that its temporaries' names keep (see :func:`_name_part`)."""
+
+
+def _name_part(path: Path) -> str:
+    """The output's name as its temporaries' names begin with it: whole when it is at most
+    :data:`NAME_PART` bytes of UTF-8, else its first bytes and a checksum of the whole name,
+    so that a temporary's name stays well within the 255 bytes a file name may have however
+    long the output's name is; bytes that are not UTF-8 are replaced (GDAL takes UTF-8 file
+    names only; the temporary is renamed onto the output's own name)."""
+    raw = os.fsencode(path.name)
+    text = raw.decode("utf-8", "replace")
+    if len(raw) <= NAME_PART and text == path.name:
+        return text
+    short = raw[: NAME_PART - 9].decode("utf-8", "replace").rstrip("\ufffd") or "_"
+    return f"{short}~{zlib.crc32(raw):08x}"
+
+
 def temp_name(path: Path, tag: str = "") -> Path:
     """A new temporary name beside ``path`` that :func:`remove_stale` recognises: hidden, with
-    this process's id and machine, ending as ``path`` does (``tag`` before the suffix)."""
+    this process's id and machine, ending as ``path`` does (``tag`` before the suffix; a suffix
+    of more than 16 bytes is left out)."""
     token = os.urandom(4).hex()
-    name = f".{path.name}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{path.suffix}"
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= 16 else ""
+    name = f".{_name_part(path)}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{suffix}"
     return path.with_name(name)
 
 
@@ -105,7 +126,7 @@ def remove_stale(path: Path) -> list[Path]:
     """Remove the temporary files and directories of ``path`` (see :func:`temp_name`) that
     runs on this machine left when they were killed (SIGKILL, a power cut): those whose
     process is gone. Returns what was removed."""
-    prefix = f".{path.name}.{TEMP_TAG}-"
+    prefix = f".{_name_part(path)}.{TEMP_TAG}-"
     try:
         entries = [e for e in os.scandir(path.parent) if e.name.startswith(prefix)]
     except OSError:
