@@ -89,7 +89,8 @@ def open_raster(path: str | Path) -> rasterio.DatasetReader:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             src = rasterio.open(path)
     except (RasterioIOError, RasterioError) as exc:
-        raise InputError(f"{path}: not a readable raster ({_gdal_text(str(exc))})") from exc
+        text = _gdal_text(str(exc)).removeprefix(f"{path}: ").removeprefix(f"{path.name}: ")
+        raise InputError(f"{path}: not a readable raster ({text})") from exc
     except UnicodeEncodeError:  # (rasterio passes GDAL UTF-8 names)
         raise InputError(f"{path}: GDAL cannot open a file whose name is not UTF-8") from None
     finally:
