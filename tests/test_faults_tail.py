@@ -536,3 +536,48 @@ def test_sighup_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: Pat
         assert not a.exists() or (a.read_text(), b.read_text()) == ("a", "b")
 
     assert signal_at_every_step(write, check, out, False, (signal.SIGHUP,)) > 100
+
+
+def test_sizes_from_a_cube_label_are_not_allocated_beyond_the_file(tmp_path: Path) -> None:
+    """A cube label claiming 10^12 samples x lines: the pixels are read up to the file's end
+    and refused as truncated (``read(n)`` allocated n bytes first: a MemoryError)."""
+    import re
+
+    import numpy as np
+
+    from orthomvp.errors import FormatError
+    from orthomvp.io.raster import read_image
+    from tests.test_isis import write_cube
+
+    path = tmp_path / "cube.cub"
+    write_cube(path, np.zeros((2, 5, 6), np.uint16), "UnsignedWord", "Msb", (4, 4))
+    data = path.read_bytes()
+    label = re.sub(rb"Samples\s*=\s*6", b"Samples = 1000000", data[:1024])
+    label = re.sub(rb"Lines\s*=\s*5", b"Lines   = 1000000", label)
+    path.write_bytes(label[:1024] + data[1024:])
+    with pytest.raises(FormatError, match="truncated cube: .* the file has 256"):
+        read_image(path)
+
+
+@pytest.mark.realdata
+def test_a_cube_table_larger_than_its_file_is_truncated_not_allocated(tmp_path: Path) -> None:
+    """A spiceinit'd cube's table claiming 4e11 records: a one-line FormatError naming the
+    table, not a MemoryError."""
+    import re
+
+    from orthomvp.camera import read_camera
+    from orthomvp.errors import FormatError
+    from tests.test_isis_camera import LRO, _edited
+
+    def edit(text: str) -> str:
+        return re.sub(
+            r"(Name\s*= InstrumentPointing\n\s*StartByte\s*= \d+\n\s*)Bytes(\s*)= 256\n"
+            r"(\s*)Records(\s*)= 4\n",
+            r"\1Bytes\2= 25600000000000\n\3Records\4= 400000000000\n",
+            text,
+            count=1,
+        )
+
+    path = _edited(tmp_path, LRO, edit)
+    with pytest.raises(FormatError, match=r"truncated Table .* the file holds"):
+        read_camera(path)

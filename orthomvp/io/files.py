@@ -95,3 +95,13 @@ def read_bounded(path: str | Path, what: str, limit: int = MAX_SMALL_FILE) -> by
             f"({limit / 2**20:g} MiB at most)"
         )
     return data
+
+
+def read_range(handle: BinaryIO, start: int, size: int) -> bytes:
+    """Up to ``size`` bytes of the open regular file ``handle`` from byte ``start`` (0-based),
+    never more than the file holds: a size taken from a file's own header or label (an ISIS3
+    cube's pixels or tables) that is wrong must not be allocated (``read(10**11)`` allocates it
+    first). Fewer bytes than ``size``: the file is truncated (the caller says so)."""
+    end = os.fstat(handle.fileno()).st_size
+    handle.seek(start)
+    return handle.read(max(0, min(size, end - start)))

@@ -37,7 +37,7 @@ from pvl.exceptions import LexerError, ParseError
 from pvl.parser import OmniParser
 
 from orthomvp.errors import FormatError, InputError
-from orthomvp.io.files import MAX_SMALL_FILE, open_regular
+from orthomvp.io.files import MAX_SMALL_FILE, open_regular, read_range
 
 _LABEL_CHUNK = 1 << 16  # bytes read at a time while looking for the label's End line
 _START = re.compile(rb"\s*Object\s*=\s*IsisCube\b", re.IGNORECASE)
@@ -281,9 +281,8 @@ def read_cube(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     layout = cube_layout(path, read_label(path))
-    with path.open("rb") as handle:
-        handle.seek(layout.start)
-        data = handle.read(layout.nbytes)
+    with open_regular(path, "image") as handle:
+        data = read_range(handle, layout.start, layout.nbytes)
     if len(data) < layout.nbytes:
         raise FormatError(
             path,

@@ -38,6 +38,7 @@ import numpy as np
 
 from orthomvp.camera.csm.ephemeris import Orientations, hermite_states, matrix_wxyz
 from orthomvp.errors import FormatError, InputError
+from orthomvp.io.files import open_regular, read_range
 from orthomvp.io.isis import label_text, parse_label
 
 ISD_ROUTE = "give an ISD from ALE's isd_generate instead"
@@ -329,9 +330,8 @@ class SpiceCube:
                 f"Table {name}: {records} records of {dtype.itemsize} bytes do not fit its "
                 f"Bytes = {nbytes}"
             )
-        with self.path.open("rb") as handle:
-            handle.seek(start - 1)
-            data = handle.read(records * dtype.itemsize)
+        with open_regular(self.path, "camera file") as handle:
+            data = read_range(handle, start - 1, records * dtype.itemsize)
         if len(data) < records * dtype.itemsize:
             raise self.error(
                 f"truncated Table {name}: {records * dtype.itemsize} bytes expected from byte "
