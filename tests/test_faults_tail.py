@@ -101,6 +101,31 @@ def test_sighup_in_process_raises_like_sigterm(
     assert hidden(tmp_path) == [] and not (tmp_path / "v.tif").exists()
 
 
+def test_sighup_ignored_as_nohup_ignores_it_stays_ignored(
+    scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Under ``nohup`` (SIGHUP ignored when the command starts) a SIGHUP mid-run changes
+    nothing: exit 0 and the output written."""
+    import orthomvp.engine.tile
+
+    real = orthomvp.engine.tile.compute_visibility
+
+    def hang_up(*a: object, **k: object) -> object:
+        os.kill(os.getpid(), signal.SIGHUP)
+        return real(*a, **k)
+
+    monkeypatch.setattr(orthomvp.engine.tile, "compute_visibility", hang_up)
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        dem, (image, camera, *_) = scene / "dem.tif", views(scene)
+        code, _, err = run("visibility", dem, image, camera, "-o", tmp_path / "v.tif")
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+    assert code == 0, err
+    assert (tmp_path / "v.tif").is_file() and hidden(tmp_path) == []
+
+
 # ---------------------------------------------------- 10: an output directory renamed
 def test_an_output_directory_renamed_during_the_run_keeps_no_temporaries(
     scene: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
