@@ -24,6 +24,7 @@ LAYERS = [
         "orthomvp.geometry.vectors",
         "orthomvp.jit",
     ),
+    ("orthomvp.io.files",),
     ("orthomvp.io.write_errors",),
     ("orthomvp.io.outputs", "orthomvp.io.isis"),
     ("orthomvp.io.raster",),

@@ -209,6 +209,14 @@ def label_text(path: str | Path) -> str:
     return label.decode("latin-1")
 
 
+def read_section(path: str | Path, start: int, size: int) -> bytes:
+    """Up to ``size`` bytes of the cube at ``path`` from byte ``start`` (0-based): its pixels or
+    a table, as its label places them; never more than the file holds, however large the
+    label's count (see :func:`~orthomvp.io.files.read_range`). Fewer: the file is truncated."""
+    with open_regular(path, "image") as handle:
+        return read_range(handle, start, size)
+
+
 def cube_layout(path: str | Path, label: PVLModule) -> CubeLayout:
     """The pixel layout that ``label`` describes; FormatError for anything missing or bad."""
     cube = _block(label, PVLObject, "IsisCube")
@@ -281,8 +289,7 @@ def read_cube(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     layout = cube_layout(path, read_label(path))
-    with open_regular(path, "image") as handle:
-        data = read_range(handle, layout.start, layout.nbytes)
+    data = read_section(path, layout.start, layout.nbytes)
     if len(data) < layout.nbytes:
         raise FormatError(
             path,

@@ -38,8 +38,7 @@ import numpy as np
 
 from orthomvp.camera.csm.ephemeris import Orientations, hermite_states, matrix_wxyz
 from orthomvp.errors import FormatError, InputError
-from orthomvp.io.files import open_regular, read_range
-from orthomvp.io.isis import label_text, parse_label
+from orthomvp.io.isis import label_text, parse_label, read_section
 
 ISD_ROUTE = "give an ISD from ALE's isd_generate instead"
 NO_SPICE = "run spiceinit (attach=yes), or give an ISD from ALE's isd_generate"
@@ -330,8 +329,7 @@ class SpiceCube:
                 f"Table {name}: {records} records of {dtype.itemsize} bytes do not fit its "
                 f"Bytes = {nbytes}"
             )
-        with open_regular(self.path, "camera file") as handle:
-            data = read_range(handle, start - 1, records * dtype.itemsize)
+        data = read_section(self.path, start - 1, records * dtype.itemsize)
         if len(data) < records * dtype.itemsize:
             raise self.error(
                 f"truncated Table {name}: {records * dtype.itemsize} bytes expected from byte "
