@@ -99,7 +99,7 @@ def open_raster(path: str | Path) -> rasterio.DatasetReader:
     if broken:
         src.close()
         raise InputError(
-            f"{path}: corrupt or truncated ({_gdal_text(broken[0])}{_file_size(path)})"
+            f"{path}: corrupt or truncated raster ({_gdal_text(broken[0])}{_file_size(path)})"
         )
     return src
 
