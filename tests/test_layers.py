@@ -26,6 +26,7 @@ LAYERS = [
         "orthomvp.geometry.normals",
         "orthomvp.jit",
     ),
+    ("orthomvp.io.files",),
     ("orthomvp.io.write_errors",),
     ("orthomvp.io.outputs", "orthomvp.io.isis"),
     ("orthomvp.io.raster",),

@@ -142,12 +142,17 @@ def read_camera(
     by the image's stem in the same way, in the map frame of the reconstruction's UTM zone (see
     :mod:`orthomvp.camera.formats.opensfm`); ``cameras.json`` alone raises InputError.
 
-    A missing or unreadable file raises InputError; a file that breaks its format raises
-    FormatError naming it (and the line, for text formats).
+    A missing or unreadable file, one that is not a regular file (a FIFO, ``/dev/zero``) or one
+    larger than :data:`~orthomvp.io.files.MAX_SMALL_FILE` raises InputError; a file that breaks
+    its format (nested too deeply to parse included) raises FormatError naming it (and the
+    line, for text formats).
     """
     of_type(path, (str, os.PathLike), "a camera file name")
     file = CameraFile(Path(path), image, interior)
-    return _format_of(file).read(file)
+    try:
+        return _format_of(file).read(file)
+    except RecursionError:  # JSON or YAML nested deeper than Python's parsers go
+        raise FormatError(file.path, "nested too deeply to be a camera file") from None
 
 
 def _format_of(file: CameraFile) -> CameraFormat:

@@ -10,10 +10,11 @@ Every error is one line on stderr, and the exit status says what kind it was:
   library reports (bad files, impossible geometry, an output that cannot be written:
   ``orthomvp: error: message``);
 - 130 on Ctrl-C (SIGINT), 143 on SIGTERM (as sent by ``timeout``, batch schedulers and Dask's
-  nanny): ``orthomvp: interrupted; no partial output was kept`` (any temporary output
-  whose clean-up the signal cut short is removed first). SIGTERM raises
-  :class:`Terminated`, a ``KeyboardInterrupt``, so that everything that cleans up on Ctrl-C
-  (the atomic outputs' temporary files, thread pools) cleans up on SIGTERM too.
+  nanny), 129 on SIGHUP (a closed terminal or SSH session): ``orthomvp: interrupted; no
+  partial output was kept`` (any temporary output whose clean-up the signal cut short is
+  removed first). SIGTERM and SIGHUP raise :class:`Terminated`, a ``KeyboardInterrupt``, so
+  that everything that cleans up on Ctrl-C (the atomic outputs' temporary files, thread
+  pools) cleans up on them too.
 
 Python warnings are printed as one line each, ``orthomvp: warning: message``.
 """
@@ -40,11 +41,17 @@ from orthomvp.cli.options import quiet_option
 from orthomvp.errors import OrthoMVPError
 
 CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"], "show_default": True}
-EXIT_INTERNAL, EXIT_USER, EXIT_SIGINT, EXIT_SIGTERM = 1, 2, 130, 143
+EXIT_INTERNAL, EXIT_USER, EXIT_SIGINT = 1, 2, 130
+TERMINATING = (signal.SIGTERM, signal.SIGHUP)
+"""The signals that raise :class:`Terminated` while :func:`main` runs."""
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread while :func:`main` runs."""
+    """SIGTERM or SIGHUP (``signum``), raised in the main thread while :func:`main` runs."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__()
+        self.signum = signum
 
 
 @click.group(cls=Group, context_settings=CONTEXT_SETTINGS, invoke_without_command=True)
@@ -87,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (KeyboardInterrupt, click.exceptions.Abort) as exc:
             _remove_temporaries()
             print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
-            return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
+            return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_SIGINT
         except MemoryError as exc:
             return _error(
                 f"out of memory ({exc or 'an allocation failed'}): try a smaller grid, window "
@@ -132,23 +139,31 @@ def _os_error_text(exc: OSError) -> str:
 
 
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
-    # once: a second SIGTERM must not interrupt the clean-up that the first one started
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Terminated
+    # once: a second signal must not interrupt the clean-up that the first one started
+    for sig in TERMINATING:
+        signal.signal(sig, signal.SIG_IGN)
+    raise Terminated(signum)
 
 
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (elsewhere
-    signals cannot be handled, and nothing changes); the previous handler comes back after."""
+    """Within the block, SIGTERM and SIGHUP (:data:`TERMINATING`) raise :class:`Terminated` in
+    the main thread (elsewhere signals cannot be handled, and nothing changes); the previous
+    handlers come back after. A signal ignored when the block starts (``nohup``) stays
+    ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous = {sig: signal.getsignal(sig) for sig in TERMINATING}
+    for sig, handler in previous.items():
+        if handler != signal.SIG_IGN:
+            signal.signal(sig, _raise_terminated)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            if handler is not None:
+                signal.signal(sig, handler)
 
 
 @contextmanager
@@ -173,6 +188,29 @@ ngi-aerial orthophoto (13 ms of 0.34 s) and 250 in a 3 m mosaic (70 ms). The 1.5
 peak memory is the same (0.77-0.80 GB)."""
 
 
+def standard_streams() -> None:
+    """Open file descriptors 0, 1 and 2 on the null device where they are closed (``>&-``,
+    ``2>&-``), and point ``sys.stdin``, ``sys.stdout`` and ``sys.stderr`` there where Python
+    set them to None for it: so no file the command opens takes their number (what GDAL or a
+    print writes would land in it), the messages of a closed stream are dropped (an error is
+    not printed on stdout instead of a closed stderr: ``print(file=None)`` would), and the exit
+    status is the command's. File names that are not UTF-8 are printed as their bytes."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: the lowest free number, fd itself (0 .. fd-1 are open)
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, mode, closefd=False))  # noqa: SIM115 (for the process)
+    for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8, byte for byte
+        with suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="surrogateescape")
+
+
 def main_entry() -> None:
     """Console-script entry point. The objects of the imports so far are left out of garbage
     collection (``gc.freeze``: they live as long as the process), and young objects are
@@ -180,6 +218,7 @@ def main_entry() -> None:
     flushed and the exit handlers run, the process ends without Python's teardown of every
     module (``os._exit``): unloading numpy, GDAL, OpenCV and Embree took 60 ms of a 0.45 s
     orthophoto. A command that left a thread running ends the usual way, which waits for it."""
+    standard_streams()
     gc.freeze()
     gc.set_threshold(GC_THRESHOLD, *gc.get_threshold()[1:])
     code = main()

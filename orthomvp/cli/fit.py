@@ -9,7 +9,7 @@ import click
 from orthomvp.cli.command import Command
 from orthomvp.cli.engine_options import EngineInput, engine_options
 from orthomvp.cli.options import (
-    PATH,
+    OUT_FILE,
     POSITIVE,
     DemInput,
     Number,
@@ -41,16 +41,16 @@ MAX_DECONVOLVE = 10
 @output_option("FITTED.tif", "the refined DEM")
 @click.option(
     "--normals",
-    type=PATH,
+    type=OUT_FILE,
     metavar="N.tif",
     help="write the fitted normals: n_theta, n_phi (eq. 11, degrees) and the tilt from the "
     "local vertical (degrees)",
 )
-@click.option("--cost", type=PATH, metavar="C.tif", help="write the final cost (eq. 20)")
-@click.option("--views", type=PATH, metavar="V.tif", help="write the number of views used")
+@click.option("--cost", type=OUT_FILE, metavar="C.tif", help="write the final cost (eq. 20)")
+@click.option("--views", type=OUT_FILE, metavar="V.tif", help="write the number of views used")
 @click.option(
     "--uncertainty",
-    type=PATH,
+    type=OUT_FILE,
     metavar="U.tif",
     help="write the 1-sigma height uncertainty (metres) and a converged flag (band 2)",
 )

@@ -25,6 +25,20 @@ F = TypeVar("F", bound=Callable[..., Any])
 PATH = click.Path(path_type=Path)
 """A file or directory name; its existence is checked where it is read, with a clear message."""
 
+
+class FilePath(click.Path):
+    """The name of an output file: one ending in ``/`` (which names a directory, and which
+    ``Path`` would drop) is refused."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and value.endswith(("/", os.sep)):
+            self.fail(f"{value}: ends in '/', so names a directory; give a file name", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+OUT_FILE = FilePath(path_type=Path)
+"""An output file's name (see :class:`FilePath`)."""
+
 CAMERA_HELP = (
     "camera model, any of: ASP .tsai or .pinhole; our .json; an Orthority exterior file (.csv, "
     ".geojson; the row of IMAGE, the one .yaml beside it) or RPC .yaml; an OpenSfM "
@@ -307,7 +321,7 @@ def pairs_argument(minimum: int = 1, *, optional: bool = False) -> Callable[[F],
 # ---------------------------------------------------------------------- shared options
 def output_option(metavar: str, help: str) -> Callable[[F], F]:  # noqa: A002
     """The required ``-o/--output`` file."""
-    return click.option("-o", "--output", type=PATH, required=True, metavar=metavar, help=help)
+    return click.option("-o", "--output", type=OUT_FILE, required=True, metavar=metavar, help=help)
 
 
 def prefix_option(default: str) -> Callable[[F], F]:

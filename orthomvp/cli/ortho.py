@@ -15,7 +15,7 @@ from orthomvp.cli.command import Command
 from orthomvp.cli.engine_options import EngineInput, engine_options, warnings_as_lines
 from orthomvp.cli.odm import command_views, odm_option
 from orthomvp.cli.options import (
-    PATH,
+    OUT_FILE,
     DemInput,
     Output,
     camera_argument,
@@ -149,7 +149,7 @@ def visibility(
 @click.option(
     "--visibility",
     "visibility_out",
-    type=PATH,
+    type=OUT_FILE,
     metavar="VIS.tif",
     help="also write the visibility codes on the output grid",
 )
@@ -209,7 +209,7 @@ def ortho(
 @output_option("MOSAIC.tif", "the mosaic (all bands; float32 with NaN = nodata by default)")
 @click.option(
     "--source",
-    type=PATH,
+    type=OUT_FILE,
     metavar="SOURCE.tif",
     help="also write which image each post came from (band 1), how (band 2: 1 visible, "
     "2 filled from any view, 3 filled naive) and each image's blend weight (bands 3.., /255)",
@@ -264,7 +264,7 @@ def ortho(
 @click.option(
     "--visibility",
     "visibility_out",
-    type=PATH,
+    type=OUT_FILE,
     metavar="VIS.tif",
     help="also write the visibility codes of every image, one band per image",
 )

@@ -35,7 +35,7 @@ from orthomvp.geometry.datum import (
 )
 from orthomvp.geometry.terrain import Terrain, warn_infinite
 from orthomvp.geometry.vectors import nan_median
-from orthomvp.io.raster import held_raster, open_raster, read_values
+from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
 if TYPE_CHECKING:
     from pyproj import CRS
@@ -118,7 +118,7 @@ class DemSource:
             try:
                 values = read_values(src, 1, Window(c0, r0, c1 - c0, r1 - r0), np.float64)
             except RasterioError as exc:
-                raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
+                raise corrupt_data(self.path, exc) from exc
         values[np.isinf(values)] = np.nan  # as Terrain.read: infinite heights are nodata
         return values
 
@@ -193,31 +193,35 @@ def scan_dem(
     height range and a preview; ``crs`` overrides the file's CRS. ``progress`` counts rows.
     Heights stay as the file holds them until :func:`with_world` shifts them for the cameras'
     frame as ``heights`` says.
-    InputError for a DEM without CRS, georeference or valid heights, or whose vertical datum
-    cannot be converted."""
+    InputError for a DEM without CRS, georeference, valid heights or a cell of four, or whose
+    vertical datum cannot be converted."""
     path = Path(path)
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), open_raster(path) as src:
         rows, cols = src.height, src.width
         transform, file_crs = src.transform, src.crs
-        the_crs = dem_georeference(path, file_crs, transform, crs)
+        the_crs = dem_georeference(path, file_crs, transform, crs, shape=(rows, cols))
         if min(rows, cols) < 2:
             raise InputError(f"{path}: a DEM needs at least 2 x 2 posts, got {(rows, cols)}")
         stride = max(1, -(-max(rows, cols) // PREVIEW))
         if progress:
             progress.set_total(rows)
         lo, hi, parts, infinite = np.inf, -np.inf, [], 0
+        cell, last = False, np.zeros((0, cols), bool)  # a cell of 4 valid posts; the last row
         held = np.empty((rows, cols)) if rows * cols <= HELD_POSTS else None
         for r0, r1 in _blocks(rows, cols):
             try:
                 block = read_values(src, 1, Window(0, r0, cols, r1 - r0), np.float64)
             except RasterioError as exc:
-                raise InputError(f"{path}: corrupt raster data ({exc})") from exc
+                raise corrupt_data(path, exc) from exc
             bad = np.isinf(block)
             if bad.any():
                 infinite += int(bad.sum())
                 block[bad] = np.nan
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
+                ok = np.vstack([last, np.isfinite(block)])
+                cell = cell or bool((ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]).any())
+            last = np.isfinite(block[-1:])
             parts.append(block[(-r0) % stride :: stride, ::stride].copy())  # not a view
             if held is not None:
                 held[r0:r1] = block
@@ -225,6 +229,11 @@ def scan_dem(
                 progress.update(r1 - r0)
     if not np.isfinite(lo):
         raise InputError(f"{path}: the DEM holds no valid heights")
+    if not cell:
+        raise InputError(
+            f"{path}: no 2 x 2 posts of the DEM all have heights (nodata beside every valid "
+            "post): it has no surface to project onto"
+        )
     warn_infinite(path, infinite)
     shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
     preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)

@@ -14,7 +14,7 @@ from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
-from orthomvp.io.raster import held_raster, open_raster, read_values
+from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ class ImageSource:
             try:
                 return read_values(src, indexes, Window(c0, r0, c1 - c0, r1 - r0), np.float32)
             except RasterioError as exc:
-                raise InputError(f"{self.path}: corrupt raster data ({exc})") from exc
+                raise corrupt_data(self.path, exc) from exc
 
 
 def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:

@@ -80,11 +80,17 @@ def file_radii(crs: FileCRS) -> tuple[float, float] | None:
 
 
 def dem_georeference(
-    path: str | Path, file_crs: FileCRS | None, transform: Affine, crs: object | None
+    path: str | Path,
+    file_crs: FileCRS | None,
+    transform: Affine,
+    crs: object | None,
+    *,
+    shape: tuple[int, int] | None = None,
 ) -> CRS | FileCRS:
     """The CRS of the DEM at ``path``: ``crs`` when given (a pyproj CRS, :func:`parse_crs`),
     else the file's (rasterio's, read by GDAL: see :class:`Terrain`); InputError for a DEM
-    without CRS or without georeference (identity ``transform``)."""
+    without CRS or without georeference (identity ``transform``), or (given its ``shape``,
+    rows and columns) a geographic DEM whose posts lie past latitude 90 degrees."""
     if crs is not None:
         the_crs = parse_crs(crs, str(path))
     elif file_crs is None:
@@ -93,4 +99,13 @@ def dem_georeference(
         the_crs = horizontal_crs(file_crs, str(path))
     if transform == Affine.identity():
         raise InputError(f"{path}: the DEM has no georeference (identity transform)")
+    if shape is not None and the_crs.is_geographic:
+        rows, cols = shape
+        corners = [transform @ (c + 0.5, r + 0.5) for r in (0, rows - 1) for c in (0, cols - 1)]
+        lat = max((y for _, y in corners), key=abs)
+        if not abs(lat) <= 90:
+            raise InputError(
+                f"{path}: the DEM's posts reach latitude {lat:.6g} degrees, past the pole: "
+                "is its georeferencing (or its CRS's axis order) right?"
+            )
     return the_crs

@@ -34,7 +34,7 @@ from orthomvp.geometry.datum import HeightOptions, height_shift
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
-from orthomvp.io.raster import open_raster, read_values, write_geotiff
+from orthomvp.io.raster import corrupt_data, open_raster, read_values, write_geotiff
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -148,11 +148,13 @@ class Terrain:
         with open_raster(path) as src:
             try:
                 values = read_values(src, 1, None, np.float64)
+            except InputError:
+                raise
             except Exception as exc:  # rasterio raises several unrelated types on corrupt data
-                raise InputError(f"{path}: corrupt raster data ({exc})") from exc
+                raise corrupt_data(path, exc) from exc
             file_crs = src.crs
             transform = src.transform
-        the_crs = dem_georeference(path, file_crs, transform, crs)
+        the_crs = dem_georeference(path, file_crs, transform, crs, shape=values.shape)
         warn_infinite(path, int(np.isinf(values).sum()))
         heights = HeightOptions(vertical_datum, height_offset)
         whole, name = file_crs if crs is None else crs, str(path)

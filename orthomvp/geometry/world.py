@@ -36,7 +36,8 @@ _SAMPLES = 64  # posts per side sampled for the body-frame test
 
 def body_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     """Boolean (n,): camera centres (n, 3) that lie above the tangent plane (outward normal =
-    local vertical) of at least one of up to 64 x 64 sampled DEM posts in body-fixed metres.
+    local vertical) of at least one of up to 64 x 64 DEM posts with heights, taken evenly among
+    them, in body-fixed metres.
 
     A post p's plane (radial normal) has c above it when c . p / |p| > |p|, never when |c| is
     at most |p|: centres no farther from the body's centre than the nearest post can be
@@ -49,12 +50,12 @@ def body_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     if (np.linalg.norm(centres, axis=1) <= nearest).all():
         return np.zeros(len(centres), bool)
     body = terrain if terrain.world == WorldFrame.BODY else replace(terrain, world=WorldFrame.BODY)
-    rows, cols = body.shape
-    step_r, step_c = max(rows // _SAMPLES, 1), max(cols // _SAMPLES, 1)
+    # evenly among the valid posts (a grid of samples could meet only nodata: every other post)
+    valid = np.flatnonzero(np.isfinite(body.values))
+    pick = valid[np.linspace(0, len(valid) - 1, min(len(valid), _SAMPLES**2)).astype(np.intp)]
+    rows, cols = np.unravel_index(pick, body.shape)
     c, r = body.grid()
-    c, r, v = c[::step_r, ::step_c], r[::step_r, ::step_c], body.values[::step_r, ::step_c]
-    ok = np.isfinite(v)
-    p = body.to_world(c[ok], r[ok], v[ok])
+    p = body.to_world(c[rows, cols], r[rows, cols], body.values[rows, cols])
     up = body.up_vectors(p)
     above = np.einsum("ci,pi->cp", centres, up) - np.einsum("pi,pi->p", p, up) > 0
     return above.any(axis=1)

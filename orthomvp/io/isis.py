@@ -37,9 +37,10 @@ from pvl.exceptions import LexerError, ParseError
 from pvl.parser import OmniParser
 
 from orthomvp.errors import FormatError, InputError
+from orthomvp.io.files import MAX_SMALL_FILE, open_regular, read_range
 
 _LABEL_CHUNK = 1 << 16  # bytes read at a time while looking for the label's End line
-_LABEL_LIMIT = 1 << 26  # give up looking for the End line after this many bytes
+_START = re.compile(rb"\s*Object\s*=\s*IsisCube\b", re.IGNORECASE)
 _END = re.compile(rb"^[ \t]*End[ \t]*\r?$", re.MULTILINE)
 _CONTINUATION = re.compile(r"-[\n\r\f]\s*")  # what OmniParser joins before it parses
 
@@ -183,26 +184,37 @@ def label_text(path: str | Path) -> str:
     """The label of the ISIS3 cube at ``path`` as text, up to and including its End line."""
     path = Path(path)
     try:
-        with path.open("rb") as handle:
-            head = b""
+        with open_regular(path, "image") as handle:
+            head = bytearray()
             while True:
                 chunk = handle.read(_LABEL_CHUNK)
                 head += chunk
-                match = _END.search(head)
-                if match or not chunk or len(head) > _LABEL_LIMIT:
+                if not _START.match(head[:_LABEL_CHUNK]):
+                    raise FormatError(
+                        path, "not an ISIS3 cube: the file does not start 'Object = IsisCube'"
+                    )
+                # (only the new bytes, and an End line's length before them)
+                match = _END.search(head, max(0, len(head) - len(chunk) - 64))
+                if match or not chunk or len(head) > MAX_SMALL_FILE:
                     break
-    except FileNotFoundError:
-        raise InputError(f"{path}: image not found") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read image ({exc.strerror})") from exc
-    if not re.match(rb"\s*Object\s*=\s*IsisCube\b", head, re.IGNORECASE):
-        raise FormatError(path, "not an ISIS3 cube: the file does not start 'Object = IsisCube'")
+    if match is None and len(head) > MAX_SMALL_FILE:
+        raise FormatError(path, f"no End line in the label's first {MAX_SMALL_FILE >> 20} MiB", 1)
     if match is None:
         raise FormatError(path, "the cube label has no End line", 1)
     label = head[: match.end()]
     if b"\0" in label:
         raise FormatError(path, "corrupt cube label (NUL bytes before its End line)")
     return label.decode("latin-1")
+
+
+def read_section(path: str | Path, start: int, size: int) -> bytes:
+    """Up to ``size`` bytes of the cube at ``path`` from byte ``start`` (0-based): its pixels or
+    a table, as its label places them; never more than the file holds, however large the
+    label's count (see :func:`~orthomvp.io.files.read_range`). Fewer: the file is truncated."""
+    with open_regular(path, "image") as handle:
+        return read_range(handle, start, size)
 
 
 def cube_layout(path: str | Path, label: PVLModule) -> CubeLayout:
@@ -277,9 +289,7 @@ def read_cube(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     layout = cube_layout(path, read_label(path))
-    with path.open("rb") as handle:
-        handle.seek(layout.start)
-        data = handle.read(layout.nbytes)
+    data = read_section(path, layout.start, layout.nbytes)
     if len(data) < layout.nbytes:
         raise FormatError(
             path,

@@ -17,6 +17,7 @@ import contextlib
 import itertools
 import os
 import shutil
+import stat
 import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -27,7 +28,8 @@ from orthomvp.io.signals import HeldSignals
 from orthomvp.io.write_errors import release_stderr, write_error, writing
 
 TEMP_TAG = "orthomvp"
-"""Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME."""
+"""Temporary outputs are named ``.NAME.orthomvp-PID-HOST-TOKEN[TAG]SUFFIX`` beside NAME (a long
+NAME shortened: :func:`_name_part`)."""
 _HOST = f"{zlib.crc32(os.uname().nodename.encode()):08x}"
 
 
@@ -38,21 +40,33 @@ def _umask() -> int:
     return mask
 
 
-_pending: dict[Path, None] = {}
-"""This process's temporary outputs (files and directories) not yet renamed or removed."""
+_pending: dict[Path, int | None] = {}
+"""This process's temporary outputs (files and directories) not yet renamed or removed, with
+a file descriptor of the directory they are in (None where it cannot be opened): they are
+removed through it, so that those of a directory renamed or moved during the run are removed
+too."""
 
 
 def _new_temp(path: Path, tag: str = "") -> Path:
     """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
     tmp = temp_name(path, tag)
-    _pending[tmp] = None
+    try:
+        fd: int | None = os.open(tmp.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        fd = None
+    _pending[tmp] = fd
     return tmp
 
 
 def _drop(tmp: Path) -> None:
-    """Remove a temporary output (call with signals held)."""
-    _remove(tmp)
-    _pending.pop(tmp, None)
+    """Remove a temporary output (call with signals held): where its directory is now, if it
+    was renamed or moved meanwhile."""
+    fd = _pending.pop(tmp, None)
+    try:
+        _remove(tmp, fd)
+    finally:
+        if fd is not None:
+            os.close(fd)
 
 
 def remove_temporaries() -> None:
@@ -69,11 +83,31 @@ def remove_temporaries() -> None:
     release_stderr()
 
 
+NAME_PART = 100
+"""Bytes of the output's name that its temporaries' names keep (see :func:`_name_part`)."""
+
+
+def _name_part(path: Path) -> str:
+    """The output's name as its temporaries' names begin with it: whole when it is at most
+    :data:`NAME_PART` bytes of UTF-8, else its first bytes and a checksum of the whole name,
+    so that a temporary's name stays well within the 255 bytes a file name may have however
+    long the output's name is; bytes that are not UTF-8 are replaced (GDAL takes UTF-8 file
+    names only; the temporary is renamed onto the output's own name)."""
+    raw = os.fsencode(path.name)
+    text = raw.decode("utf-8", "replace")
+    if len(raw) <= NAME_PART and text == path.name:
+        return text
+    short = raw[: NAME_PART - 9].decode("utf-8", "replace").rstrip("\ufffd") or "_"
+    return f"{short}~{zlib.crc32(raw):08x}"
+
+
 def temp_name(path: Path, tag: str = "") -> Path:
     """A new temporary name beside ``path`` that :func:`remove_stale` recognises: hidden, with
-    this process's id and machine, ending as ``path`` does (``tag`` before the suffix)."""
+    this process's id and machine, ending as ``path`` does (``tag`` before the suffix; a suffix
+    of more than 16 bytes is left out)."""
     token = os.urandom(4).hex()
-    name = f".{path.name}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{path.suffix}"
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= 16 else ""
+    name = f".{_name_part(path)}.{TEMP_TAG}-{os.getpid()}-{_HOST}-{token}{tag}{suffix}"
     return path.with_name(name)
 
 
@@ -92,7 +126,7 @@ def remove_stale(path: Path) -> list[Path]:
     """Remove the temporary files and directories of ``path`` (see :func:`temp_name`) that
     runs on this machine left when they were killed (SIGKILL, a power cut): those whose
     process is gone. Returns what was removed."""
-    prefix = f".{path.name}.{TEMP_TAG}-"
+    prefix = f".{_name_part(path)}.{TEMP_TAG}-"
     try:
         entries = [e for e in os.scandir(path.parent) if e.name.startswith(prefix)]
     except OSError:
@@ -111,21 +145,40 @@ def remove_stale(path: Path) -> list[Path]:
     return removed
 
 
-def _remove(tmp: Path) -> None:
+def _remove(tmp: Path, dir_fd: int | None = None) -> None:
     """Remove a temporary file (with the .aux.xml sidecar GDAL may leave) or directory, if
-    there. A failure is not reported: the error that led here is the one to report (and on
-    a read-only file system even removing what is not there fails)."""
-    if tmp.is_dir() and not tmp.is_symlink():
-        shutil.rmtree(tmp, ignore_errors=True)
-    for name in (tmp, Path(f"{tmp}.aux.xml")):
+    there: ``tmp``, or its name in the directory of file descriptor ``dir_fd``. A failure is
+    not reported: the error that led here is the one to report (and on a read-only file system
+    even removing what is not there fails)."""
+    name = tmp.name if dir_fd is not None else os.fspath(tmp)
+    with contextlib.suppress(OSError):
+        if stat.S_ISDIR(os.stat(name, dir_fd=dir_fd, follow_symlinks=False).st_mode):
+            _remove_tree(name, dir_fd)
+    for each in (name, f"{name}.aux.xml"):
         with contextlib.suppress(OSError):
-            name.unlink()
+            os.unlink(each, dir_fd=dir_fd)
+
+
+def _remove_tree(name: str, dir_fd: int | None) -> None:
+    """Remove directory ``name`` (in the directory of ``dir_fd``) and everything in it, not
+    following symbolic links (``shutil.rmtree`` takes ``dir_fd`` from Python 3.11 only)."""
+    for _, dirs, files, fd in os.fwalk(name, topdown=False, dir_fd=dir_fd):
+        for file in files:
+            with contextlib.suppress(OSError):
+                os.unlink(file, dir_fd=fd)
+        for sub in dirs:  # (a symbolic link to a directory is listed here too)
+            with contextlib.suppress(OSError):
+                try:
+                    os.rmdir(sub, dir_fd=fd)
+                except NotADirectoryError:
+                    os.unlink(sub, dir_fd=fd)
+    os.rmdir(name, dir_fd=dir_fd)
 
 
 @contextlib.contextmanager
 def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Iterator[list[Path]]:
     """Yield temporary paths beside ``paths``; rename them onto ``paths``, one after another,
-    when the block succeeds; on any failure (SIGINT and SIGTERM too) remove them all and
+    when the block succeeds; on any failure (SIGINT, SIGTERM and SIGHUP too) remove them all and
     touch no target.
 
     First the temporary files that killed runs left beside the targets are removed (see
@@ -207,7 +260,7 @@ def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
 def atomic_dir(path: str | Path) -> Iterator[Path]:
     """Yield a temporary directory beside ``path``; on success move its files into ``path``.
 
-    On failure (SIGINT and SIGTERM too) the temporary directory is removed and ``path`` is
+    On failure (SIGINT, SIGTERM and SIGHUP too) the temporary directory is removed and ``path`` is
     left as it was; errors name the files under ``path``, not under the temporary directory.
     Temporary directories of killed runs are removed first (see :func:`remove_stale`).
     """

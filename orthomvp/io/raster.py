@@ -9,7 +9,9 @@ destination (see :mod:`orthomvp.io.outputs`).
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import re
 import threading
 import warnings
 from collections.abc import Iterator
@@ -23,24 +25,83 @@ from rasterio.enums import MaskFlags
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from orthomvp.errors import InputError
+from orthomvp.io.files import check_regular
 from orthomvp.io.outputs import atomic_path
+
+_BROKEN = ("IO error", "Read error", "truncated", "Cannot read")
+"""Words of GDAL's and libtiff's complaints that tell of a file that is corrupt or cut short."""
+
+
+class _Complaints(logging.Handler):
+    """The warnings rasterio logs for GDAL (``rasterio._env``) in this thread, while added."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.thread = threading.get_ident()
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.thread == self.thread:
+            self.messages.append(record.getMessage())
+
+
+def _gdal_text(message: str) -> str:
+    """GDAL's message without rasterio's ``CPLE_... in FILE:`` prefix and pointers to other
+    messages."""
+    text = re.sub(r"^CPLE_\w+ in [^:]*: ", "", message)
+    return " ".join(text.replace("See previous exception for details.", "").split())
+
+
+def _file_size(path: str | Path) -> str:
+    """``; the file has N bytes`` (nothing when it cannot be told)."""
+    try:
+        return f"; the file has {os.path.getsize(path):,} bytes"
+    except OSError:
+        return ""
+
+
+def corrupt_data(path: str | Path, exc: BaseException) -> InputError:
+    """The InputError of a failed read of ``path``: GDAL's first cause (the deepest of the
+    chain of exceptions rasterio raises: "TIFFFillStrip:Read error at scanline 0; got 1231
+    bytes, expected 6795", where rasterio says "Read failed. See previous exception for
+    details.") and the file's size."""
+    causes = []
+    while exc is not None and len(causes) < 20:
+        causes.append(_gdal_text(str(exc)))
+        exc = exc.__cause__ or exc.__context__
+    cause = next((c for c in reversed(causes) if c), "") or "GDAL gave no reason"
+    return InputError(f"{path}: corrupt or truncated raster data ({cause}{_file_size(path)})")
 
 
 def open_raster(path: str | Path) -> rasterio.DatasetReader:
-    """Open a raster with rasterio, turning every failure into an :class:`InputError`."""
+    """Open a raster with rasterio, turning every failure into an :class:`InputError`: also
+    a file that GDAL opens while complaining that parts of it cannot be read (a GeoTIFF cut
+    short opens without its georeferencing tags)."""
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"a raster file name is a str or a Path, got {type(path).__name__}")
     path = Path(path)
-    if not path.is_file():
-        raise InputError(
-            f"{path}: {'a directory, not a file' if path.is_dir() else 'no such file'}"
-        )
+    check_regular(path, "raster")
+    complaints = _Complaints()
+    logger = logging.getLogger("rasterio._env")
+    logger.addHandler(complaints)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            return rasterio.open(path)
+            src = rasterio.open(path)
     except (RasterioIOError, RasterioError) as exc:
-        raise InputError(f"{path}: not a readable raster ({exc})") from exc
+        text = _gdal_text(str(exc)).removeprefix(f"{path}: ").removeprefix(f"{path.name}: ")
+        raise InputError(f"{path}: not a readable raster ({text})") from exc
+    except UnicodeEncodeError:  # (rasterio passes GDAL UTF-8 names)
+        raise InputError(f"{path}: GDAL cannot open a file whose name is not UTF-8") from None
+    finally:
+        logger.removeHandler(complaints)
+    broken = [m for m in complaints.messages if any(word in m for word in _BROKEN)]
+    if broken:
+        src.close()
+        raise InputError(
+            f"{path}: corrupt or truncated raster ({_gdal_text(broken[0])}{_file_size(path)})"
+        )
+    return src
 
 
 HELD_OPEN = 16
@@ -141,7 +202,7 @@ def read_image(path: str | Path) -> np.ndarray:
         try:
             return read_values(src, None, None, np.float32)
         except RasterioError as exc:
-            raise InputError(f"{path}: corrupt raster data ({exc})") from exc
+            raise corrupt_data(path, exc) from exc
 
 
 def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: type) -> np.ndarray:
@@ -154,8 +215,15 @@ def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: t
     every band read is masked by its nodata value alone, the same value for all of them and
     one GDAL compares exactly (any value of an integer band, NaN of a float band; GDAL matches
     other float nodata values within a few ulps, which goes through the masked read). The
-    masked read otherwise. RasterioError as rasterio raises it."""
+    masked read otherwise. RasterioError as rasterio raises it; InputError for complex values
+    (never taken as their real part)."""
     bands = [indexes] if isinstance(indexes, int) else indexes or list(src.indexes)
+    for band in bands:
+        if np.dtype(src.dtypes[band - 1]).kind == "c":
+            raise InputError(
+                f"{src.name}: band {band} holds complex numbers ({src.dtypes[band - 1]}), not "
+                "real values; convert it first (its real part or its amplitude)"
+            )
     flags = {tuple(src.mask_flag_enums[b - 1]) for b in bands}
     nodatas = {src.nodatavals[b - 1] for b in bands}
     kinds = {np.dtype(src.dtypes[b - 1]) for b in bands}

@@ -1,6 +1,6 @@
 """Signal holding around the steps of writing outputs. This module owns :class:`HeldSignals`:
-within its block SIGINT and SIGTERM (:data:`SIGNALS_HELD`) wait, and are delivered at its end
-to the handlers of before, so that creating a temporary output and noting its name, renaming
+within its block SIGINT, SIGTERM and SIGHUP (:data:`SIGNALS_HELD`) wait, and are delivered at
+its end to the handlers of before, so that creating a temporary output and noting its name, renaming
 it or removing it is never cut in half by a signal; within :meth:`HeldSignals.released` (the
 long work, such as writing the file) they are not held. Used by the atomic output writer
 (:mod:`orthomvp.io.outputs`) and the capture of GDAL's stderr (:mod:`orthomvp.io.write_errors`).
@@ -15,8 +15,9 @@ from collections.abc import Iterator
 from types import FrameType
 from typing import Any
 
-SIGNALS_HELD = (signal.SIGINT, signal.SIGTERM)
-"""The signals that :class:`HeldSignals` holds (Ctrl-C, and ``timeout``'s or a scheduler's)."""
+SIGNALS_HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals that :class:`HeldSignals` holds (Ctrl-C, ``timeout``'s or a scheduler's, and
+a closed terminal's)."""
 
 
 def _deliver(signum: int, handler: Any, frame: FrameType | None) -> None:
@@ -29,8 +30,8 @@ def _deliver(signum: int, handler: Any, frame: FrameType | None) -> None:
 
 
 class HeldSignals:
-    """Within the block, SIGINT and SIGTERM are held, and delivered at its end to the handlers
-    of before; within :meth:`released` (the long work, such as writing the file) they are
+    """Within the block, SIGINT, SIGTERM and SIGHUP are held, and delivered at its end to the
+    handlers of before; within :meth:`released` (the long work, such as writing the file) they are
     not. So everything around that work (creating a temporary file and noting its name,
     renaming it, removing it) is never cut in half by a signal: one arriving there waits,
     and one arriving during the work raises where the clean-up that follows is held again.

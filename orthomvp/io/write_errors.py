@@ -51,7 +51,9 @@ def write_error(
     if code is None:
         with contextlib.suppress(OSError):
             code = errno.ENOSPC if shutil.disk_usage(path.parent).free == 0 else None
-    if code is not None:
+    if code == errno.ENOENT and not path.parent.is_dir():
+        cause = f"its directory {path.parent} was moved or removed during the run"
+    elif code is not None:
         cause = _CAUSES.get(code) or os.strerror(code).lower()
     else:  # a GDAL error without an errno: its own words, without pointers to other lines
         text = " ".join(str(exc).replace("See previous exception for details.", "").split())

@@ -16,6 +16,7 @@ from pathlib import Path
 from orthomvp.camera.distortion import Distortion, distortion_class
 from orthomvp.camera.model import Camera, FieldError, PinholeCamera
 from orthomvp.errors import FormatError, InputError
+from orthomvp.io.files import read_bounded
 from orthomvp.io.outputs import atomic_path
 
 
@@ -73,15 +74,10 @@ class CameraFormat:
 
 
 def read_bytes(path: Path, what: str) -> bytes:
-    """The contents of ``path``; InputError naming ``what`` if it cannot be read."""
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, not a {what}") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read {what} ({exc.strerror})") from exc
+    """The contents of ``path``, every camera format's read; InputError naming ``what`` if it
+    cannot be read, is not a regular file or is larger than
+    :data:`~orthomvp.io.files.MAX_SMALL_FILE` (see :func:`~orthomvp.io.files.read_bounded`)."""
+    return read_bounded(path, what)
 
 
 def decode_text(path: Path, data: bytes) -> str:

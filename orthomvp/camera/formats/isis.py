@@ -9,6 +9,7 @@ import re
 from typing import TYPE_CHECKING
 
 from orthomvp.camera.formats._common import CameraFile, CameraFormat
+from orthomvp.io.files import open_regular
 
 if TYPE_CHECKING:
     from orthomvp.camera.csm.isd import CsmCamera
@@ -26,7 +27,7 @@ def read_cube_file(file: CameraFile) -> CsmCamera:
 def is_cube(file: CameraFile) -> bool:
     """Whether the file starts as an ISIS3 cube's label (only its first bytes are read)."""
     try:
-        with file.path.open("rb") as handle:
+        with open_regular(file.path, "camera file") as handle:
             return _CUBE.match(handle.read(256)) is not None
     except OSError:
         return False

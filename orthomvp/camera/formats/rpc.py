@@ -33,6 +33,7 @@ from orthomvp.camera.model import FieldError
 from orthomvp.camera.rpc import RpcCamera
 from orthomvp.camera.rpc_model import COEFFICIENTS, RPC_KEYS, Rpc
 from orthomvp.errors import FormatError, InputError
+from orthomvp.io.files import check_regular, open_regular
 
 _RPB_NAMES = dict(
     zip(
@@ -91,10 +92,7 @@ def _coefficients(path: Path, name: str, tokens: list[str], line: int | None) ->
 def read_geotiff(file: CameraFile) -> RpcCamera:
     """The RPC camera of a raster's RPC metadata; its image size is the raster's."""
     path = file.path
-    if not path.is_file():
-        raise InputError(
-            f"{path}: camera file {'is a directory' if path.is_dir() else 'not found'}"
-        )
+    check_regular(path, "camera file")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -245,7 +243,7 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
 def is_tiff(file: CameraFile) -> bool:
     """Whether the file starts as a TIFF or BigTIFF does (reads only those bytes)."""
     try:
-        with file.path.open("rb") as f:
+        with open_regular(file.path, "camera file") as f:
             return f.read(4) in _TIFF_MAGIC
     except OSError:
         return False

@@ -224,8 +224,9 @@ def _pb_doubles(number: int, entries: list[tuple[int, bytes]]) -> list[float]:
 
 def is_pinhole(file: CameraFile) -> bool:
     """Whether the file decodes as a protobuf message (the ``.pinhole`` form)."""
+    data = file.data  # (a file that cannot be read: its InputError, not a ValueError here)
     try:
-        decode_protobuf(file.data)
+        decode_protobuf(data)
     except ValueError:
         return False
     return True
@@ -233,8 +234,9 @@ def is_pinhole(file: CameraFile) -> bool:
 
 def read_pinhole(file: CameraFile) -> PinholeCamera:
     """The camera of a binary ``.pinhole`` file."""
+    data = file.data
     try:
-        decoded = decode_protobuf(file.data)
+        decoded = decode_protobuf(data)
     except ValueError as exc:
         raise FormatError(file.path, f"corrupt .pinhole protobuf: {exc}") from exc
     return camera_from_protobuf(file.path, decoded)

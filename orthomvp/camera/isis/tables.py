@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from orthomvp.camera.csm.ephemeris import matrix_wxyz
+from orthomvp.io.isis import read_section
 
 ISD_ROUTE = "give an ISD from ALE's isd_generate instead"
 NO_SPICE = "run spiceinit (attach=yes), or give an ISD from ALE's isd_generate"
@@ -128,9 +129,7 @@ class TableReader:
                 f"Table {name}: {records} records of {dtype.itemsize} bytes do not fit its "
                 f"Bytes = {nbytes}"
             )
-        with self.path.open("rb") as handle:
-            handle.seek(start - 1)
-            data = handle.read(records * dtype.itemsize)
+        data = read_section(self.path, start - 1, records * dtype.itemsize)
         if len(data) < records * dtype.itemsize:
             raise self.error(
                 f"truncated Table {name}: {records * dtype.itemsize} bytes expected from byte "
