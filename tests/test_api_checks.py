@@ -5,7 +5,6 @@ nothing is written."""
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -85,8 +84,10 @@ def test_an_existing_output_is_kept_unless_overwrite(scene: dict, tmp_path: Path
         ({"ortho": "a.tif", "overwrite": "yes"}, "overwrite must be a bool"),
     ],
 )
-def test_outputs_refuse(kwargs: dict, match: str, tmp_path: Path) -> None:
-    os.chdir(tmp_path)
+def test_outputs_refuse(
+    kwargs: dict, match: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(InputError, match=match):
         Outputs(**kwargs)
 

@@ -393,6 +393,8 @@ def run_plan(
                 seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
                 bar.update()
             check_views(plan.views, report.inside, seen)
+            if "ortho" in kinds:
+                check_filled(plan.views, report)
             t0 = time.perf_counter()
         report.phases["write"] = report.phases.get("write", 0.0) + time.perf_counter() - t0
     report.seconds = time.perf_counter() - start
@@ -418,6 +420,23 @@ def _add_counts(report: RunReport, result: TileResult) -> None:
     for total, counts in zip(report.counts, result.counts, strict=True):
         for code, count in enumerate(counts):
             total[code] += count
+
+
+def check_filled(views: Any, report: RunReport) -> None:
+    """GeometryError when no post of the orthophoto was filled although the images see the
+    grid: every post they see is occluded or faces away, as when a camera sits below the
+    surface or the DEM's heights are not the cameras' (the message gives the counts)."""
+    if report.filled:
+        return
+    parts = []
+    for view, counts in zip(views, report.counts, strict=True):
+        occluded, away = counts[Code.OCCLUDED], counts[Code.FACING_AWAY]
+        parts.append(f"{view.path}: {occluded:,} occluded, {away:,} facing away")
+    raise GeometryError(
+        "no post of the grid is visible in any image (" + "; ".join(parts) + "): is a camera "
+        "below or inside the surface, or are the DEM's heights not those of the cameras "
+        "(vertical datum, height offset, radius values)?"
+    )
 
 
 def check_views(views: Any, inside: list[int], seen: list[int]) -> None:

@@ -46,7 +46,8 @@ API_FLAGS = Flags("overwrite=True", "overwrite=True and replace_input=True")
 
 def check_names(outputs: Sequence[Output]) -> None:
     """InputError naming the path for two outputs with the same path (also through links or
-    ``..``) or an output whose extension does not match its format."""
+    ``..``), an output that is a directory, or one whose extension does not match its
+    format."""
     given = [out for out in outputs if out.path is not None]
     for i, out in enumerate(given):
         for other in given[:i]:
@@ -58,6 +59,8 @@ def check_names(outputs: Sequence[Output]) -> None:
                 )
     for out in given:
         path = Path(out.path)  # type: ignore[arg-type]
+        if path.is_dir():
+            raise InputError(f"{path}: {out.option} names a directory; give a file name")
         if out.suffixes and path.suffix.lower() not in out.suffixes:
             raise InputError(
                 f"{path}: {out.option} writes {out.name}; name it "
@@ -75,8 +78,8 @@ def check_outputs(
     """Refuse, before any work, outputs that cannot end well, with an InputError naming the
     path (:func:`check_names`, then): an output that is one of the ``inputs`` ((label, path)
     pairs, e.g. ("DEM", dem.path)) unless both ``overwrite`` and ``replace_input``; an output
-    file that exists, unless ``overwrite`` (as rio and gdalwarp); an output that is a
-    directory, or whose directory is missing, not a directory or not writable (OutputError
+    file that exists, unless ``overwrite`` (as rio and gdalwarp); an output whose directory
+    is missing, not a directory or not writable (OutputError
     when its disk is full). ``flags`` names the permissions in the messages."""
     check_names(outputs)
     given = [out for out in outputs if out.path is not None]
@@ -90,8 +93,6 @@ def check_outputs(
                 )
     for out in given:
         path = Path(out.path)  # type: ignore[arg-type]
-        if path.is_dir():
-            raise InputError(f"{path}: {out.option} names a directory; give a file name")
         if not overwrite and os.path.lexists(path):
             raise InputError(
                 f"{path}: the output file of {out.option} exists; give {flags.overwrite} to "
