@@ -181,7 +181,7 @@ def plan_check(
     DEM.
     """
     dem = dem_path(dem)
-    pairs = view_pairs(views, 2)
+    pairs = view_pairs(views, minimum=0)  # check_options says how many it needs
     tile = check_tile(tile)
     dem_reading(
         radius_values=radius_values,

@@ -206,10 +206,11 @@ def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
     client's worker threads; InputError for several of them or counts under 1."""
     if sum(x is not None for x in (threads, processes, client)) > 1:
         raise InputError("give threads, processes or a Dask client, not several")
-    threads, processes = (
-        None if value is None else number(value, name, minimum=1, integer=True)
-        for name, value in (("threads", threads), ("processes", processes))
-    )
+    for name, value in (("threads", threads), ("processes", processes)):
+        if value is not None:
+            number(value, name, minimum=1, integer=True)
+            if not isinstance(value, int | np.integer):  # 2.0: pools want an int
+                raise InputError(f"{name} must be an integer, got float {value!r}")
     if client is not None:
         if not callable(getattr(client, "nthreads", None)):
             raise InputError(
