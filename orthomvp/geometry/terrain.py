@@ -100,11 +100,11 @@ def count_unusable(values: np.ndarray) -> tuple[int, int]:
     return infinite, int(bad.sum()) - infinite
 
 
-RELIEF = 0.5
-"""The largest distance, as a fraction of the body's radius, of a DEM value from the DEM's
-median: more is no relief of a body (Olympus Mons rises 0.006 Mars radii, and the most
-irregular small bodies stay within half a radius of their mean), but fill values or heights in
-the wrong unit."""
+RELIEF = 1.0
+"""The largest distance, in body radii, of a DEM value from the DEM's median: more is no
+relief of any body (Olympus Mons rises 0.006 Mars radii; a height below minus one radius lies
+past the centre), but a fill value or a height in the wrong unit. One radius leaves room for
+the DEMs of irregular small bodies on a mean sphere."""
 
 
 def check_relief(name: str, low: float, high: float, median: float, radius: float) -> None:
@@ -115,7 +115,7 @@ def check_relief(name: str, low: float, high: float, median: float, radius: floa
     if abs(worst - median) > RELIEF * radius:
         raise InputError(
             f"{name}: a DEM value of {worst:,.6g} m is {abs(worst - median):,.0f} m from the "
-            f"median, {median:,.0f} m, more than {RELIEF:g} of the body's radius "
+            f"median, {median:,.0f} m, more than {RELIEF:g} times the body's radius "
             f"({radius:,.0f} m): is it a fill value without a nodata tag? Give the file "
             "its nodata value (gdal_edit.py -a_nodata VALUE)"
         )
