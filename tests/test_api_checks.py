@@ -82,6 +82,10 @@ def test_an_existing_output_is_kept_unless_overwrite(scene: dict, tmp_path: Path
         ({"ortho": "a.tif", "dtype": "uint8", "nodata": 0.5}, "nodata of a uint8 output must"),
         ({"ortho": "a.tif", "dtype": "uint8", "nodata": float("nan")}, "nodata of a uint8"),
         ({"ortho": "a.tif", "overwrite": "yes"}, "overwrite must be a bool"),
+        (
+            {"ortho": "no/such/dir/a.tif"},
+            r"a\.tif: ortho: the directory no/such/dir does not exist",
+        ),
     ],
 )
 def test_outputs_refuse(

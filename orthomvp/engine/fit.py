@@ -46,7 +46,13 @@ from orthomvp.engine.writer import (
     plan_inputs,
 )
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.io.output_checks import API_FLAGS, Output, check_names, check_outputs
+from orthomvp.io.output_checks import (
+    API_FLAGS,
+    Output,
+    check_names,
+    check_outputs,
+    check_parent,
+)
 from orthomvp.mvp import fit_dem
 from orthomvp.mvp.views import ViewWindow, covers, exact_masks, union, window_for
 from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
@@ -278,6 +284,9 @@ class FitOutputs:
             of_type(getattr(self, name), kinds, f"output {name}")
         check_settings(self)
         check_names(self.outputs())
+        for out in self.outputs():
+            if out.path is not None:
+                check_parent(out.path, f"{out.path}: {out.option}")
         for name, value, allowed in (
             ("format", self.format, FORMATS),
             ("compression", self.compress, COMPRESSIONS),

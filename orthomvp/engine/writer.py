@@ -29,7 +29,13 @@ from orthomvp.engine.overviews import AVERAGE, halve, window_level
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
-from orthomvp.io.output_checks import API_FLAGS, Output, check_names, check_outputs
+from orthomvp.io.output_checks import (
+    API_FLAGS,
+    Output,
+    check_names,
+    check_outputs,
+    check_parent,
+)
 from orthomvp.io.outputs import atomic_paths, scratch_path
 from orthomvp.io.raster import check_written
 from orthomvp.io.write_errors import writing
@@ -86,6 +92,9 @@ class Outputs:
             raise InputError("no output asked for: give ortho, visibility or source")
         check_settings(self)
         check_names(self.outputs())
+        for out in self.outputs():
+            if out.path is not None:
+                check_parent(out.path, f"{out.path}: {out.option}")
         for name, value, allowed in (
             ("format", self.format, FORMATS),
             ("compression", self.compress, COMPRESSIONS),

@@ -101,13 +101,20 @@ def check_outputs(
         check_directory(path, f"{path}: {out.option}")
 
 
-def check_directory(path: Path, what: str) -> None:
-    """InputError ``"{what} ..."`` unless the directory of the output ``path`` exists and is
-    writable; an OutputError naming ``path`` when its disk has no space left."""
+def check_parent(path: Path, what: str) -> None:
+    """InputError ``"{what}: the directory ... does not exist"`` (or is not a directory) for
+    the directory of the output ``path``."""
     directory = path.parent
     if not directory.is_dir():
         problem = "is not a directory" if directory.exists() else "does not exist"
         raise InputError(f"{what}: the directory {directory} {problem}")
+
+
+def check_directory(path: Path, what: str) -> None:
+    """InputError ``"{what} ..."`` unless the directory of the output ``path`` exists and is
+    writable; an OutputError naming ``path`` when its disk has no space left."""
+    check_parent(path, what)
+    directory = path.parent
     if not os.access(directory, os.W_OK | os.X_OK):
         read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
         cause = "a read-only file system" if read_only else "permission denied"
