@@ -21,9 +21,9 @@ class CountingCaster(RayCaster):
 
     rays = 0
 
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN201
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, **options):  # noqa: ANN201
         self.rays += len(np.atleast_2d(directions))
-        return super().first_hit(origins, directions)
+        return super().first_hit(origins, directions, **options)
 
 
 @pytest.fixture(scope="module")

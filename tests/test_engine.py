@@ -421,7 +421,7 @@ def test_bad_options(crater: dict) -> None:
     view = crater["views"]["oblique"]
     for kw, match in (
         ({"tile": 1}, "tile must be"),
-        ({"eps": -1.0}, "eps must be"),
+        ({"eps": -1.0}, r"eps \(DEM posts\) must be > 0"),
         ({"interp": "lanczos"}, "interpolation"),
         ({"world": "moon"}, "world frame"),
     ):

@@ -4,6 +4,7 @@ gives a post it calls occluded."""
 
 from __future__ import annotations
 
+import shutil
 import warnings
 from pathlib import Path
 
@@ -216,8 +217,10 @@ def test_balance_recovers_a_known_gain_and_offset(
     nadir = (crater_dir / "nadir.tif", crater_dir / "nadir.tsai")
     changed = (gained / "nadir.tif", gained / "nadir.tsai")
     for mode in ("gain-offset", "gain"):
-        base = engine_mosaic(dem, [oblique, nadir], tmp_path, "b", balance=mode, reference=0)
-        got = engine_mosaic(dem, [oblique, changed], tmp_path, "g", balance=mode, reference=0)
+        base = engine_mosaic(dem, [oblique, nadir], tmp_path, f"b{mode}", balance=mode, reference=0)
+        got = engine_mosaic(
+            dem, [oblique, changed], tmp_path, f"g{mode}", balance=mode, reference=0
+        )
         g0, o0 = base["report"].correction.gains[1], base["report"].correction.offsets[1]
         g1, o1 = got["report"].correction.gains[1], got["report"].correction.offsets[1]
         assert abs(g0[0] - 1) < 0.05 and abs(o0[0]) < 0.05  # same sensor model: near identity
@@ -313,8 +316,11 @@ def test_visible_median_is_numpys_bit_for_bit(views: int) -> None:
 def test_fill_policies_and_occlusion(crater_dir: Path, tmp_path: Path, fill) -> None:
     """Values only where the rule says, flagged; a view gives weight only to posts it sees
     (naive fills, flagged, excepted); filled values are that view's naive orthophoto. The
-    oblique view twice: the crater's only view with hidden posts (the others see all)."""
-    views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")] * 2
+    oblique view twice (the second a copy of its image: a view given twice is refused): the
+    crater's only view with hidden posts (the others see all)."""
+    copy = shutil.copy(crater_dir / "oblique.tif", tmp_path / "oblique-copy.tif")
+    views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
+    views.append((copy, crater_dir / "oblique.tsai"))
     got = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, fill, tile=32, fill=fill)
     data, src, codes = got["ortho"], got["source"], got["visibility"]
     view, flags, weights = src[0].astype(int), src[1], src[2:]

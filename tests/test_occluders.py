@@ -174,9 +174,9 @@ def rays(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     calls: list[int] = []
     first_hit = RayCaster.first_hit
 
-    def counted(self: RayCaster, origins: np.ndarray, directions: np.ndarray):  # noqa: ANN202
+    def counted(self: RayCaster, origins: np.ndarray, directions: np.ndarray, **options):  # noqa: ANN202
         calls.append(len(np.atleast_2d(directions)))
-        return first_hit(self, origins, directions)
+        return first_hit(self, origins, directions, **options)
 
     monkeypatch.setattr(RayCaster, "first_hit", counted)
     return calls

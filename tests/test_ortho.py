@@ -261,3 +261,30 @@ def test_lens_distortion_is_followed(scene) -> None:
     assert np.nanmax(shift) > 1.0
     uv, _ = lens.project(scene.terrain.world_points())
     np.testing.assert_allclose(bent.uv[both], uv[both], atol=1e-9)
+
+
+def test_a_visibility_of_another_camera_or_grid_is_refused(scene) -> None:
+    """orthorectify(visibility=...) takes only the visibility of its own camera and terrain:
+    another camera's paints its codes (ghosts) on this image, another grid's has another
+    shape; both are InputErrors, and the visibility's own is accepted and used as is."""
+    oblique, nadir = scene.views["oblique"], scene.views["nadir"]
+    own = compute_visibility(scene.terrain, oblique.camera)
+    reused = orthorectify(scene.terrain, oblique.image, oblique.camera, visibility=own)
+    np.testing.assert_array_equal(
+        reused.data, orthorectify(scene.terrain, oblique.image, oblique.camera).data
+    )
+    other = compute_visibility(scene.terrain, nadir.camera)
+    with pytest.raises(InputError, match="visibility is not of this camera and terrain: at post"):
+        orthorectify(scene.terrain, oblique.image, oblique.camera, visibility=other)
+    smaller = scene.terrain.crop(0, 48, 0, 48)
+    with pytest.raises(InputError, match=r"visibility is of a 48 x 48 grid, the terrain is 64 x"):
+        orthorectify(
+            scene.terrain,
+            oblique.image,
+            oblique.camera,
+            visibility=compute_visibility(smaller, oblique.camera),
+        )
+    # the same grid with other heights: the positions move
+    raised = scene.terrain.with_values(scene.terrain.values + 500.0)
+    with pytest.raises(InputError, match="not of this camera and terrain"):
+        orthorectify(raised, oblique.image, oblique.camera, visibility=own)

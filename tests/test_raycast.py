@@ -223,14 +223,35 @@ def test_misses_and_argument_forms(backend, small, casters) -> None:
     e = rc.first_hit(cam, np.empty((0, 3)))
     assert e.mask.shape == e.distance.shape == e.triangle.shape == (0,)
     assert e.points.shape == (0, 3) and e.barycentric.shape == (0, 2)
-    # NaN or zero directions are misses, the others unaffected
+    # NaN or zero directions are misses with invalid="miss", the others unaffected
     bad = d.copy()
     bad[::3] = np.nan
     bad[1::7] = 0.0
-    h = rc.first_hit(cam, bad)
+    h = rc.first_hit(cam, bad, invalid="miss")
     broken = ~np.isfinite(bad).all(axis=1) | ~bad.any(axis=1)
     assert not h.mask[broken].any() and np.all(h.triangle[broken] == -1)
     np.testing.assert_array_equal(h.triangle[~broken], ref.triangle[~broken])
+
+
+@pytest.mark.parametrize(
+    ("origins", "directions", "match"),
+    [
+        ([[np.nan, 0.0, 0.0]], [[0.0, 0.0, -1.0]], "origins 0 is not finite"),
+        ([[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]], "direction 0 is zero"),
+        ([[0.0, 0.0, 0.0]], [[np.inf, 0.0, 0.0]], "directions 0 is not finite"),
+        (np.zeros((2, 2)), np.zeros((2, 2)), r"origins must be \(n, 3\) or \(3,\)"),
+        (np.zeros((2, 3, 3)), np.ones((2, 3, 3)), r"must be \(n, 3\)"),
+        (np.zeros((2, 3)), np.ones((3, 3)), r"origins \(2, 3\) and directions \(3, 3\)"),
+        ("abc", "def", "origins must be numbers"),
+    ],
+)
+def test_bad_rays_are_refused(small, casters, origins, directions, match) -> None:
+    """Rays that cannot be cast are an InputError naming the first bad one, not misses."""
+    rc = casters[BACKENDS[0]]
+    with pytest.raises(InputError, match=match):
+        rc.first_hit(origins, directions)
+    with pytest.raises(InputError, match="invalid must be raise or miss"):
+        rc.first_hit([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], invalid="skip")
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -141,6 +141,8 @@ def fit(
         uncertainty=uncertainty,
         format=engine.format,
         compress=engine.compress,
+        overwrite=overwrite,
+        replace_input=replace_input,
     )
     plan = plan_fit(
         dem.path,

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -16,6 +15,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import click
 
 from orthomvp.codes import Interp, WorldFrame
+from orthomvp.io.output_checks import Output
 
 if TYPE_CHECKING:
     from orthomvp.camera import Camera
@@ -386,65 +386,21 @@ def overwrite_options(f: F) -> F:
 
 
 # --------------------------------------------------------------------- output checks
-GEOTIFF = (".tif", ".tiff")
-"""File name extensions of the GeoTIFF outputs."""
-
-
-@dataclass(frozen=True)
-class Output:
-    """An output file of a command, for :func:`check_outputs`: the ``option`` that names it
-    (``-o``, ``--visibility``), its ``path`` (None when not asked for), the ``suffixes`` its
-    format allows (lower case; empty: any) and the format's ``name`` for messages."""
-
-    option: str
-    path: Path | None
-    suffixes: tuple[str, ...] = GEOTIFF
-    name: str = "a GeoTIFF"
-
-
 def check_outputs(
     outputs: Sequence[Output],
     inputs: Sequence[tuple[str, Path | None]] = (),
     overwrite: bool = False,
     replace_input: bool = False,
 ) -> None:
-    """Refuse, before any work, outputs that cannot end well, with a usage error naming the
-    path: two outputs with the same path; an output that is one of the ``inputs`` ((label,
-    path) pairs, e.g. ("DEM", dem.path)) unless both ``overwrite`` and ``replace_input``; an
-    output file that exists, unless ``overwrite`` (as rio and gdalwarp); a file name whose
-    extension does not match the output's format; an output that is a directory, or whose
-    directory is missing, not a directory or not writable."""
-    given = [out for out in outputs if out.path is not None]
-    for i, out in enumerate(given):
-        for other in given[:i]:
-            if same_file(out.path, other.path):
-                alias = f" (as {out.path})" if str(out.path) != str(other.path) else ""
-                raise usage_error(
-                    f"{other.path}: given to both {other.option} and {out.option}{alias}; one "
-                    "would overwrite the other: give each output its own file"
-                )
-    for out in given:
-        for label, path in inputs:
-            if path is not None and same_file(out.path, path) and not (overwrite and replace_input):
-                alias = f" ({path})" if str(out.path) != str(path) else ""
-                raise usage_error(
-                    f"{out.path}: {out.option} would replace the input {label}{alias}; give "
-                    "another file name, or --overwrite --replace-input to replace it"
-                )
-    for out in given:
-        path = out.path
-        if path.is_dir():
-            raise usage_error(f"{path}: {out.option} names a directory; give a file name")
-        if not overwrite and os.path.lexists(path):
-            raise usage_error(
-                f"{path}: the output file of {out.option} exists; give --overwrite to replace it"
-            )
-        if out.suffixes and path.suffix.lower() not in out.suffixes:
-            raise usage_error(
-                f"{path}: {out.option} writes {out.name}; name it "
-                f"{' or '.join(out.suffixes)}" + (f", not {path.suffix}" if path.suffix else "")
-            )
-        check_directory(path, f"{path}: {out.option}")
+    """:func:`orthomvp.io.output_checks.check_outputs` (the rules the API follows too), its
+    refusals as usage errors naming the options."""
+    from orthomvp.errors import InputError
+    from orthomvp.io.output_checks import check_outputs as check
+
+    try:
+        check(outputs, inputs, overwrite, replace_input)
+    except InputError as exc:
+        raise usage_error(str(exc)) from None
 
 
 def own_camera(image: Path) -> Camera:
@@ -491,25 +447,10 @@ def check_outdir(
 def check_directory(path: Path, what: str) -> None:
     """A usage error ``"{what} ..."`` unless the directory of the output ``path`` exists and
     is writable; an OutputError naming ``path`` when its disk has no space left."""
-    directory = path.parent
-    if not directory.is_dir():
-        problem = "is not a directory" if directory.exists() else "does not exist"
-        raise usage_error(f"{what}: the directory {directory} {problem}")
-    if not os.access(directory, os.W_OK | os.X_OK):
-        read_only = os.statvfs(directory).f_flag & os.ST_RDONLY
-        cause = "a read-only file system" if read_only else "permission denied"
-        raise usage_error(f"{what}: cannot write in the directory {directory} ({cause})")
-    from orthomvp.io.preflight import check_space
+    from orthomvp.errors import InputError
+    from orthomvp.io.output_checks import check_directory as check
 
-    check_space(path)
-
-
-def same_file(a: Path, b: Path) -> bool:
-    """Whether paths ``a`` and ``b`` name the same file: the same path once resolved
-    (symbolic links, ``..``), or, when both exist, the same inode (hard links)."""
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
     try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
+        check(path, what)
+    except InputError as exc:
+        raise usage_error(str(exc)) from None

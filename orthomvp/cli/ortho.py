@@ -92,11 +92,18 @@ def _plan(
     )
 
 
-def _run(plan: Plan, engine: EngineInput, **paths: Path | None) -> RunReport:
+def _run(
+    plan: Plan, engine: EngineInput, *, overwrite: bool, replace_input: bool, **paths: Path | None
+) -> RunReport:
     from orthomvp.engine import Outputs
 
     outputs: Outputs = Outputs(
-        **paths, format=engine.format, compress=engine.compress, dtype=engine.dtype
+        **paths,
+        format=engine.format,
+        compress=engine.compress,
+        dtype=engine.dtype,
+        overwrite=overwrite,
+        replace_input=replace_input,
     )
     return engine.run(plan, outputs, progress=not quiet())
 
@@ -135,7 +142,9 @@ def visibility(
     view = (image, camera or own_camera(image))
     with warnings_as_lines():
         plan = _plan(dem, [view], engine, output, eps=eps)
-        report = _run(plan, engine, visibility=output)
+        report = _run(
+            plan, engine, visibility=output, overwrite=overwrite, replace_input=replace_input
+        )
     warn_partial(report, 0, str(image), engine)
     counts = ", ".join(f"{n:,} {Code(k).label}" for k, n in enumerate(report.counts[0]))
     say(f"wrote {output}: {sum(report.counts[0]):,} posts, {counts}")
@@ -193,7 +202,14 @@ def ortho(
             eps=eps,
             interp=interp,
         )
-        report = _run(plan, engine, ortho=output, visibility=visibility_out)
+        report = _run(
+            plan,
+            engine,
+            ortho=output,
+            visibility=visibility_out,
+            overwrite=overwrite,
+            replace_input=replace_input,
+        )
     warn_partial(report, 0, str(image), engine)
     rows, cols = plan.grid.shape
     say(f"wrote {output}: {report.filled:,} of {rows * cols:,} posts filled")
@@ -325,7 +341,15 @@ def mosaic(
     )
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)
-        report = _run(plan, engine, ortho=output, source=source, visibility=visibility_out)
+        report = _run(
+            plan,
+            engine,
+            ortho=output,
+            source=source,
+            visibility=visibility_out,
+            overwrite=overwrite,
+            replace_input=replace_input,
+        )
     rows, cols = plan.grid.shape
     none = rows * cols - sum(report.taken)
     say(

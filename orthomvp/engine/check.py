@@ -32,9 +32,10 @@ from orthomvp.engine.tile import (
     _visibility,
     sample_view,
 )
-from orthomvp.errors import GeometryError
+from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.visibility import occluder_caster
+from orthomvp.validate import of_type
 
 CLASSES = ("visible", "occluded")
 """The classes of posts scored, in the order of the rows: visible in both views; called
@@ -56,15 +57,23 @@ class CheckResult:
     names: list[str] = field(default_factory=list)
 
     def pooled(self, eps: float, cls: str) -> dict:
-        """The pooled row over all pairs and miss distances for ``eps`` and class ``cls``."""
-        return next(
-            r
-            for r in self.rows
-            if r["view"] == "all"
-            and r["eps"] == eps
-            and r["class"] == cls
-            and r["miss_from"] == 0
-            and r["miss_to"] == np.inf
+        """The pooled row over all pairs and miss distances for ``eps`` and class ``cls``
+        (one of :data:`CLASSES`); InputError naming the epsilons checked when there is none."""
+        if cls not in CLASSES:
+            raise InputError(f"class must be one of {', '.join(CLASSES)}, not {cls!r}")
+        for r in self.rows:
+            if (
+                r["view"] == "all"
+                and r["eps"] == eps
+                and r["class"] == cls
+                and r["miss_from"] == 0
+                and r["miss_to"] == np.inf
+            ):
+                return r
+        checked = sorted({r["eps"] for r in self.rows if r["view"] == "all"})
+        raise InputError(
+            f"no pooled row for eps {eps}: the check has eps "
+            + (", ".join(f"{e:g}" for e in checked) or "none (no pair of views overlaps)")
         )
 
 
@@ -234,6 +243,7 @@ def run_check(
     overlaps when both see at least ``window`` x ``window`` of the same posts. Raises InputError
     before any work when the expected peak memory exceeds what is available, GeometryError when
     no pair overlaps or a view sees only posts facing away, WorkerError when a worker dies."""
+    of_type(plan, CheckPlan, "plan", " (from plan_check)")
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner

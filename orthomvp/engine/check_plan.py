@@ -16,6 +16,7 @@ from pathlib import Path
 
 from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
+from orthomvp.engine.arguments import dem_path, dem_reading, view_pairs
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.plan import (
     MESH_BYTES,
@@ -132,12 +133,16 @@ def check_options(
     one per view); InputError otherwise."""
     if views < 2:
         raise InputError("the check needs a list of at least two (image, camera) views")
+    if isinstance(eps_values, str) or not isinstance(eps_values, Sequence):
+        raise InputError(f"eps_values must be a list of numbers, got {eps_values!r:.40}")
     eps = tuple(number(e, "an epsilon (DEM posts)", minimum=0, min_open=True) for e in eps_values)
     if not eps:
         raise InputError("the check needs at least one epsilon")
     window = number(window, "window (posts)", minimum=3, maximum=51, integer=True)
     if window % 2 == 0:
         raise InputError(f"window (posts) must be odd, got {window}")
+    if names is not None and (isinstance(names, str) or not isinstance(names, Sequence)):
+        raise InputError(f"names must be a list of strings, one per view, got {names!r:.40}")
     labels = tuple(str(k) for k in range(1, views + 1)) if names is None else tuple(names)
     if len(labels) != views:
         raise InputError(f"got {len(labels)} names for {views} views")
@@ -175,9 +180,19 @@ def plan_check(
     (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is larger than the
     DEM.
     """
+    dem = dem_path(dem)
+    pairs = view_pairs(views, minimum=0)  # check_options says how many it needs
     tile = check_tile(tile)
-    eps, window, labels = check_options(len(views), eps_values, window, names)
-    sources = tuple(image_source(image, camera) for image, camera in views)
+    dem_reading(
+        radius_values=radius_values,
+        world=world,
+        progress=progress,
+        vertical_datum=vertical_datum,
+        height_offset=height_offset,
+        dem_crs=dem_crs,
+    )
+    eps, window, labels = check_options(len(pairs), eps_values, window, names)
+    sources = tuple(image_source(image, camera) for image, camera in pairs)
     source, sources, grid, jobs, reach, elevation, tile = tile_grid(
         dem,
         sources,

@@ -7,7 +7,9 @@ writes every output (:func:`run_fit`). The windows a tile needs, and their bound
 from __future__ import annotations
 
 import math
+import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -35,11 +37,26 @@ from orthomvp.engine.run import (
     schedule,
 )
 from orthomvp.engine.tile import _has_cell, _timed
-from orthomvp.engine.writer import COMPRESSIONS, FORMATS, Layer, output_files
+from orthomvp.engine.writer import (
+    COMPRESSIONS,
+    FORMATS,
+    Layer,
+    check_settings,
+    output_files,
+    plan_inputs,
+)
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.io.output_checks import (
+    API_FLAGS,
+    Output,
+    check_names,
+    check_outputs,
+    check_parent,
+)
 from orthomvp.mvp import fit_dem
 from orthomvp.mvp.views import ViewWindow, covers, exact_masks, union, window_for
 from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
+from orthomvp.validate import of_type
 
 
 # ------------------------------------------------------------------------------ per tile
@@ -247,7 +264,8 @@ class FitOutputs:
     views see a post) and, when given, ``normals`` (3 bands float32: n_theta_deg, n_phi_deg,
     tilt_deg), ``cost`` (float32, eq. 20), ``views`` (uint8, views used) and ``uncertainty``
     (2 bands float32: sigma_h_m, converged 0/1), NaN where unresolved; ``format``,
-    ``compress`` and ``blocksize`` as for :class:`~orthomvp.engine.Outputs`."""
+    ``compress``, ``blocksize``, ``overwrite`` and ``replace_input`` as for
+    :class:`~orthomvp.engine.Outputs` (the same rules)."""
 
     heights: str | Path
     normals: str | Path | None = None
@@ -257,8 +275,18 @@ class FitOutputs:
     format: str = "cog"
     compress: str = "zstd"
     blocksize: int = 512
+    overwrite: bool = False
+    replace_input: bool = False
 
     def __post_init__(self) -> None:
+        for name in ("heights", "normals", "cost", "views", "uncertainty"):
+            kinds = (str, os.PathLike) if name == "heights" else (str, os.PathLike, type(None))
+            of_type(getattr(self, name), kinds, f"output {name}")
+        check_settings(self)
+        check_names(self.outputs())
+        for out in self.outputs():
+            if out.path is not None:
+                check_parent(out.path, f"{out.path}: {out.option}")
         for name, value, allowed in (
             ("format", self.format, FORMATS),
             ("compression", self.compress, COMPRESSIONS),
@@ -267,8 +295,16 @@ class FitOutputs:
                 raise InputError(
                     f"output {name} must be one of {', '.join(allowed)}, not {value!r}"
                 )
-        if self.blocksize < 16 or self.blocksize % 16:
-            raise InputError(f"block size must be a multiple of 16 pixels, got {self.blocksize}")
+
+    def outputs(self) -> list[Output]:
+        """The outputs, for :mod:`orthomvp.io.output_checks`."""
+        names = ("heights", "normals", "cost", "views", "uncertainty")
+        paths = [(name, getattr(self, name)) for name in names]
+        return [Output(name, None if path is None else Path(path)) for name, path in paths]
+
+    def check(self, inputs: Sequence[tuple[str, Path | str]]) -> None:
+        """As :meth:`orthomvp.engine.Outputs.check`."""
+        check_outputs(self.outputs(), inputs, self.overwrite, self.replace_input, API_FLAGS)
 
     def layers(self) -> list[Layer]:
         """The files to write."""
@@ -344,6 +380,9 @@ def run_fit(
     InputError before any work when the expected peak memory exceeds what is available,
     GeometryError (writing nothing) when no post is visible in 2 or more images or an image sees
     only posts facing away, WorkerError (writing nothing) when a worker dies."""
+    of_type(plan, FitPlan, "plan", " (from plan_fit)")
+    of_type(outputs, FitOutputs, "outputs", " (FitOutputs(heights=...))")
+    outputs.check(plan_inputs(plan))
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner

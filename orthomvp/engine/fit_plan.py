@@ -41,6 +41,7 @@ import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
 from orthomvp.codes import WorldFrame
+from orthomvp.engine.arguments import dem_path, dem_reading, eps_posts, view_pairs
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.grid_choice import check_plan, read_source
 from orthomvp.engine.halo import footprint, image_box, tile_halo
@@ -65,6 +66,7 @@ from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for
 from orthomvp.mvp.views import view_statistics, window_for
 from orthomvp.occlusion.paths import Rays, VisibilityPath
+from orthomvp.validate import of_type
 
 RETRIES = 3
 """Times a tile is fitted again with grown image windows before it takes whole images."""
@@ -304,19 +306,23 @@ def plan_fit(
     the DEM; warns (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is
     larger than the DEM.
     """
+    dem = dem_path(dem)
+    of_type(options, (FitOptions, type(None)), "options", " (FitOptions)")
     opts = options or FitOptions()
     tile = check_tile(tile) or TILE
-    if eps is not None and not eps > 0:
-        raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
+    eps = eps_posts(eps)
+    dem_reading(
+        radius_values=radius_values,
+        world=world,
+        progress=progress,
+        vertical_datum=vertical_datum,
+        height_offset=height_offset,
+        dem_crs=dem_crs,
+    )
     opts.window  # noqa: B018 - validates hwin and sigma
     if opts.levels < 1 or opts.deconvolve < 0 or opts.max_iter < 1:
         raise InputError("levels and max_iter must be at least 1, deconvolve at least 0")
-    if len(views) < 2:
-        raise InputError(
-            f"got {len(views)} images and {len(views)} cameras: this needs at least 2 images, "
-            "each with its camera"
-        )
-    sources = tuple(image_source(image, camera) for image, camera in views)
+    sources = tuple(image_source(image, camera) for image, camera in view_pairs(views, 2))
     heights = HeightOptions(vertical_datum, height_offset)
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     grid = output_grid(source)

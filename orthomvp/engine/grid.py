@@ -33,7 +33,13 @@ from orthomvp.geometry.datum import (
     vertical_part,
     whole_crs,
 )
-from orthomvp.geometry.terrain import Terrain, warn_infinite
+from orthomvp.geometry.terrain import (
+    Terrain,
+    check_relief,
+    count_unusable,
+    unusable,
+    warn_infinite,
+)
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
@@ -119,7 +125,7 @@ class DemSource:
                 values = read_values(src, 1, Window(c0, r0, c1 - c0, r1 - r0), np.float64)
             except RasterioError as exc:
                 raise corrupt_data(self.path, exc) from exc
-        values[np.isinf(values)] = np.nan  # as Terrain.read: infinite heights are nodata
+        values[unusable(values)] = np.nan  # as Terrain.read: infinite or fill values are nodata
         return values
 
     def window_terrain(self, window: WindowT, values: np.ndarray) -> Terrain:
@@ -205,7 +211,7 @@ def scan_dem(
         stride = max(1, -(-max(rows, cols) // PREVIEW))
         if progress:
             progress.set_total(rows)
-        lo, hi, parts, infinite = np.inf, -np.inf, [], 0
+        lo, hi, parts, infinite, extreme = np.inf, -np.inf, [], 0, 0
         cell, last = False, np.zeros((0, cols), bool)  # a cell of 4 valid posts; the last row
         held = np.empty((rows, cols)) if rows * cols <= HELD_POSTS else None
         for r0, r1 in _blocks(rows, cols):
@@ -213,9 +219,10 @@ def scan_dem(
                 block = read_values(src, 1, Window(0, r0, cols, r1 - r0), np.float64)
             except RasterioError as exc:
                 raise corrupt_data(path, exc) from exc
-            bad = np.isinf(block)
+            bad = unusable(block)
             if bad.any():
-                infinite += int(bad.sum())
+                counts = count_unusable(block)
+                infinite, extreme = infinite + counts[0], extreme + counts[1]
                 block[bad] = np.nan
             if np.isfinite(block).any():
                 lo, hi = min(lo, np.nanmin(block)), max(hi, np.nanmax(block))
@@ -234,7 +241,7 @@ def scan_dem(
             f"{path}: no 2 x 2 posts of the DEM all have heights (nodata beside every valid "
             "post): it has no surface to project onto"
         )
-    warn_infinite(path, infinite)
+    warn_infinite(path, infinite, extreme)
     shift = 0.5 - 0.5 * stride  # preview pixel i's centre is DEM pixel (i * stride)'s centre
     preview_transform = transform @ Affine.translation(shift, shift) @ Affine.scale(stride)
     values = np.concatenate(parts)
@@ -244,6 +251,7 @@ def scan_dem(
     if not np.isfinite(values).any():  # valid posts exist, but none on the preview lattice
         values = np.full_like(values, (lo + hi) / 2)
     preview = Terrain(values, preview_transform, the_crs, radius_values, world, name=str(path))
+    check_relief(str(path), lo, hi, nan_median(preview.values), preview.radii[0])
     source = DemSource(
         path,
         (rows, cols),

@@ -19,6 +19,14 @@ import numpy as np
 
 from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
+from orthomvp.engine.arguments import (
+    PATHLIKE,
+    check_bounds,
+    dem_path,
+    dem_reading,
+    eps_posts,
+    view_pairs,
+)
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem
 from orthomvp.engine.grid_choice import (
     Box,
@@ -39,6 +47,7 @@ from orthomvp.occlusion.paths import Geometry, Rays, VisibilityPath
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import FUSED_POSTS, MosaicOptions
 from orthomvp.ortho.orthophoto import INTERPOLATION
+from orthomvp.validate import of_type
 
 TILE = 1024
 """Default tile side, posts."""
@@ -211,9 +220,7 @@ class Plan:
 def _views(
     views: Sequence[tuple[str | Path, str | Path | Camera]],
 ) -> tuple[ImageSource, ...]:
-    if not views:
-        raise InputError("give at least one image and its camera")
-    sources = tuple(image_source(image, camera) for image, camera in views)
+    sources = tuple(image_source(image, camera) for image, camera in view_pairs(views))
     bands = {v.bands for v in sources}
     if len(bands) != 1:
         raise InputError(f"the images have different numbers of bands: {sorted(bands)}")
@@ -342,9 +349,21 @@ def plan_ortho(
     sees none of the grid, and warns (:class:`~orthomvp.engine.grid_choice.HaloWarning`)
     when a camera's occluder halo is larger than the DEM.
     """
+    dem = dem_path(dem)
     tile = check_tile(tile)
-    if eps is not None and not eps > 0:
-        raise InputError(f"eps must be a positive number of DEM posts, got {eps}")
+    eps = eps_posts(eps)
+    of_type(occlusion, bool, "occlusion")
+    bounds = check_bounds(bounds)
+    if output_dir is not None and not Path(of_type(output_dir, PATHLIKE, "output_dir")).is_dir():
+        raise InputError(f"output_dir {output_dir} is not a directory")
+    dem_reading(
+        radius_values=radius_values,
+        world=world,
+        progress=progress,
+        vertical_datum=vertical_datum,
+        height_offset=height_offset,
+        dem_crs=dem_crs,
+    )
     if interp not in INTERPOLATION:
         raise InputError(f"interpolation must be one of {', '.join(INTERPOLATION)}")
     sources = _views(views)

@@ -26,11 +26,12 @@ from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
-from orthomvp.engine.writer import Outputs, output_set
+from orthomvp.engine.writer import Outputs, output_set, plan_inputs
 from orthomvp.errors import GeometryError, InputError, OrthoMVPError
 from orthomvp.io.raster import held_rasters
 from orthomvp.optional import require
 from orthomvp.ortho.balance import Correction
+from orthomvp.validate import number, of_type
 
 
 class WorkerError(OrthoMVPError):
@@ -206,9 +207,16 @@ def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
     if sum(x is not None for x in (threads, processes, client)) > 1:
         raise InputError("give threads, processes or a Dask client, not several")
     for name, value in (("threads", threads), ("processes", processes)):
-        if value is not None and value < 1:
-            raise InputError(f"{name} must be at least 1, got {value}")
+        if value is not None:
+            number(value, name, minimum=1, integer=True)
+            if not isinstance(value, int | np.integer):  # 2.0: pools want an int
+                raise InputError(f"{name} must be an integer, got float {value!r}")
     if client is not None:
+        if not callable(getattr(client, "nthreads", None)):
+            raise InputError(
+                f"client must be a dask.distributed Client (see dask_client), got "
+                f"{type(client).__name__}"
+            )
         return max(sum(client.nthreads().values()), 1)
     return processes or threads or os.cpu_count() or 1
 
@@ -227,6 +235,8 @@ def dask_client(
     import orthomvp (a remote cluster needs orthomvp installed, and the plan's files at the
     same paths)."""
     import logging
+
+    check_dask_options(workers, address, timeout)
 
     distributed = require("distributed", "running tiles on Dask (--dask)", "dask[distributed]")
 
@@ -250,6 +260,15 @@ def dask_client(
     with cluster, distributed.Client(cluster) as client:
         _warm_up(client, "the local cluster")
         yield client
+
+
+def check_dask_options(workers: Any, address: Any, timeout: Any) -> None:
+    """InputError unless ``workers`` is None or an integer of at least 1, ``address`` None
+    or a string, and ``timeout`` a number of seconds > 0 (:func:`dask_client`'s options)."""
+    if workers is not None:
+        number(workers, "Dask workers", minimum=1, integer=True)
+    of_type(address, (str, type(None)), "Dask scheduler address")
+    number(timeout, "Dask timeout (seconds)", minimum=0, min_open=True)
 
 
 def _warm_up(client: Any, where: str) -> None:
@@ -298,8 +317,8 @@ def schedule(
     ``processes`` or the Dask ``client``, at most ``inflight`` in flight (default the workers);
     InputError for a count under 1 or several of the three."""
     workers = workers_of(threads, processes, client)
-    if inflight is not None and inflight < 1:
-        raise InputError(f"inflight must be at least 1, got {inflight}")
+    if inflight is not None:
+        inflight = number(inflight, "inflight", minimum=1, integer=True)
     jobs = [job.index for job in tiles if job.views]
     local = client is None and not processes
     inner = max(1, workers // max(len(jobs), 1)) if local else 1
@@ -332,6 +351,10 @@ def run_plan(
     Raises InputError before any work when the expected peak memory exceeds what is available,
     GeometryError (and writes nothing) when an image sees no post of the grid or only posts facing
     away, and WorkerError (writing nothing) when a worker dies."""
+    of_type(plan, Plan, "plan", " (from plan_ortho)")
+    of_type(outputs, Outputs, "outputs", " (Outputs(ortho=...))")
+    outputs.check(plan_inputs(plan))
+    of_type(progress, (bool, type(None)), "progress")
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
@@ -371,6 +394,8 @@ def run_plan(
                 seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
                 bar.update()
             check_views(plan.views, report.inside, seen)
+            if "ortho" in kinds:
+                check_filled(plan.views, report)
             t0 = time.perf_counter()
         report.phases["write"] = report.phases.get("write", 0.0) + time.perf_counter() - t0
     report.seconds = time.perf_counter() - start
@@ -396,6 +421,23 @@ def _add_counts(report: RunReport, result: TileResult) -> None:
     for total, counts in zip(report.counts, result.counts, strict=True):
         for code, count in enumerate(counts):
             total[code] += count
+
+
+def check_filled(views: Any, report: RunReport) -> None:
+    """GeometryError when no post of the orthophoto was filled although the images see the
+    grid: every post they see is occluded or faces away, as when a camera sits below the
+    surface or the DEM's heights are not the cameras' (the message gives the counts)."""
+    if report.filled:
+        return
+    parts = []
+    for view, counts in zip(views, report.counts, strict=True):
+        occluded, away = counts[Code.OCCLUDED], counts[Code.FACING_AWAY]
+        parts.append(f"{view.path}: {occluded:,} occluded, {away:,} facing away")
+    raise GeometryError(
+        "no post of the grid is visible in any image (" + "; ".join(parts) + "): is a camera "
+        "below or inside the surface, or are the DEM's heights not those of the cameras "
+        "(vertical datum, height offset, radius values)?"
+    )
 
 
 def check_views(views: Any, inside: list[int], seen: list[int]) -> None:

@@ -10,7 +10,9 @@ succeeded.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+import math
+import os
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,9 +29,17 @@ from orthomvp.engine.overviews import AVERAGE, halve, window_level
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
 from orthomvp.errors import InputError
+from orthomvp.io.output_checks import (
+    API_FLAGS,
+    Output,
+    check_names,
+    check_outputs,
+    check_parent,
+)
 from orthomvp.io.outputs import atomic_paths, scratch_path
 from orthomvp.io.raster import check_written
 from orthomvp.io.write_errors import writing
+from orthomvp.validate import number, of_type
 
 FORMATS = ("cog", "gtiff")
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
@@ -54,6 +64,14 @@ class Outputs:
     :data:`NODATA` (integers are rounded and clipped); ``nodata`` its nodata value (default
     from :data:`NODATA`; valid values that round to it move one step towards the type's
     range); ``blocksize`` internal tiles in pixels (a multiple of 16).
+
+    The rules of the command line's outputs hold (:mod:`orthomvp.io.output_checks`): each
+    output its own file, named .tif or .tiff, in a writable directory; an existing file is
+    replaced only with ``overwrite``, and an input of the run (checked by
+    :func:`~orthomvp.engine.run_plan`) only with ``overwrite`` and ``replace_input`` as well.
+    The default refuses, as the command line does and unlike ``rasterio.open(path, "w")``:
+    a run's outputs are often named after its inputs, and a silent replacement of a DEM or
+    an image loses data that no rerun brings back.
     """
 
     ortho: str | Path | None = None
@@ -64,10 +82,19 @@ class Outputs:
     dtype: str = "float32"
     nodata: float | None = None
     blocksize: int = 512
+    overwrite: bool = False
+    replace_input: bool = False
 
     def __post_init__(self) -> None:
+        for name in ("ortho", "visibility", "source"):
+            of_type(getattr(self, name), (str, os.PathLike, type(None)), f"output {name}")
         if not self.paths():
             raise InputError("no output asked for: give ortho, visibility or source")
+        check_settings(self)
+        check_names(self.outputs())
+        for out in self.outputs():
+            if out.path is not None:
+                check_parent(out.path, f"{out.path}: {out.option}")
         for name, value, allowed in (
             ("format", self.format, FORMATS),
             ("compression", self.compress, COMPRESSIONS),
@@ -77,12 +104,29 @@ class Outputs:
                 raise InputError(
                     f"output {name} must be one of {', '.join(allowed)}, not {value!r}"
                 )
-        if self.blocksize < 16 or self.blocksize % 16:
-            raise InputError(f"block size must be a multiple of 16 pixels, got {self.blocksize}")
+        if self.nodata is not None:
+            if self.dtype == "float32":
+                number_or_nan(self.nodata, "nodata")
+            else:
+                number(self.nodata, f"nodata of a {self.dtype} output", integer=True)
         if self.nodata is not None and self.dtype != "float32":
             info = np.iinfo(self.dtype)
             if not (info.min <= self.nodata <= info.max) or self.nodata != int(self.nodata):
                 raise InputError(f"nodata {self.nodata} is not a {self.dtype} value")
+
+    def outputs(self) -> list[Output]:
+        """The outputs, for :mod:`orthomvp.io.output_checks`."""
+        return [Output(kind, None if path is None else Path(path)) for kind, path in self.named()]
+
+    def named(self) -> list[tuple[str, str | Path | None]]:
+        """(kind, path or None) of every output."""
+        return [("ortho", self.ortho), ("visibility", self.visibility), ("source", self.source)]
+
+    def check(self, inputs: Sequence[tuple[str, Path | str]]) -> None:
+        """Refuse, before any work, outputs that would replace one of ``inputs`` ((label,
+        path) pairs) or an existing file without ``overwrite`` (and ``replace_input``), or
+        whose directory cannot be written; InputError (OutputError for a full disk)."""
+        check_outputs(self.outputs(), inputs, self.overwrite, self.replace_input, API_FLAGS)
 
     def paths(self) -> dict[str, Path]:
         """The outputs asked for, by kind ("ortho", "visibility", "source")."""
@@ -93,6 +137,34 @@ class Outputs:
     def fill(self) -> float:
         """The nodata value of ``ortho``."""
         return NODATA[self.dtype] if self.nodata is None else self.nodata
+
+
+def check_settings(outputs: Any) -> None:
+    """InputError for ``outputs``' (an :class:`Outputs` or a ``FitOutputs``) ``blocksize``
+    that is not a multiple of 16 pixels, or ``overwrite`` and ``replace_input`` that are not
+    booleans."""
+    number(outputs.blocksize, "block size", minimum=16, integer=True)
+    if outputs.blocksize % 16:
+        raise InputError(f"block size must be a multiple of 16 pixels, got {outputs.blocksize}")
+    of_type(outputs.overwrite, bool, "overwrite")
+    of_type(outputs.replace_input, bool, "replace_input")
+
+
+def number_or_nan(value: Any, what: str) -> float:
+    """``value`` as a float when it is a real number, NaN included; InputError otherwise."""
+    if isinstance(value, float) and math.isnan(value):
+        return value
+    return float(number(value, what))
+
+
+def plan_inputs(plan: Any) -> list[tuple[str, Path]]:
+    """The input files of a plan (its ``dem`` and ``views``), labelled as the command line
+    labels them, for :meth:`Outputs.check`."""
+    inputs = [("DEM", Path(plan.dem.path))]
+    n = len(plan.views)
+    for k, view in enumerate(plan.views, start=1):
+        inputs.append((f"IMAGE {k}" if n > 1 else "IMAGE", Path(view.path)))
+    return inputs
 
 
 def to_dtype(data: np.ndarray, dtype: str, nodata: float) -> np.ndarray:

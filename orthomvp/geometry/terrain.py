@@ -64,13 +64,60 @@ def _heights(values: object, name: str) -> np.ndarray:
     return arr.astype(np.float64)
 
 
-def warn_infinite(path: str | Path, count: int) -> None:
-    """One warning when ``count`` infinite heights of the DEM at ``path`` became nodata."""
+EXTREME = 1e30
+"""Heights (or radii) of at least this magnitude, in metres, are no heights but fill values:
+float32's lowest and highest (±3.4028235e38, the collar ArcGIS writes with no nodata tag),
+-1e38 or 1e30 of other tools. They and infinite values are taken as nodata."""
+
+
+def unusable(values: np.ndarray) -> np.ndarray:
+    """Where ``values`` are infinite or of magnitude at least :data:`EXTREME` (NaN: not)."""
+    with np.errstate(invalid="ignore"):
+        return np.abs(values) >= EXTREME
+
+
+def warn_infinite(path: str | Path, count: int, extreme: int = 0) -> None:
+    """One warning when ``count`` infinite heights and ``extreme`` finite ones of magnitude
+    :data:`EXTREME` or more of the DEM at ``path`` became nodata."""
+    causes = []
     if count:
+        causes.append(f"{count:,} infinite height{'s' if count > 1 else ''}")
+    if extreme:
+        causes.append(
+            f"{extreme:,} height{'s' if extreme > 1 else ''} of magnitude {EXTREME:g} m or more "
+            "(fill values without a nodata tag, such as float32's lowest)"
+        )
+    if causes:
         warnings.warn(
-            f"{path}: {count:,} infinite height{'s' if count > 1 else ''} taken as nodata",
-            OrthoMVPWarning,
-            stacklevel=3,
+            f"{path}: {' and '.join(causes)} taken as nodata", OrthoMVPWarning, stacklevel=3
+        )
+
+
+def count_unusable(values: np.ndarray) -> tuple[int, int]:
+    """(infinite, extreme finite) counts of :func:`unusable` ``values``."""
+    bad = unusable(values)
+    infinite = int(np.isinf(values[bad]).sum())
+    return infinite, int(bad.sum()) - infinite
+
+
+RELIEF = 1.0
+"""The largest distance, in body radii, of a DEM value from the DEM's median: more is no
+relief of any body (Olympus Mons rises 0.006 Mars radii; a height below minus one radius lies
+past the centre), but a fill value or a height in the wrong unit. One radius leaves room for
+the DEMs of irregular small bodies on a mean sphere."""
+
+
+def check_relief(name: str, low: float, high: float, median: float, radius: float) -> None:
+    """InputError when DEM values from ``low`` to ``high`` stray more than :data:`RELIEF`
+    body radii (``radius``, metres) from their ``median``: naming the value, which is most
+    likely an undeclared fill value."""
+    worst = low if median - low > high - median else high
+    if abs(worst - median) > RELIEF * radius:
+        raise InputError(
+            f"{name}: a DEM value of {worst:,.6g} m is {abs(worst - median):,.0f} m from the "
+            f"median, {median:,.0f} m, more than {RELIEF:g} times the body's radius "
+            f"({radius:,.0f} m): is it a fill value without a nodata tag? Give the file "
+            "its nodata value (gdal_edit.py -a_nodata VALUE)"
         )
 
 
@@ -106,8 +153,9 @@ class Terrain:
         vals = _heights(self.values, self.name)
         if vals.ndim != 2 or min(vals.shape) < 2:
             raise InputError(f"{self.name}: a DEM needs at least 2 x 2 posts, got {vals.shape}")
-        if np.isinf(vals).any():
-            vals = np.where(np.isinf(vals), np.nan, vals)
+        bad = unusable(vals)
+        if bad.any():
+            vals = np.where(bad, np.nan, vals)
         object.__setattr__(self, "values", vals)
         if not isinstance(self.transform, Affine):
             raise InputError(
@@ -155,7 +203,8 @@ class Terrain:
             file_crs = src.crs
             transform = src.transform
         the_crs = dem_georeference(path, file_crs, transform, crs, shape=values.shape)
-        warn_infinite(path, int(np.isinf(values).sum()))
+        warn_infinite(path, *count_unusable(values))
+        values[unusable(values)] = np.nan
         heights = HeightOptions(vertical_datum, height_offset)
         whole, name = file_crs if crs is None else crs, str(path)
         args = {"world": world, "heights": heights, "radius_values": radius_values, "name": name}
@@ -168,11 +217,13 @@ class Terrain:
     def check_convention(self) -> None:
         """InputError when the values cannot be in the convention this DEM says (body frame
         only): radii far from the body's radius (heights read with ``radius_values``), or
-        heights of the order of the radius (radii read without it)."""
-        if self.world != WorldFrame.BODY:
-            return
+        heights of the order of the radius (radii read without it); in either frame, values
+        that stray too far from the others for any body (:func:`check_relief`)."""
         median = nan_median(self.values)
         radius = self.radii[0]
+        check_relief(self.name, np.nanmin(self.values), np.nanmax(self.values), median, radius)
+        if self.world != WorldFrame.BODY:
+            return
         if self.radius_values and abs(median - radius) > 0.5 * radius:
             raise InputError(
                 f"{self.name}: the values are taken as radii from the body centre "

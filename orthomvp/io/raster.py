@@ -216,7 +216,11 @@ def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: t
     one GDAL compares exactly (any value of an integer band, NaN of a float band; GDAL matches
     other float nodata values within a few ulps, which goes through the masked read). The
     masked read otherwise. RasterioError as rasterio raises it; InputError for complex values
-    (never taken as their real part)."""
+    (never taken as their real part).
+
+    The values are those the stored numbers stand for: each band's GDAL scale and offset
+    (``value = stored * scale + offset``, as ``gdal_translate -unscale`` gives them) applied
+    after the nodata test, which compares the stored numbers."""
     bands = [indexes] if isinstance(indexes, int) else indexes or list(src.indexes)
     for band in bands:
         if np.dtype(src.dtypes[band - 1]).kind == "c":
@@ -224,6 +228,22 @@ def read_values(src: Any, indexes: int | list[int] | None, window: Any, dtype: t
                 f"{src.name}: band {band} holds complex numbers ({src.dtypes[band - 1]}), not "
                 "real values; convert it first (its real part or its amplitude)"
             )
+    values = _stored_values(src, indexes, bands, window, dtype)
+    scales = [src.scales[b - 1] for b in bands]
+    offsets = [src.offsets[b - 1] for b in bands]
+    if all(scale == 1 for scale in scales) and not any(offsets):
+        return values
+    shape = () if isinstance(indexes, int) else (len(bands), 1, 1)
+    values *= np.asarray(scales, dtype).reshape(shape)
+    values += np.asarray(offsets, dtype).reshape(shape)
+    return values
+
+
+def _stored_values(
+    src: Any, indexes: int | list[int] | None, bands: list[int], window: Any, dtype: type
+) -> np.ndarray:
+    """:func:`read_values` before the scale and offset: the stored numbers as ``dtype``, NaN
+    where there is no value."""
     flags = {tuple(src.mask_flag_enums[b - 1]) for b in bands}
     nodatas = {src.nodatavals[b - 1] for b in bands}
     kinds = {np.dtype(src.dtypes[b - 1]) for b in bands}

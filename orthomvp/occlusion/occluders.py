@@ -104,9 +104,12 @@ class Occluders:
                 self._caster = self._mesh()
             return self._caster
 
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
-        """:meth:`orthomvp.occlusion.raycast.RayCaster.first_hit` on the occluder mesh."""
-        return self.caster.first_hit(origins, directions)
+    def first_hit(
+        self, origins: np.ndarray, directions: np.ndarray, *, invalid: str = "miss"
+    ) -> Hits:
+        """:meth:`orthomvp.occlusion.raycast.RayCaster.first_hit` on the occluder mesh (rays
+        a camera cannot map are misses by default)."""
+        return self.caster.first_hit(origins, directions, invalid=invalid)
 
     def cast_from(self, centre: np.ndarray, points: np.ndarray, beyond: float) -> Hits:
         """:meth:`first_hit` of the rays from ``centre`` (3,) through ``points`` (n, 3), map
@@ -129,7 +132,7 @@ class Occluders:
                 caster = self._part(where, box)
                 if caster is None:  # no triangle there: nothing to meet
                     return Hits.none(len(points))
-                return caster.first_hit(centre, points - centre)
+                return caster.first_hit(centre, points - centre, invalid="miss")
         return self.first_hit(centre, points - centre)
 
     def track_cells(

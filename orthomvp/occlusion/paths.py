@@ -247,7 +247,7 @@ class Resolver:
         else:
             o, d = camera.ray(g.uv[r, c])  # the model's own ray through that pixel
         if self.rays is Rays.WHOLE_MESH:
-            hits = self.caster.first_hit(o, d)
+            hits = self.caster.first_hit(o, d, invalid="miss")
         else:
             hits = self.caster.cast_from(o, pc, spacing)
         # A first hit more than one post beyond the post means that the ray slipped past the

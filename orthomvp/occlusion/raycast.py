@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -108,18 +109,34 @@ class RayCaster:
         uv = out["primitive_uvs"].numpy()
         return out["t_hit"].numpy(), tri, uv[:, 0], uv[:, 1]
 
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    def first_hit(
+        self, origins: np.ndarray, directions: np.ndarray, *, invalid: str = "raise"
+    ) -> Hits:
         """First intersection of each ray with the mesh; world-frame float64 in and out.
 
         ``origins`` and ``directions`` are (n, 3) or (3,), broadcast against each other (one
         origin for many directions or one direction for many origins); directions need not be
-        unit length. Only hits in front of the origin count.
+        unit length. Only hits in front of the origin count. InputError for other shapes or
+        values that are not numbers; rays with a non-finite origin or direction, or a zero
+        direction, are refused too (InputError) with ``invalid="raise"``, or are misses with
+        ``invalid="miss"`` (the engine's own rays through pixels a camera model cannot map).
         """
-        o, d = np.broadcast_arrays(
-            np.atleast_2d(np.asarray(origins, dtype=np.float64)),
-            np.atleast_2d(np.asarray(directions, dtype=np.float64)),
+        if invalid not in ("raise", "miss"):
+            raise InputError(f"invalid must be raise or miss, not {invalid!r}")
+        o, d = (
+            _rays(v, name, invalid)
+            for name, v in (("origins", origins), ("directions", directions))
         )
+        try:
+            o, d = np.broadcast_arrays(o, d)
+        except ValueError:
+            raise InputError(
+                f"origins {o.shape} and directions {d.shape} do not match: give as many of "
+                "each, or one of either"
+            ) from None
         norm = np.linalg.norm(d, axis=-1, keepdims=True)
+        if invalid == "raise" and not norm.all():
+            raise InputError(f"direction {np.flatnonzero(norm[:, 0] == 0)[0]} is zero")
         with np.errstate(invalid="ignore", divide="ignore"):
             unit = d / norm
         n = len(d)
@@ -168,3 +185,18 @@ class RayCaster:
         tri[idx] = hit_tri[hit]
         bary[idx, 0] = u[hit]
         bary[idx, 1] = v[hit]
+
+
+def _rays(value: Any, name: str, invalid: str) -> np.ndarray:
+    """``value`` as an (n, 3) float64 array (of finite numbers when ``invalid`` is "raise");
+    InputError naming ``name``."""
+    try:
+        array = np.atleast_2d(np.asarray(value, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be numbers, (n, 3) or (3,), got {value!r:.40}") from None
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise InputError(f"{name} must be (n, 3) or (3,), got shape {np.shape(value)}")
+    bad = ~np.isfinite(array).all(axis=1)
+    if invalid == "raise" and bad.any():
+        raise InputError(f"{name} {np.flatnonzero(bad)[0]} is not finite: {array[bad][0]}")
+    return array

@@ -110,6 +110,44 @@ class Visibility:
         return {code.label: int((self.codes == code).sum()) for code in Code}
 
 
+CHECK_POSTS = 25
+"""Posts whose image positions :func:`check_visibility_of` compares with a fresh projection."""
+CHECK_PIXELS = 0.5
+"""Largest difference, in pixels, between a given visibility's image position of a post and
+the camera's own projection of it: the positions of another camera or another DEM miss by
+far more (the same ones agree to rounding)."""
+
+
+def check_visibility_of(visibility: Visibility, terrain: Terrain, camera: Camera) -> None:
+    """InputError unless ``visibility`` was computed for ``terrain``'s grid (its shape) and
+    ``camera`` on these heights: the image positions of up to :data:`CHECK_POSTS` posts, spread
+    over those it holds, must be the camera's projections of the posts within
+    :data:`CHECK_PIXELS`. Catches a visibility of another camera, DEM or grid."""
+    if visibility.codes.shape != terrain.shape or visibility.uv.shape != (*terrain.shape, 2):
+        raise InputError(
+            f"visibility is of a {visibility.codes.shape[0]} x {visibility.codes.shape[1]} grid, "
+            f"the terrain is {terrain.shape[0]} x {terrain.shape[1]}: give the visibility of "
+            "this terrain and camera"
+        )
+    held = np.flatnonzero(np.isfinite(visibility.uv).all(axis=-1) & terrain.valid)
+    if not held.size:
+        return
+    pick = held[np.linspace(0, held.size - 1, min(CHECK_POSTS, held.size)).astype(np.int64)]
+    r, c = np.unravel_index(pick, terrain.shape)
+    p = terrain.to_world(c.astype(np.float64), r.astype(np.float64), terrain.values[r, c])
+    uv, _ = camera.project(p)
+    given = visibility.uv[r, c]
+    off = np.linalg.norm(uv - given, axis=-1)
+    worst = int(np.argmax(np.where(np.isfinite(off), off, np.inf)))
+    if not off[worst] <= CHECK_PIXELS:
+        raise InputError(
+            f"visibility is not of this camera and terrain: at post (row {r[worst]}, column "
+            f"{c[worst]}) it holds the image position ({given[worst, 0]:.1f}, "
+            f"{given[worst, 1]:.1f}), the camera projects the post to ({uv[worst, 0]:.1f}, "
+            f"{uv[worst, 1]:.1f}); give the visibility computed for them, or none"
+        )
+
+
 def grid_tiles(shape: tuple[int, int], tile: int) -> list[tuple[slice, slice]]:
     """(row slice, column slice) of square tiles of ``tile`` posts covering a grid."""
     rows, cols = shape

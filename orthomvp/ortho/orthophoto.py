@@ -32,6 +32,7 @@ from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import (
     VISIBILITY_BYTES_PER_POST,
     Visibility,
+    check_visibility_of,
     compute_visibility,
     occluder_caster,
 )
@@ -194,6 +195,7 @@ def orthorectify(
     camera = check_image(image, camera)
     if visibility is not None:
         of_type(visibility, Visibility, "visibility", " (of compute_visibility) or None")
+        check_visibility_of(visibility, terrain, camera)
     check_orthophoto_memory(terrain.shape, image.shape[0], "use a coarser grid (Terrain.regrid)")
     vis = visibility or compute_visibility(
         terrain,

@@ -167,13 +167,17 @@ def image_stretch(texture: TextureSampler) -> Colours:
 
 
 def _sample(src: rasterio.DatasetReader, bands: list[int]) -> np.ndarray:
-    """Values (n, bands) of ``bands``: all posts, or a decimated read of large rasters."""
+    """Values (n, bands) of ``bands`` (GDAL's scale and offset applied): all posts, or a
+    decimated read of large rasters."""
     rows, cols = src.height, src.width
     step = max(1, int(np.ceil(np.sqrt(rows * cols / STATS_POSTS))))
     shape = (len(bands), -(-rows // step), -(-cols // step))
     data = src.read(bands, out_shape=shape, masked=True, resampling=Resampling.nearest)
     values = np.ma.filled(data.astype(np.float32), np.nan).astype(np.float64)
-    return values.reshape(len(bands), -1).T
+    values = values.reshape(len(bands), -1)
+    scales = np.array([src.scales[b - 1] for b in bands])[:, None]  # as read_values: GDAL's
+    offsets = np.array([src.offsets[b - 1] for b in bands])[:, None]  # scale and offset
+    return (values * scales + offsets).T
 
 
 def _posts_sample(texture: TextureSampler, bands: list[int]) -> np.ndarray:

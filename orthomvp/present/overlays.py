@@ -223,7 +223,7 @@ def add_rays(
     u0, v0, u1, v1 = rect
     uv = np.column_stack([u0 + (0.03 + 0.94 * fu) * (u1 - u0), v0 + (0.03 + 0.94 * fv) * (v1 - v0)])
     origins, dirs = camera.ray(uv)
-    hits = RayCaster(tmesh, threads=1).first_hit(origins, dirs)
+    hits = RayCaster(tmesh, threads=1).first_hit(origins, dirs, invalid="miss")
     if not hits.mask.any():
         return
     tri = shown.faces[hits.triangle[hits.mask]]

@@ -57,7 +57,7 @@ def render_image(
         uv = np.stack([cc.ravel(), rr.ravel()], axis=-1)
         sub = uv[:, None, None, :] + np.stack(np.meshgrid(offs, offs, indexing="xy"), -1)
         o, d = camera.ray(sub.reshape(-1, 2))
-        hits = caster.first_hit(o, d)
+        hits = caster.first_hit(o, d, invalid="miss")
         val = np.zeros(len(d))
         if hits.mask.any():
             hx, hy, _ = surface.world_to_local(hits.points[hits.mask])
