@@ -33,13 +33,8 @@ from orthomvp.geometry.datum import (
     vertical_part,
     whole_crs,
 )
-from orthomvp.geometry.terrain import (
-    Terrain,
-    check_relief,
-    count_unusable,
-    unusable,
-    warn_infinite,
-)
+from orthomvp.geometry.heights import check_relief, count_unusable, unusable, warn_infinite
+from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 

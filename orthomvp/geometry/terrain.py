@@ -17,7 +17,6 @@ Conventions (see ARCHITECTURE.md):
 from __future__ import annotations
 
 import os
-import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -28,9 +27,10 @@ from affine import Affine
 from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
-from orthomvp.errors import InputError, OrthoMVPWarning
+from orthomvp.errors import InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference, file_radii, is_pyproj
 from orthomvp.geometry.datum import HeightOptions, height_shift
+from orthomvp.geometry.heights import check_relief, count_unusable, unusable, warn_infinite
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.vectors import nan_median, row_norms
 from orthomvp.io.preflight import check_memory, count_text
@@ -62,63 +62,6 @@ def _heights(values: object, name: str) -> np.ndarray:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise InputError(f"{name}: DEM values must be real numbers, got {arr.dtype} values")
     return arr.astype(np.float64)
-
-
-EXTREME = 1e30
-"""Heights (or radii) of at least this magnitude, in metres, are no heights but fill values:
-float32's lowest and highest (±3.4028235e38, the collar ArcGIS writes with no nodata tag),
--1e38 or 1e30 of other tools. They and infinite values are taken as nodata."""
-
-
-def unusable(values: np.ndarray) -> np.ndarray:
-    """Where ``values`` are infinite or of magnitude at least :data:`EXTREME` (NaN: not)."""
-    with np.errstate(invalid="ignore"):
-        return np.abs(values) >= EXTREME
-
-
-def warn_infinite(path: str | Path, count: int, extreme: int = 0) -> None:
-    """One warning when ``count`` infinite heights and ``extreme`` finite ones of magnitude
-    :data:`EXTREME` or more of the DEM at ``path`` became nodata."""
-    causes = []
-    if count:
-        causes.append(f"{count:,} infinite height{'s' if count > 1 else ''}")
-    if extreme:
-        causes.append(
-            f"{extreme:,} height{'s' if extreme > 1 else ''} of magnitude {EXTREME:g} m or more "
-            "(fill values without a nodata tag, such as float32's lowest)"
-        )
-    if causes:
-        warnings.warn(
-            f"{path}: {' and '.join(causes)} taken as nodata", OrthoMVPWarning, stacklevel=3
-        )
-
-
-def count_unusable(values: np.ndarray) -> tuple[int, int]:
-    """(infinite, extreme finite) counts of :func:`unusable` ``values``."""
-    bad = unusable(values)
-    infinite = int(np.isinf(values[bad]).sum())
-    return infinite, int(bad.sum()) - infinite
-
-
-RELIEF = 1.0
-"""The largest distance, in body radii, of a DEM value from the DEM's median: more is no
-relief of any body (Olympus Mons rises 0.006 Mars radii; a height below minus one radius lies
-past the centre), but a fill value or a height in the wrong unit. One radius leaves room for
-the DEMs of irregular small bodies on a mean sphere."""
-
-
-def check_relief(name: str, low: float, high: float, median: float, radius: float) -> None:
-    """InputError when DEM values from ``low`` to ``high`` stray more than :data:`RELIEF`
-    body radii (``radius``, metres) from their ``median``: naming the value, which is most
-    likely an undeclared fill value."""
-    worst = low if median - low > high - median else high
-    if abs(worst - median) > RELIEF * radius:
-        raise InputError(
-            f"{name}: a DEM value of {worst:,.6g} m is {abs(worst - median):,.0f} m from the "
-            f"median, {median:,.0f} m, more than {RELIEF:g} times the body's radius "
-            f"({radius:,.0f} m): is it a fill value without a nodata tag? Give the file "
-            "its nodata value (gdal_edit.py -a_nodata VALUE)"
-        )
 
 
 REGRID_BYTES_PER_POST = 160
