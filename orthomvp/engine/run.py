@@ -476,14 +476,16 @@ def _died(exc: BaseException) -> bool:
 class Schedule:
     """How a run's tiles are spread: ``workers`` that can run a tile at once, the ``jobs``
     (indices of the tiles some view sees), ``at_once`` tiles in memory together, ``inner``
-    threads per tile (a plain threads run with fewer tiles than threads shares them out) and
-    the ``limit`` of tiles running or waiting to run (:func:`results`)."""
+    threads per tile (a plain threads run with fewer tiles than threads shares them out), the
+    ``limit`` of tiles running or waiting to run (:func:`results`) and the worker
+    ``processes`` on this machine besides this one (:func:`local_processes`)."""
 
     workers: int
     jobs: list[int]
     at_once: int
     inner: int
     limit: int
+    processes: int = 0
 
 
 def schedule(
@@ -502,7 +504,26 @@ def schedule(
     jobs = [job.index for job in tiles if job.views]
     local = client is None and not processes
     inner = max(1, workers // max(len(jobs), 1)) if local else 1
-    return Schedule(workers, jobs, min(workers, max(len(jobs), 1)), inner, inflight or workers)
+    at_once = min(workers, max(len(jobs), 1))
+    here = local_processes(processes, client)
+    return Schedule(workers, jobs, at_once, inner, inflight or workers, here)
+
+
+def local_processes(processes: int | None, client: Any) -> int:
+    """Worker processes that run on this machine besides this one: the ``processes`` of a pool,
+    or the Dask ``client``'s workers whose address is a loopback or this host's (0 for
+    threads). Their memory counts in the preflight (:func:`~orthomvp.engine.plan.peak_bytes`)."""
+    if client is None:
+        return processes or 0
+    import socket
+
+    from distributed.comm import get_address_host
+
+    here = {"localhost", socket.gethostname()}
+    with contextlib.suppress(OSError):
+        here.update(socket.gethostbyname_ex(socket.gethostname())[2])
+    hosts = [get_address_host(address) for address in client.nthreads()]
+    return sum(host in here or host.startswith("127.") or host == "::1" for host in hosts)
 
 
 def run_plan(
@@ -535,7 +556,7 @@ def run_plan(
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
     kinds = frozenset(outputs.paths())
-    peak = preflight(plan, at_once, processes or 0, bool(kinds - {"visibility"}))
+    peak = preflight(plan, at_once, sched.processes, bool(kinds - {"visibility"}))
     start = time.perf_counter()
     if plan.mosaic is not None and kinds - {"visibility"}:
         if plan.mosaic.balance is not None or plan.mosaic.blend:
