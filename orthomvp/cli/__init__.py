@@ -86,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _error(_os_error_text(exc))
         except (KeyboardInterrupt, click.exceptions.Abort) as exc:
             _remove_temporaries()
-            print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
+            print(f"orthomvp: interrupted; {_kept()}", file=sys.stderr)
             return EXIT_SIGTERM if isinstance(exc, Terminated) else EXIT_SIGINT
         except MemoryError as exc:
             return _error(
@@ -113,6 +113,16 @@ def _remove_temporaries() -> None:
     outputs = sys.modules.get("orthomvp.io.outputs")
     if outputs is not None:
         outputs.remove_temporaries()
+
+
+def _kept() -> str:
+    """What an interrupt left: the outputs already complete (an interrupt while the command
+    ended, a Dask cluster stopping say), or nothing partial."""
+    outputs = sys.modules.get("orthomvp.io.outputs")
+    done = outputs.written if outputs is not None else []
+    if not done:
+        return "no partial output was kept"
+    return f"the outputs were already complete: {', '.join(map(str, done))}"
 
 
 def _error(message: object, status: int = EXIT_USER) -> int:

@@ -16,6 +16,7 @@ import os
 import signal
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -101,7 +102,28 @@ def _worker_init(plan: Any, parent: int) -> None:
     global _PLAN
     _PLAN = plan
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, HELD_SIGNALS)  # held while it was started
     die_with_parent(parent)
+
+
+HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+"""Signals held back while a worker process is being started (:func:`_signals_held`)."""
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Within the block (in the main thread), SIGINT and SIGTERM are held back and delivered
+    when it ends (never lost): a process started inside gets all it needs from this one
+    before this one can stop (it would print a traceback reading its half-sent start-up
+    data), and starts with them held too, until :func:`_worker_init`."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def die_with_parent(parent: int) -> None:
@@ -170,7 +192,11 @@ def executor(
         pool: cf.Executor = cf.ProcessPoolExecutor(
             processes, mp_context=ctx, initializer=_worker_init, initargs=(plan, os.getpid())
         )
-        submit = lambda i, *a: pool.submit(_process_tile, work, i, *a)  # noqa: E731
+
+        def submit(i: int, *a: Any) -> cf.Future:
+            with _signals_held():  # submit may start a worker process
+                return pool.submit(_process_tile, work, i, *a)
+
     else:
         pool = cf.ThreadPoolExecutor(workers)
         submit = lambda i, *a: pool.submit(work, plan, i, *a)  # noqa: E731
@@ -291,16 +317,20 @@ def dask_client(
             prefix="orthomvp-dask-", ignore_cleanup_errors=True
         )
         with scratch_dir as scratch, dask.config.set({"temporary-directory": scratch}):
-            cluster = distributed.LocalCluster(
-                n_workers=workers or os.cpu_count() or 1,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=logging.CRITICAL,
-                local_directory=scratch,
-                preload=[LOCAL_PRELOAD],
-                preload_nanny=[LOCAL_PRELOAD],
-            )
+            try:
+                cluster = distributed.LocalCluster(
+                    n_workers=workers or os.cpu_count() or 1,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,
+                    local_directory=scratch,
+                    preload=[LOCAL_PRELOAD],
+                    preload_nanny=[LOCAL_PRELOAD],
+                )
+            except BaseException:  # Ctrl-C, SIGTERM or an error while it starts
+                _forget_clusters()
+                raise
             with cluster, distributed.Client(cluster) as client:
                 _warm_up(client, "the local cluster")
                 yield client
@@ -308,6 +338,25 @@ def dask_client(
 
 LOCAL_PRELOAD = "orthomvp.engine.dask_worker"
 """The module every process of a local cluster (nannies and workers) runs first."""
+
+
+def _forget_clusters() -> None:
+    """Close the local clusters that did not finish starting, and take them off Dask's list of
+    clusters to close at exit (which would fail with a traceback on one cut short while it
+    started); their processes end with this one (they are its daemons)."""
+    from distributed.core import Status
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in list(SpecCluster._instances):
+        if cluster.status == Status.closed:
+            continue
+        with contextlib.suppress(BaseException):
+            cluster.close(timeout=FORGET_SECONDS)
+        SpecCluster._instances.discard(cluster)
+
+
+FORGET_SECONDS = 5.0
+"""How long closing a local cluster cut short while it started may take."""
 
 
 def _probe_scheduler(address: str, timeout: float) -> None:

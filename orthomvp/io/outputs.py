@@ -42,6 +42,10 @@ _pending: dict[Path, None] = {}
 """This process's temporary outputs (files and directories) not yet renamed or removed."""
 
 
+written: list[Path] = []
+"""The outputs this process renamed onto their targets (complete, each set of them whole)."""
+
+
 def _new_temp(path: Path, tag: str = "") -> Path:
     """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
     tmp = temp_name(path, tag)
@@ -159,6 +163,7 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
             for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
                 os.chmod(tmp, mode)
                 os.replace(tmp, target)
+            written.extend(targets)
         except OrthoMVPError:
             raise
         except OSError as exc:
