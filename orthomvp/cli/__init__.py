@@ -69,10 +69,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     below as one line (click would turn Ctrl-C into an Abort after writing a blank line).
     """
     args = sys.argv[1:] if argv is None else [str(arg) for arg in argv]
+    if "orthomvp.io.outputs" in sys.modules:  # the outputs of an earlier command of this process
+        sys.modules["orthomvp.io.outputs"].written.clear()
     with sigterm_raises(), one_line_warnings():
         try:
             with cli.make_context("orthomvp", args) as ctx:
                 cli.invoke(ctx)
+            if _terminated:  # raised where Python drops it (a __del__, a callback): not lost
+                raise Terminated
         except click.exceptions.Exit as exc:  # --help, --version
             return exc.exit_code
         except click.UsageError as exc:
@@ -141,9 +145,15 @@ def _os_error_text(exc: OSError) -> str:
     return f"{exc.filename}: {cause}" if exc.filename is not None else cause
 
 
+_terminated: list[int] = []
+"""The SIGTERM received (at most one), even when its :class:`Terminated` was raised where
+Python prints and drops exceptions (a ``__del__``, say)."""
+
+
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
     # once: a second SIGTERM must not interrupt the clean-up that the first one started
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _terminated.append(signum)
     raise Terminated
 
 
@@ -155,6 +165,7 @@ def sigterm_raises() -> Iterator[None]:
         yield
         return
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    _terminated.clear()
     try:
         yield
     finally:
