@@ -505,3 +505,41 @@ def test_processes_die_with_their_parent(scene: Path, tmp_path: Path) -> None:
         proc.kill()
         proc.wait(timeout=10)
         assert not wait_gone(below, 5)
+
+
+# ------------------------------------------------------------------- memory preflight
+
+
+def resident(pid: int) -> int:
+    """Resident set of process ``pid``, bytes."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def test_the_preflight_counts_each_worker_process_as_measured(crater_dir: Path) -> None:
+    """Worker processes (of a pool and of a local Dask cluster) measured after running tiles:
+    each within :data:`WORKER_BYTES` and above half of it (the figure is neither low nor
+    padded), and the plan's peak memory counts one per local worker."""
+    from orthomvp.engine import dask_client, plan_ortho
+    from orthomvp.engine.plan import WORKER_BYTES
+    from orthomvp.engine.run import executor, local_processes, results
+    from orthomvp.engine.tile import run_tile
+
+    views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
+    plan = plan_ortho(crater_dir / "dem.tif", views, tile=16, progress=False)
+    jobs = [job.index for job in plan.tiles if job.views]
+    kinds = (frozenset({"ortho"}), 1)
+    with executor(plan, run_tile, 2, 2) as (submit, wait):
+        assert len(list(results(submit, wait, jobs, kinds, 2))) == len(jobs)
+        workers = [pid for pid in descendants(os.getpid()) if resident(pid) > 50 << 20]
+        sizes = [resident(pid) for pid in workers]
+    assert len(sizes) == 2 and all(WORKER_BYTES / 2 < size <= WORKER_BYTES for size in sizes)
+    with dask_client(workers=2) as client:
+        assert local_processes(None, client) == 2
+        with executor(plan, run_tile, 2, None, client) as (submit, wait):
+            assert len(list(results(submit, wait, jobs, kinds, 2))) == len(jobs)
+        sizes = [resident(pid) for pid in client.run(os.getpid).values()]
+        assert len(sizes) == 2 and all(WORKER_BYTES / 2 < s <= WORKER_BYTES for s in sizes)
+        assert plan.peak_memory(1, 2) - plan.peak_memory(1, 0) == 2 * WORKER_BYTES
