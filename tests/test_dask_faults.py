@@ -543,3 +543,28 @@ def test_the_preflight_counts_each_worker_process_as_measured(crater_dir: Path) 
         sizes = [resident(pid) for pid in client.run(os.getpid).values()]
         assert len(sizes) == 2 and all(WORKER_BYTES / 2 < s <= WORKER_BYTES for s in sizes)
         assert plan.peak_memory(1, 2) - plan.peak_memory(1, 0) == 2 * WORKER_BYTES
+
+
+def test_a_signal_after_the_outputs_were_renamed_says_they_are_complete(
+    scene: Path, tmp_path: Path
+) -> None:
+    """SIGTERM as soon as the orthophoto is in place, while the local cluster stops: either the
+    command had ended (0), or it says that the outputs are complete (143), which they are."""
+    import rasterio
+
+    out = tmp_path / "o.tif"
+    args = ortho_args(scene, out, "--dask", "local:2")
+    with started(args, stderr=subprocess.PIPE, text=True) as proc:
+        deadline = time.monotonic() + CASE_SECONDS
+        while not out.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGTERM)
+        status, err, _ = finish(proc)
+    if status == 143:
+        assert_one_line(
+            status, err, 143, "interrupted; the outputs were already complete", str(out)
+        )
+    else:
+        assert (status, err) == (0, "")
+    with rasterio.open(out) as src:
+        assert src.read(1).shape == (160, 160)
