@@ -1,5 +1,5 @@
-"""Run first by every worker process of the local Dask cluster of
-:func:`orthomvp.engine.run.dask_client` (Dask's ``preload``)."""
+"""Run first by every process of the local Dask cluster of
+:func:`orthomvp.engine.run.dask_client` (Dask's ``preload``), nannies and workers alike."""
 
 from __future__ import annotations
 
@@ -11,9 +11,6 @@ from typing import Any
 def dask_setup(server: Any) -> None:
     """Leave Ctrl-C to the process that started the cluster: a SIGINT sent to the whole
     process group (a terminal's Ctrl-C) would otherwise print a traceback in every worker;
-    that process stops the cluster instead. Then let SIGINT and SIGTERM through, which the
-    process was started with held (:func:`orthomvp.engine.run.dask_client`): a SIGINT that
-    came meanwhile is dropped, a SIGTERM ends the process."""
+    that process stops the cluster instead."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})

@@ -115,9 +115,7 @@ def _signals_held() -> Iterator[None]:
     """Within the block (in the main thread), SIGINT and SIGTERM are held back and delivered
     when it ends (never lost): a process started inside gets all it needs from this one
     before this one can stop (it would print a traceback reading its half-sent start-up
-    data), and starts with them held too (threads started inside keep them held for good,
-    and so do the processes they start), until it lets them through: :func:`_worker_init`,
-    or Dask's preload :mod:`orthomvp.engine.dask_worker`."""
+    data), and starts with them held too, until :func:`_worker_init`."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -320,17 +318,16 @@ def dask_client(
         )
         with scratch_dir as scratch, dask.config.set({"temporary-directory": scratch}):
             try:
-                # its threads, and the processes they start, begin with the signals held
-                with _signals_held():
-                    cluster = distributed.LocalCluster(
-                        n_workers=workers or os.cpu_count() or 1,
-                        threads_per_worker=1,
-                        processes=True,
-                        dashboard_address=None,
-                        silence_logs=logging.CRITICAL,
-                        local_directory=scratch,
-                        preload=[LOCAL_PRELOAD],
-                    )
+                cluster = distributed.LocalCluster(
+                    n_workers=workers or os.cpu_count() or 1,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,
+                    local_directory=scratch,
+                    preload=[LOCAL_PRELOAD],
+                    preload_nanny=[LOCAL_PRELOAD],
+                )
             except BaseException:  # Ctrl-C, SIGTERM or an error while it starts
                 _forget_clusters()
                 raise
@@ -340,7 +337,7 @@ def dask_client(
 
 
 LOCAL_PRELOAD = "orthomvp.engine.dask_worker"
-"""The module every worker process of a local cluster runs first (its nannies run here)."""
+"""The module every process of a local cluster (nannies and workers) runs first."""
 
 
 def _forget_clusters() -> None:
