@@ -326,7 +326,6 @@ def dask_client(
                     silence_logs=logging.CRITICAL,
                     local_directory=scratch,
                     preload=[LOCAL_PRELOAD],
-                    preload_nanny=[LOCAL_PRELOAD],
                 )
             except BaseException:  # Ctrl-C, SIGTERM or an error while it starts
                 _forget_clusters()
@@ -337,7 +336,7 @@ def dask_client(
 
 
 LOCAL_PRELOAD = "orthomvp.engine.dask_worker"
-"""The module every process of a local cluster (nannies and workers) runs first."""
+"""The module every worker process of a local cluster runs first (its nannies run here)."""
 
 
 def _forget_clusters() -> None:
