@@ -568,3 +568,36 @@ def test_a_signal_after_the_outputs_were_renamed_says_they_are_complete(
         assert (status, err) == (0, "")
     with rasterio.open(out) as src:
         assert src.read(1).shape == (160, 160)
+
+
+def test_a_sigterm_dropped_in_a_del_is_not_lost(crater_dir: Path, tmp_path: Path) -> None:
+    """A SIGTERM whose exception Python drops (raised in a ``__del__``, as in Dask's
+    ``Future.__del__``) still ends the command with 143 and one line, no "Exception ignored"."""
+    out = tmp_path / "o.tif"
+    script = (
+        "import os, signal, sys\n"
+        "import orthomvp.engine.run as run\n"
+        "class Dropped:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        for _ in range(10**6): pass  # the handler raises in here\n"
+        "original = run.check_views\n"
+        "def check_views(*a):\n"
+        "    Dropped()\n"
+        "    return original(*a)\n"
+        "run.check_views = check_views\n"
+        "from orthomvp.cli import main_entry\n"
+        "sys.argv = ['orthomvp', *sys.argv[1:]]\n"
+        "main_entry()\n"
+    )
+    args = ["-q", "ortho", crater_dir / "dem.tif", crater_dir / "oblique.tif"]
+    args += [crater_dir / "oblique.tsai", "-o", out]
+    done = subprocess.run(
+        [sys.executable, "-c", script, *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ENV,
+    )
+    assert_one_line(done.returncode, done.stderr, 143, "interrupted", "already complete", str(out))
+    assert out.exists()

@@ -160,16 +160,26 @@ def _raise_terminated(signum: int, frame: FrameType | None) -> None:
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Within the block, SIGTERM raises :class:`Terminated` in the main thread (elsewhere
-    signals cannot be handled, and nothing changes); the previous handler comes back after."""
+    signals cannot be handled, and nothing changes), and an interrupt that Python drops (raised
+    in a ``__del__``) prints nothing (:func:`main` reports a dropped SIGTERM itself); the
+    previous handlers come back after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     _terminated.clear()
+    hook = sys.unraisablehook
+
+    def unraisable(info: object) -> None:  # an interrupt dropped in a __del__: said once, below
+        if not isinstance(getattr(info, "exc_value", None), KeyboardInterrupt):
+            hook(info)  # type: ignore[arg-type]
+
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        sys.unraisablehook = hook
 
 
 @contextmanager
