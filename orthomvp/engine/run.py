@@ -365,9 +365,11 @@ def _probe_scheduler(address: str, timeout: float) -> None:
     import asyncio
 
     from distributed.comm import connect
+    from distributed.security import Security
 
     async def identity() -> Any:
-        comm = await connect(address, timeout=timeout)
+        # TLS as configured for Dask's clients (distributed.comm.tls), as the Client connects
+        comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
         try:
             await comm.write({"op": "identity", "reply": True})
             return await comm.read()
