@@ -43,7 +43,8 @@ _pending: dict[Path, None] = {}
 
 
 written: list[Path] = []
-"""The outputs this process renamed onto their targets (complete, each set of them whole)."""
+"""The outputs this process renamed onto their targets (complete, each set of them whole; not
+those renamed inside a temporary directory, which counts once moved in place)."""
 
 
 def _new_temp(path: Path, tag: str = "") -> Path:
@@ -163,7 +164,7 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
             for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
                 os.chmod(tmp, mode)
                 os.replace(tmp, target)
-            written.extend(targets)
+            written.extend(t for t in targets if not any(d in _pending for d in t.parents))
         except OrthoMVPError:
             raise
         except OSError as exc:
@@ -236,6 +237,7 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
                     os.replace(item, path / item.name)
             else:
                 os.replace(tmp, path)
+            written.append(path)
         except OutputError as exc:
             raise OutputError(str(exc).replace(str(tmp), str(path))) from exc.__cause__
         except OSError as exc:
