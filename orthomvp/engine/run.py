@@ -318,21 +318,40 @@ def dask_client(
         )
         with scratch_dir as scratch, dask.config.set({"temporary-directory": scratch}):
             try:
-                cluster = distributed.LocalCluster(
-                    n_workers=workers or os.cpu_count() or 1,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.CRITICAL,
-                    local_directory=scratch,
-                    preload=[LOCAL_PRELOAD],
-                )
-            except BaseException:  # Ctrl-C, SIGTERM or an error while it starts
+                # the worker processes print to a log of their own (a Ctrl-C while one starts,
+                # before its preload ignores it, would print its traceback here)
+                with _stderr_to(os.path.join(scratch, "workers.log")):
+                    cluster = distributed.LocalCluster(
+                        n_workers=workers or os.cpu_count() or 1,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                        silence_logs=logging.CRITICAL,
+                        local_directory=scratch,
+                        preload=[LOCAL_PRELOAD],
+                    )
+                with cluster, distributed.Client(cluster) as client:
+                    _warm_up(client, "the local cluster")
+                    yield client
+            except BaseException:  # Ctrl-C, SIGTERM or an error while it starts or stops
                 _forget_clusters()
                 raise
-            with cluster, distributed.Client(cluster) as client:
-                _warm_up(client, "the local cluster")
-                yield client
+
+
+@contextlib.contextmanager
+def _stderr_to(path: str) -> Iterator[None]:
+    """Within the block, file descriptor 2 (this process's and that of the processes started
+    inside) writes to the file ``path``; then it is given back."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o600)
+    try:
+        os.dup2(log, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(log)
 
 
 LOCAL_PRELOAD = "orthomvp.engine.dask_worker"
@@ -340,15 +359,19 @@ LOCAL_PRELOAD = "orthomvp.engine.dask_worker"
 
 
 def _forget_clusters() -> None:
-    """Close the local clusters that did not finish starting, and take them off Dask's list of
-    clusters to close at exit (which would fail with a traceback on one cut short while it
-    started); their processes end with this one (they are its daemons)."""
+    """Close the local clusters that did not finish starting, quietly (their start-up's
+    failed tasks unreported), and take them off Dask's list of clusters to close at exit
+    (which would fail with a traceback on one cut short while it started); their processes
+    end with this one (they are its daemons)."""
     from distributed.core import Status
     from distributed.deploy.spec import SpecCluster
 
     for cluster in list(SpecCluster._instances):
         if cluster.status == Status.closed:
             continue
+        with contextlib.suppress(BaseException):
+            # the start-up's tasks that failed with it: not "never retrieved" at exit
+            cluster.loop.asyncio_loop.set_exception_handler(lambda loop, context: None)
         with contextlib.suppress(BaseException):
             cluster.close(timeout=FORGET_SECONDS)
         SpecCluster._instances.discard(cluster)
