@@ -601,3 +601,25 @@ def test_a_sigterm_dropped_in_a_del_is_not_lost(crater_dir: Path, tmp_path: Path
     )
     assert_one_line(done.returncode, done.stderr, 143, "interrupted", "already complete", str(out))
     assert out.exists()
+
+
+def test_a_ctrl_c_while_the_local_cluster_starts_is_one_line(scene: Path, tmp_path: Path) -> None:
+    """Ctrl-C to the whole process group as soon as the local cluster's first worker process
+    exists (it is still importing, before it can ignore SIGINT): 130, one line, no worker's
+    traceback, nothing left."""
+    out = tmp_path / "o.tif"
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    args = ortho_args(scene, out, "--dask", "local:2")
+    env = {**ENV, "TMPDIR": str(tmp)}
+    with started(args, stderr=subprocess.PIPE, text=True, env=env) as proc:
+        deadline = time.monotonic() + CASE_SECONDS
+        while not descendants(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        below = descendants(proc.pid)
+        assert below, "no worker process started"
+        os.killpg(proc.pid, signal.SIGINT)
+        status, err, _ = finish(proc)
+    assert_one_line(status, err, 130, "interrupted; no partial output was kept")
+    assert not wait_gone(below | descendants(proc.pid), 10)
+    assert_nothing_left(out, tmp)
