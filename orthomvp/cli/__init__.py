@@ -76,10 +76,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     below as one line (click would turn Ctrl-C into an Abort after writing a blank line).
     """
     args = sys.argv[1:] if argv is None else [str(arg) for arg in argv]
+    if "orthomvp.io.outputs" in sys.modules:  # the outputs of an earlier command of this process
+        sys.modules["orthomvp.io.outputs"].written.clear()
     with sigterm_raises(), one_line_warnings():
         try:
             with cli.make_context("orthomvp", args) as ctx:
                 cli.invoke(ctx)
+            if _terminated:  # raised where Python drops it (a __del__, a callback): not lost
+                raise Terminated(_terminated[0])
         except click.exceptions.Exit as exc:  # --help, --version
             return exc.exit_code
         except click.UsageError as exc:
@@ -93,7 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _error(_os_error_text(exc))
         except (KeyboardInterrupt, click.exceptions.Abort) as exc:
             _remove_temporaries()
-            print("orthomvp: interrupted; no partial output was kept", file=sys.stderr)
+            print(f"orthomvp: interrupted; {_kept()}", file=sys.stderr)
             return 128 + exc.signum if isinstance(exc, Terminated) else EXIT_SIGINT
         except MemoryError as exc:
             return _error(
@@ -122,6 +126,16 @@ def _remove_temporaries() -> None:
         outputs.remove_temporaries()
 
 
+def _kept() -> str:
+    """What an interrupt left: the outputs already complete (an interrupt while the command
+    ended, a Dask cluster stopping say), or nothing partial."""
+    outputs = sys.modules.get("orthomvp.io.outputs")
+    done = outputs.written if outputs is not None else []
+    if not done:
+        return "no partial output was kept"
+    return f"the outputs were already complete: {', '.join(map(str, done))}"
+
+
 def _error(message: object, status: int = EXIT_USER) -> int:
     """Report ``message`` as one line on stderr; returns ``status``."""
     text = " ".join(str(message).split())
@@ -138,19 +152,26 @@ def _os_error_text(exc: OSError) -> str:
     return f"{exc.filename}: {cause}" if exc.filename is not None else cause
 
 
+_terminated: list[int] = []
+"""The SIGTERM received (at most one), even when its :class:`Terminated` was raised where
+Python prints and drops exceptions (a ``__del__``, say)."""
+
+
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
     # once: a second signal must not interrupt the clean-up that the first one started
     for sig in TERMINATING:
         signal.signal(sig, signal.SIG_IGN)
+    _terminated.append(signum)
     raise Terminated(signum)
 
 
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Within the block, SIGTERM and SIGHUP (:data:`TERMINATING`) raise :class:`Terminated` in
-    the main thread (elsewhere signals cannot be handled, and nothing changes); the previous
-    handlers come back after. A signal ignored when the block starts (``nohup``) stays
-    ignored."""
+    the main thread (elsewhere signals cannot be handled, and nothing changes), and an
+    interrupt that Python drops (raised in a ``__del__``) prints nothing (:func:`main` reports
+    a dropped one itself); the previous handlers come back after. A signal ignored when the
+    block starts (``nohup``) stays ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -158,12 +179,21 @@ def sigterm_raises() -> Iterator[None]:
     for sig, handler in previous.items():
         if handler != signal.SIG_IGN:
             signal.signal(sig, _raise_terminated)
+    _terminated.clear()
+    hook = sys.unraisablehook
+
+    def unraisable(info: object) -> None:  # an interrupt dropped in a __del__: said once, below
+        if not isinstance(getattr(info, "exc_value", None), KeyboardInterrupt):
+            hook(info)  # type: ignore[arg-type]
+
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
         for sig, handler in previous.items():
             if handler is not None:
                 signal.signal(sig, handler)
+        sys.unraisablehook = hook
 
 
 @contextmanager

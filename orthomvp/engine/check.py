@@ -247,7 +247,7 @@ def run_check(
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
-    peak = check_memory(plan, plan.peak_memory(at_once, processes or 0), at_once)
+    peak = check_memory(plan, plan.peak_memory(at_once, sched.processes), at_once)
     n = len(plan.views)
     inside, seen = [0] * n, [0] * n
     overlap: dict[tuple[int, int], int] = {}

@@ -386,7 +386,7 @@ def run_fit(
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
-    peak = check_memory(plan, plan.peak_memory(at_once, processes or 0, inner), at_once)
+    peak = check_memory(plan, plan.peak_memory(at_once, sched.processes, inner), at_once)
     start = time.perf_counter()
     rows, cols = plan.grid.shape
     report = FitReport(posts=rows * cols)

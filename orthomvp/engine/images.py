@@ -9,7 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from rasterio.enums import Interleaving
 from rasterio.errors import RasterioError
+from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
@@ -54,10 +56,38 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     else:
         with open_raster(path) as src:
             bands, rows, cols = src.count, src.height, src.width
+            check_blocks(src, path)
     if not isinstance(camera, Camera):
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     return ImageSource(path, cols, rows, bands, check_image(shape_only, camera, str(path)))
+
+
+def check_blocks(src: DatasetReader, path: Path) -> None:
+    """InputError when a block of the GeoTIFF ``src`` (of file ``path``) lies past the end
+    of the file (a truncated file, or a corrupt offset), from the header alone (GDAL's
+    ``BLOCK_OFFSET``/``BLOCK_SIZE`` of each block; about 4 us a block). Without it the run
+    would fail only when a tile reads that block: on one backend and not another, or never,
+    depending on the windows read."""
+    if src.driver != "GTiff" or not src.block_shapes:
+        return
+    size = path.stat().st_size
+    height, width = src.block_shapes[0]
+    bands = range(1, src.count + 1) if src.interleaving == Interleaving.band else (1,)
+    for band in bands:
+        for row in range(-(-src.height // height)):
+            for col in range(-(-src.width // width)):
+                offset = src.get_tag_item(f"BLOCK_OFFSET_{col}_{row}", "TIFF", bidx=band)
+                if not offset:  # a sparse block (no data written: read as nodata)
+                    continue
+                length = src.get_tag_item(f"BLOCK_SIZE_{col}_{row}", "TIFF", bidx=band) or 0
+                if int(offset) + int(length) > size:
+                    raise InputError(
+                        f"{path}: corrupt or truncated: block {row}, {col} (band {band}) of "
+                        f"{width} x {height} pixels lies at bytes {int(offset):,} to "
+                        f"{int(offset) + int(length):,}, past the end of the file "
+                        f"({size:,} bytes)"
+                    )
 
 
 def _read_cube_window(

@@ -47,6 +47,11 @@ removed through it, so that those of a directory renamed or moved during the run
 too."""
 
 
+written: list[Path] = []
+"""The outputs this process renamed onto their targets (complete, each set of them whole; not
+those renamed inside a temporary directory, which counts once moved in place)."""
+
+
 def _new_temp(path: Path, tag: str = "") -> Path:
     """A new :func:`temp_name`, noted in :data:`_pending` (call with signals held)."""
     tmp = temp_name(path, tag)
@@ -212,6 +217,7 @@ def atomic_paths(paths: Sequence[str | Path], need: Sequence[int] = ()) -> Itera
             for target, tmp in zip(targets, temps, strict=True):  # noqa: B007 (named on failure)
                 os.chmod(tmp, mode)
                 os.replace(tmp, target)
+            written.extend(t for t in targets if not any(d in _pending for d in t.parents))
         except OrthoMVPError:
             raise
         except OSError as exc:
@@ -284,6 +290,7 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
                     os.replace(item, path / item.name)
             else:
                 os.replace(tmp, path)
+            written.append(path)
         except OutputError as exc:
             raise OutputError(str(exc).replace(str(tmp), str(path))) from exc.__cause__
         except OSError as exc:
