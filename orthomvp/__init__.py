@@ -56,7 +56,7 @@ _HOMES = {
     "plan_check": "orthomvp.engine.check_plan",
     "CheckResult": "orthomvp.engine.check",
     "run_check": "orthomvp.engine.check",
-    "dask_client": "orthomvp.engine.run",
+    "dask_client": "orthomvp.engine.cluster",
 }
 """Where each name of the front lives."""
 
@@ -95,10 +95,11 @@ if TYPE_CHECKING:
     from orthomvp.camera import read_camera
     from orthomvp.engine.check import CheckResult, run_check
     from orthomvp.engine.check_plan import CheckPlan, plan_check
+    from orthomvp.engine.cluster import dask_client
     from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
     from orthomvp.engine.fit_plan import FitPlan, plan_fit
     from orthomvp.engine.plan import Plan, plan_ortho
-    from orthomvp.engine.run import RunReport, dask_client, run_plan
+    from orthomvp.engine.run import RunReport, run_plan
     from orthomvp.engine.writer import Outputs
     from orthomvp.geometry.terrain import Terrain
     from orthomvp.mvp.fit import FitOptions, FitResult, fit_dem

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from orthomvp.engine import CheckResult, FitOutputs, Outputs, plan_check, plan_ortho, run_plan
-from orthomvp.engine.run import dask_client
+from orthomvp.engine.cluster import dask_client
 from orthomvp.errors import InputError, OrthoMVPError
 
 

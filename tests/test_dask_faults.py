@@ -523,9 +523,9 @@ def test_the_preflight_counts_each_worker_process_as_measured(crater_dir: Path) 
     each within :data:`WORKER_BYTES` and above half of it (the figure is neither low nor
     padded), and the plan's peak memory counts one per local worker."""
     from orthomvp.engine import dask_client, plan_ortho
-    from orthomvp.engine.plan import WORKER_BYTES
     from orthomvp.engine.run import executor, local_processes, results
     from orthomvp.engine.tile import run_tile
+    from orthomvp.engine.tiling import WORKER_BYTES
 
     views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
     plan = plan_ortho(crater_dir / "dem.tif", views, tile=16, progress=False)

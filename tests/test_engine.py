@@ -545,7 +545,7 @@ def test_outputs_switch_to_bigtiff_when_they_may_pass_4_gib(tmp_path: Path, comp
 def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> None:
     """The default tile: 1024 posts, or the longer side split among the cores (rounded up to
     a multiple of 64, at least 256 posts); a plan without ``tile`` uses it."""
-    from orthomvp.engine.plan import SINGLE_VIEW_TILE, auto_tile, check_tile
+    from orthomvp.engine.tiling import SINGLE_VIEW_TILE, auto_tile, check_tile
 
     assert auto_tile((5000, 3000), 2) == 1024
     assert auto_tile((508, 327), 2) == 256  # 2 x 2 tiles
@@ -558,7 +558,7 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
     assert check_tile(None) is None
     # a mosaic's tiles keep every view's samples under the heap's mmap threshold
     from orthomvp.engine.heap import MMAP_THRESHOLD
-    from orthomvp.engine.plan import mosaic_tile
+    from orthomvp.engine.tiling import mosaic_tile
 
     assert mosaic_tile(2, 3, 13) == 1024 and mosaic_tile(50, 3, 13) == 256
     for views, bands in ((3, 1), (4, 3), (6, 3), (8, 4)):

@@ -45,8 +45,8 @@ _HOMES = {
     "TileJob": "plan",
     "plan_ortho": "plan",
     "RunReport": "run",
-    "WorkerError": "run",
-    "dask_client": "run",
+    "WorkerError": "cluster",
+    "dask_client": "cluster",
     "run_plan": "run",
     "Outputs": "writer",
 }
@@ -80,13 +80,14 @@ __all__ = [
 if TYPE_CHECKING:
     from orthomvp.engine.check import CheckResult, run_check
     from orthomvp.engine.check_plan import CheckPlan, plan_check
+    from orthomvp.engine.cluster import WorkerError, dask_client
     from orthomvp.engine.fit import FitOutputs, FitReport, run_fit
     from orthomvp.engine.fit_plan import FitPlan, plan_fit
     from orthomvp.engine.footprint import image_footprint
     from orthomvp.engine.grid_choice import HaloWarning, choose_grid
     from orthomvp.engine.info import describe
     from orthomvp.engine.plan import Plan, TileJob, plan_ortho
-    from orthomvp.engine.run import RunReport, WorkerError, dask_client, run_plan
+    from orthomvp.engine.run import RunReport, run_plan
     from orthomvp.engine.writer import Outputs
 
 

@@ -18,18 +18,15 @@ from orthomvp.camera import Camera
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.arguments import dem_path, dem_reading, view_pairs
 from orthomvp.engine.images import ImageSource, image_source
-from orthomvp.engine.plan import (
+from orthomvp.engine.plan import SAMPLE_BUDGET_PIXELS, Plan, TileJob, tile_grid
+from orthomvp.engine.tiling import (
     MESH_BYTES,
-    SAMPLE_BUDGET_PIXELS,
     TILE_BYTES,
     VIEW_BYTES,
     WINDOW_BYTES,
-    Plan,
-    TileJob,
     check_tile,
     largest_dem_window,
     peak_bytes,
-    tile_grid,
 )
 from orthomvp.errors import InputError
 from orthomvp.geometry.datum import HeightOptions
@@ -167,7 +164,7 @@ def plan_check(
     """Plan the truth-free check (:func:`orthomvp.quality.check.check_views`) of ``views`` ((image
     path, camera or camera path) pairs, at least 2, any band counts) on the DEM at path
     ``dem``, in tiles of ``tile`` x ``tile`` posts of the DEM's grid (default
-    :func:`~orthomvp.engine.plan.auto_tile`): every epsilon of
+    :func:`~orthomvp.engine.tiling.auto_tile`): every epsilon of
     ``eps_values`` (DEM posts), NCC boxes of ``window`` posts (odd, 3..51), views labelled
     ``names`` (default 1, 2, ...). ``dem_crs``, ``radius_values``, ``world``,
     ``vertical_datum`` and ``height_offset`` as for :func:`~orthomvp.engine.plan_ortho`.

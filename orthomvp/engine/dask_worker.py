@@ -1,5 +1,5 @@
 """Run first by every worker process of the local Dask cluster of
-:func:`orthomvp.engine.run.dask_client` (Dask's ``preload``)."""
+:func:`orthomvp.engine.cluster.dask_client` (Dask's ``preload``)."""
 
 from __future__ import annotations
 

@@ -46,18 +46,16 @@ from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.grid_choice import check_plan, read_source
 from orthomvp.engine.halo import footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
-from orthomvp.engine.plan import (
+from orthomvp.engine.plan import _sees, _union, plan_tiles
+from orthomvp.engine.progress import Progress
+from orthomvp.engine.tiling import (
     MESH_BYTES,
     TILE,
     WINDOW_BYTES,
-    _sees,
-    _union,
     check_tile,
     largest_dem_window,
     peak_bytes,
-    plan_tiles,
 )
-from orthomvp.engine.progress import Progress
 from orthomvp.errors import InputError
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.terrain import perimeter
@@ -291,7 +289,7 @@ def plan_fit(
 ) -> FitPlan:
     """Plan the MVP fit (:func:`orthomvp.mvp.fit_dem` with ``options``) of the DEM at path
     ``dem`` from ``views`` ((image path, camera or camera path) pairs, at least 2), in tiles
-    of ``tile`` x ``tile`` posts of the DEM's grid (default :data:`~orthomvp.engine.plan.TILE`:
+    of ``tile`` x ``tile`` posts of the DEM's grid (default :data:`~orthomvp.engine.tiling.TILE`:
     a fit tile's margin is too wide for smaller ones); ``eps`` (DEM posts), ``dem_crs``,
     ``radius_values``, ``world``, ``vertical_datum`` and ``height_offset`` as for
     :func:`~orthomvp.engine.plan_ortho`. The fitted heights are those the cameras need: in
