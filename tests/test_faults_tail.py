@@ -611,3 +611,21 @@ def test_a_cube_table_larger_than_its_file_is_truncated_not_allocated(tmp_path: 
     path = _edited(tmp_path, LRO, edit)
     with pytest.raises(FormatError, match=r"truncated Table .* the file holds"):
         read_camera(path)
+
+
+def test_a_ctrl_c_while_the_command_line_is_imported_is_one_line() -> None:
+    """A Ctrl-C that lands while ``orthomvp`` still imports its modules (before its own
+    handling runs) ends as one line with exit status 130, not Python's traceback."""
+    code = (
+        "import sys\n"
+        "class Interrupting:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'orthomvp.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupting())\n"
+        "from orthomvp._entry import main\n"
+        "main()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130
+    assert proc.stderr == "orthomvp: interrupted; no partial output was kept\n"

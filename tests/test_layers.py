@@ -55,6 +55,7 @@ LAYERS = [
     ("orthomvp.quality",),
     ("orthomvp.bench", "orthomvp.demo"),
     ("orthomvp.cli",),
+    ("orthomvp._entry",),
     ("orthomvp.__main__",),
 ]
 """Bottom to top; a module may import from lower layers and from its own unit only."""
