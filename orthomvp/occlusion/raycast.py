@@ -196,7 +196,7 @@ def _rays(value: Any, name: str, invalid: str) -> np.ndarray:
         raise InputError(f"{name} must be numbers, (n, 3) or (3,), got {value!r:.40}") from None
     if array.ndim != 2 or array.shape[1] != 3:
         raise InputError(f"{name} must be (n, 3) or (3,), got shape {np.shape(value)}")
-    bad = ~np.isfinite(array).all(axis=1)
-    if invalid == "raise" and bad.any():
+    if invalid == "raise" and not np.isfinite(array).all():  # (one pass; rows only to name one)
+        bad = ~np.isfinite(array).all(axis=1)
         raise InputError(f"{name} {np.flatnonzero(bad)[0]} is not finite: {array[bad][0]}")
     return array
