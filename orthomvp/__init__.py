@@ -6,7 +6,8 @@ light (it imports no numpy)::
     import orthomvp as om
 
     terrain = om.Terrain.read("dem.tif")
-    camera = om.read_camera("image.tsai")
+    image = read_image("image.tif")                         # orthomvp.io.raster
+    camera = om.read_camera("image.tsai").with_image_size(image.shape[2], image.shape[1])
     vis = om.compute_visibility(terrain, camera)           # codes: 1 visible, 2 occluded, ...
     ortho = om.orthorectify(terrain, image, camera)         # occluded posts NaN
     report = om.run_plan(om.plan_ortho("dem.tif", [("image.tif", "image.tsai")]),

@@ -1,6 +1,9 @@
 """The module paths of release 0.1 that moved into the domain packages: importing one still
 works for one more release, warns (:class:`DeprecationWarning`) and gives the module at its new
-path (the same object, so monkeypatching either patches both)."""
+path (the same object, so monkeypatching either patches both). One name is taken by the
+package's front: ``orthomvp.mosaic`` is the function, so ``from orthomvp.mosaic import NAME``
+still gives the 0.1 module's names (from :mod:`orthomvp.ortho.composite`), while ``import
+orthomvp.mosaic as m`` gives the function."""
 
 from __future__ import annotations
 

@@ -365,3 +365,45 @@ def test_unit_scale_is_the_same_from_rasterio_and_pyproj(crs: str) -> None:
     proj_scale = unit_scale(ProjCRS.from_user_input(crs), 1737400.0)
     assert file_scale[1] == proj_scale[1]
     assert file_scale[0] == pytest.approx(proj_scale[0], rel=1e-12)
+
+
+def _cli(*args: object) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "orthomvp", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.mark.parametrize(
+    ("options", "words"),
+    [
+        (["--crs", "EPSG:4326"], "another body"),  # the Moon's DEM, the Earth's CRS
+        (["--bounds", "-1e200", "-1e200", "1e200", "1e200"], "the output grid would be"),
+        (["--bounds", "100", "50", "100.01", "50.01"], "miss the DEM"),
+    ],
+)
+def test_grids_that_cannot_be_are_one_line_with_exit_2(
+    crater_dir: Path, tmp_path: Path, options: list, words: str
+) -> None:
+    """Found in review: the camera grid in another body's CRS and an enormous grid were
+    internal errors, and bounds off the DEM blamed the camera."""
+    out = tmp_path / "o.tif"
+    d = crater_dir
+    proc = _cli("ortho", d / "dem.tif", d / "oblique.tif", d / "oblique.tsai", "-o", out, *options)
+    assert proc.returncode == 2, proc.stderr
+    (line,) = proc.stderr.splitlines()
+    assert line.startswith("orthomvp: error:") and words in line, line
+    assert not out.exists()
+
+
+def test_info_names_heights_shifted_for_the_cameras(crater_dir: Path) -> None:
+    d = crater_dir
+    plain = _cli("info", d / "dem.tif", d / "oblique.tif", d / "oblique.tsai")
+    shifted = _cli(
+        "info", d / "dem.tif", d / "oblique.tif", d / "oblique.tsai", "--height-offset", "5"
+    )
+    assert plain.returncode == shifted.returncode == 0, shifted.stderr
+    assert "shifted for the cameras" in shifted.stdout
+    assert "shifted for the cameras" not in plain.stdout

@@ -330,7 +330,7 @@ class OutputGrid:
         ]
 
 
-def _same_body(dem: DemSource, crs: CRS | FileCRS) -> None:
+def same_body(dem: DemSource, crs: CRS | FileCRS) -> None:
     """InputError unless ``crs`` lies on the DEM's body (same ellipsoid): heights carry over."""
     crs = as_pyproj(crs)
     ours, theirs = dem.preview.geodetic_crs, crs if crs.is_geographic else crs.geodetic_crs
@@ -365,7 +365,7 @@ def output_grid(
                 "the cameras live in the DEM's projected CRS (world frame 'map'): the output "
                 "must stay in that CRS"
             )
-        _same_body(dem, out_crs)
+        same_body(dem, out_crs)
     if same_crs and res is None and bounds is None:
         return OutputGrid(dem.transform, dem.shape, dem.crs, True)
     t, (rows, cols) = dem.transform, dem.shape

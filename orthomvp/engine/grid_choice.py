@@ -37,7 +37,14 @@ from orthomvp.camera import in_world, sensor_positions
 from orthomvp.camera.rpc import in_vertical_datum
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.footprint import Footprint, image_footprint, union_window, window_bounds
-from orthomvp.engine.grid import DemSource, OutputGrid, grid_to_dem, output_grid, scan_dem
+from orthomvp.engine.grid import (
+    DemSource,
+    OutputGrid,
+    grid_to_dem,
+    output_grid,
+    same_body,
+    scan_dem,
+)
 from orthomvp.engine.grid import with_world as dem_with_world
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.progress import Progress
@@ -177,6 +184,7 @@ def choose_grid(
         else:
             from pyproj import Transformer
 
+            same_body(dem, out_crs)  # (else PROJ's own error, as an internal one)
             to_out = Transformer.from_crs(as_pyproj(dem.crs), as_pyproj(out_crs), always_xy=True)
             bounds = to_out.transform_bounds(*bounds, densify_pts=21)
     return output_grid(dem, units, bounds, crs)
@@ -207,18 +215,21 @@ def check_grid_size(
     the images, or when its outputs (float32 of every band, with overviews) would not fit in
     the free space of ``output_dir`` even compressed :data:`COMPRESSION` times."""
     rows, cols = grid.shape
+    per_unit, unit = unit_scale(grid.crs, dem.preview.radii[0])
+    res = abs(grid.transform.a)
+    advice = "choose a coarser res or smaller bounds"
+    if max(rows, cols) > GDAL_MAX_SIDE:  # (before the sizes: their product may pass float's)
+        raise InputError(
+            f"the output grid would be {float(cols):.3g} x {float(rows):.3g} posts of {res:.3g} "
+            f"{unit}, beyond GDAL's rasters ({GDAL_MAX_SIDE:,} a side): {advice}"
+        )
     posts = rows * cols
     bands = max(v.bands for v in sources) if sources else 1
     nbytes = posts * 4 * bands * 4 / 3
-    per_unit, unit = unit_scale(grid.crs, dem.preview.radii[0])
-    res = abs(grid.transform.a)
     size = (
         f"{cols:,} x {rows:,} posts of {res:.3g} {unit} ({res * per_unit:.3g} m on the ground; "
         f"{count_text(posts)} posts, {size_text(nbytes)} as float32)"
     )
-    advice = "choose a coarser res or smaller bounds"
-    if max(rows, cols) > GDAL_MAX_SIDE:
-        raise InputError(f"the output grid would be {size}, beyond GDAL's rasters: {advice}")
     pixels = sum(v.width * v.height for v in sources)
     own = grid.on_dem or (grid.shape == dem.shape and grid.crs == dem.crs)
     if not own and pixels and posts > POSTS_PER_PIXEL * pixels:
@@ -248,7 +259,10 @@ def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> s
         return f"{view.path}: the camera is below the surface of the DEM"
     seen = [b for b in boxes if b is not None]
     if not seen:
-        return f"{view.path}: the camera looks away from the DEM: every post is behind it"
+        return (
+            f"{view.path}: no post of the output grid that the DEM covers lies in front of the "
+            "camera (do --bounds, or --crs, miss the DEM, or does the camera look away from it?)"
+        )
     c0, c1 = min(b[0] for b in seen), max(b[1] for b in seen)
     r0, r1 = min(b[2] for b in seen), max(b[3] for b in seen)
     return (

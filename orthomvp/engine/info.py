@@ -94,6 +94,9 @@ def _dem_properties(dem: DemSource, dem_crs: object | None) -> dict[str, Any]:
     ellipsoid = dem.preview.geodetic_crs.ellipsoid
     if dem.radius_values:
         heights = "radius from the body's centre"
+    elif dem.shift is not None:  # converted (or offset) for the cameras
+        held = f"{vertical} heights" if vertical is not None else "the file's heights"
+        heights = f"height above the reference ellipsoid (from {held}, shifted for the cameras)"
     elif vertical is not None:
         heights = f"height above {vertical} (the vertical datum)"
     else:
