@@ -624,3 +624,40 @@ def test_a_ctrl_c_while_the_local_cluster_starts_is_one_line(scene: Path, tmp_pa
     assert_one_line(status, err, 130, "interrupted; no partial output was kept")
     assert not wait_gone(below | descendants(proc.pid), 10)
     assert_nothing_left(out, tmp)
+
+
+def test_a_sigterm_dropped_mid_run_still_stops_the_run(crater_dir: Path, tmp_path: Path) -> None:
+    """A SIGTERM dropped in a ``__del__`` while tiles still run is delivered again: the run
+    stops there (143, one line, no output), and does not go on with SIGTERM ignored (found
+    in review: it ran to its end, deaf to further signals)."""
+    out = tmp_path / "o.tif"
+    script = (
+        "import os, signal, sys, time\n"
+        "import orthomvp.engine.run as run\n"
+        "class Dropped:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        for _ in range(10**6): pass  # the handler raises in here\n"
+        "original = run.results\n"
+        "def results(*a, **k):\n"
+        "    for i, r in enumerate(original(*a, **k)):\n"
+        "        if i == 1:\n"
+        "            Dropped()\n"
+        "        yield r\n"
+        "        time.sleep(0.05)\n"
+        "run.results = results\n"
+        "from orthomvp.cli import main_entry\n"
+        "sys.argv = ['orthomvp', *sys.argv[1:]]\n"
+        "main_entry()\n"
+    )
+    args = ["-q", "ortho", crater_dir / "dem.tif", crater_dir / "oblique.tif"]
+    args += [crater_dir / "oblique.tsai", "-o", out, "--grid", "dem", "--tile", "8"]
+    done = subprocess.run(
+        [sys.executable, "-c", script, *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ENV,
+    )
+    assert_one_line(done.returncode, done.stderr, 143, "interrupted", "no partial output")
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -28,6 +28,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager, suppress
@@ -165,6 +166,16 @@ def _raise_terminated(signum: int, frame: FrameType | None) -> None:
     raise Terminated(signum)
 
 
+RESEND_SECONDS = 0.05
+"""How long after an interrupt was dropped (in a ``__del__``) it is sent again."""
+
+
+def _resend(signum: int) -> None:
+    """Send ``signum`` to this process again after :data:`RESEND_SECONDS`."""
+    time.sleep(RESEND_SECONDS)
+    os.kill(os.getpid(), signum)
+
+
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Within the block, SIGTERM and SIGHUP (:data:`TERMINATING`) raise :class:`Terminated` in
@@ -182,8 +193,16 @@ def sigterm_raises() -> Iterator[None]:
     _terminated.clear()
     hook = sys.unraisablehook
 
-    def unraisable(info: object) -> None:  # an interrupt dropped in a __del__: said once, below
-        if not isinstance(getattr(info, "exc_value", None), KeyboardInterrupt):
+    def unraisable(info: object) -> None:  # an interrupt dropped in a __del__, say
+        exc = getattr(info, "exc_value", None)
+        if isinstance(exc, Terminated):  # delivered again, to the main thread's own code
+            # sent a moment later from another thread (the handlers still ignore it while
+            # the thread starts), once this hook and its __del__ are left
+            threading.Thread(target=_resend, args=(exc.signum,), daemon=True).start()
+            for sig, handler in previous.items():
+                if handler != signal.SIG_IGN:
+                    signal.signal(sig, _raise_terminated)
+        elif not isinstance(exc, KeyboardInterrupt):
             hook(info)  # type: ignore[arg-type]
 
     sys.unraisablehook = unraisable

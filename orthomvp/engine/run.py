@@ -106,7 +106,7 @@ def _worker_init(plan: Any, parent: int) -> None:
     die_with_parent(parent)
 
 
-HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 """Signals held back while a worker process is being started (:func:`_signals_held`)."""
 
 
