@@ -96,7 +96,7 @@ def _read_cube_window(
     """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
     map of its pixels (see :func:`orthomvp.io.isis.read_cube` for the layout and the special
     pixels)."""
-    from orthomvp.io.isis import cube_layout, read_label
+    from orthomvp.io.isis import cube_layout, cube_values, read_label
 
     layout = cube_layout(path, read_label(path))
     r0, r1, c0, c1 = window
@@ -115,12 +115,6 @@ def _read_cube_window(
     bands = slice(None) if band is None else slice(band - 1, band)
     part = tiles[bands, tr0:tr1, tc0:tc1].transpose(0, 1, 3, 2, 4)
     part = part.reshape(part.shape[0], (tr1 - tr0) * tl, (tc1 - tc0) * ts)
-    values = part[:, r0 - tr0 * tl : r1 - tr0 * tl, c0 - tc0 * ts : c1 - tc0 * ts].astype(
-        np.float32
+    return cube_values(
+        layout, part[:, r0 - tr0 * tl : r1 - tr0 * tl, c0 - tc0 * ts : c1 - tc0 * ts]
     )
-    low, high = layout.valid
-    with np.errstate(invalid="ignore"):
-        special = ~((values >= low) & (values <= high))
-    out = np.float32(layout.base) + np.float32(layout.multiplier) * values
-    out[special] = np.nan
-    return out

@@ -301,7 +301,14 @@ def read_cube(path: str | Path) -> np.ndarray:
     across, down = -(-layout.samples // ts), -(-layout.lines // tl)
     raw = raw.reshape(layout.bands, down, across, tl, ts).transpose(0, 1, 3, 2, 4)
     raw = raw.reshape(layout.bands, down * tl, across * ts)[:, : layout.lines, : layout.samples]
-    values = raw.astype(np.float32)
+    return cube_values(layout, raw)
+
+
+def cube_values(layout: CubeLayout, stored: np.ndarray) -> np.ndarray:
+    """The float32 values of a cube's ``stored`` numbers (any part of its pixels, as the file
+    holds them): Base + Multiplier * stored in float32 arithmetic, NaN at special pixels
+    (stored numbers outside the type's valid range)."""
+    values = stored.astype(np.float32)
     low, high = layout.valid
     with np.errstate(invalid="ignore"):
         special = ~((values >= low) & (values <= high))
