@@ -685,9 +685,12 @@ def signal_at_every_step(
     return at
 
 
-def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: Path) -> None:
-    """SIGTERM (with the CLI's handler) arriving at every line of creating, writing, renaming
-    and removing a set of two outputs: both or neither are there, and no temporary file
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(
+    tmp_path: Path, sig: signal.Signals
+) -> None:
+    """SIGTERM or SIGHUP (with the CLI's handler) arriving at every line of creating, writing,
+    renaming and removing a set of two outputs: both or neither are there, and no temporary file
     (SIGINT at every opcode: the slow test below)."""
     from orthomvp.io.outputs import write_set
 
@@ -704,7 +707,7 @@ def test_a_signal_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: P
         assert sorted(p.name for p in out.iterdir()) in ([], ["a.txt", "b.txt"])
         assert not a.exists() or (a.read_text(), b.read_text()) == ("a", "b")
 
-    assert signal_at_every_step(write, check, out, False, (signal.SIGTERM,)) > 100
+    assert signal_at_every_step(write, check, out, False, (sig,)) > 100
 
 
 @pytest.mark.slow

@@ -546,28 +546,6 @@ def test_an_output_name_ending_in_a_slash_is_refused(scene: Path, tmp_path: Path
     assert list(tmp_path.iterdir()) == [scene]
 
 
-def test_sighup_at_any_step_of_writing_a_set_leaves_all_or_nothing(tmp_path: Path) -> None:
-    """SIGHUP (with the CLI's handler) at every line of creating, writing, renaming and
-    removing a set of two outputs, as SIGTERM: both or neither, and no temporary file."""
-    from orthomvp.io.outputs import write_set
-    from tests.test_faults import signal_at_every_step
-
-    out = tmp_path / "out"
-    out.mkdir()
-    a, b = out / "a.txt", out / "b.txt"
-
-    def write() -> None:
-        for p in (a, b):
-            p.unlink(missing_ok=True)
-        write_set({a: lambda t: t.write_text("a"), b: lambda t: t.write_text("b")})
-
-    def check() -> None:
-        assert sorted(p.name for p in out.iterdir()) in ([], ["a.txt", "b.txt"])
-        assert not a.exists() or (a.read_text(), b.read_text()) == ("a", "b")
-
-    assert signal_at_every_step(write, check, out, False, (signal.SIGHUP,)) > 100
-
-
 def test_sizes_from_a_cube_label_are_not_allocated_beyond_the_file(tmp_path: Path) -> None:
     """A cube label claiming 10^12 samples x lines: the pixels are read up to the file's end
     and refused as truncated (``read(n)`` allocated n bytes first: a MemoryError)."""
