@@ -571,28 +571,28 @@ def test_a_signal_after_the_outputs_were_renamed_says_they_are_complete(
         assert src.read(1).shape == (160, 160)
 
 
-def test_a_sigterm_dropped_in_a_del_is_not_lost(crater_dir: Path, tmp_path: Path) -> None:
-    """A SIGTERM whose exception Python drops (raised in a ``__del__``, as in Dask's
-    ``Future.__del__``) still ends the command with 143 and one line, no "Exception ignored"."""
-    out = tmp_path / "o.tif"
+DROPPED = (
+    "import os, signal, sys, time\n"
+    "import orthomvp.engine.run as run\n"
+    "class Dropped:\n"
+    "    def __del__(self):\n"
+    "        os.kill(os.getpid(), signal.SIGTERM)\n"
+    "        for _ in range(10**6): pass  # the handler raises in here\n"
+)
+"""The start of a script whose ``Dropped()`` objects raise SIGTERM's exception in their
+``__del__``, where Python drops it."""
+
+
+def _run_dropping(patch: str, crater_dir: Path, out: Path, *extra: str) -> tuple[int, str]:
+    """(status, stderr) of ``orthomvp -q ortho`` on the crater scene into ``out`` (with
+    ``extra`` options) in a script that first runs ``patch`` (code that makes Dropped()s)."""
     script = (
-        "import os, signal, sys\n"
-        "import orthomvp.engine.run as run\n"
-        "class Dropped:\n"
-        "    def __del__(self):\n"
-        "        os.kill(os.getpid(), signal.SIGTERM)\n"
-        "        for _ in range(10**6): pass  # the handler raises in here\n"
-        "original = run.check_views\n"
-        "def check_views(*a):\n"
-        "    Dropped()\n"
-        "    return original(*a)\n"
-        "run.check_views = check_views\n"
-        "from orthomvp.cli import main_entry\n"
+        DROPPED + patch + "from orthomvp.cli import main_entry\n"
         "sys.argv = ['orthomvp', *sys.argv[1:]]\n"
         "main_entry()\n"
     )
     args = ["-q", "ortho", crater_dir / "dem.tif", crater_dir / "oblique.tif"]
-    args += [crater_dir / "oblique.tsai", "-o", out]
+    args += [crater_dir / "oblique.tsai", "-o", out, *extra]
     done = subprocess.run(
         [sys.executable, "-c", script, *map(str, args)],
         capture_output=True,
@@ -600,7 +600,22 @@ def test_a_sigterm_dropped_in_a_del_is_not_lost(crater_dir: Path, tmp_path: Path
         timeout=60,
         env=ENV,
     )
-    assert_one_line(done.returncode, done.stderr, 143, "interrupted", "already complete", str(out))
+    return done.returncode, done.stderr
+
+
+def test_a_sigterm_dropped_in_a_del_is_not_lost(crater_dir: Path, tmp_path: Path) -> None:
+    """A SIGTERM whose exception Python drops (raised in a ``__del__``, as in Dask's
+    ``Future.__del__``) still ends the command with 143 and one line, no "Exception ignored"."""
+    out = tmp_path / "o.tif"
+    patch = (
+        "original = run.check_views\n"
+        "def check_views(*a):\n"
+        "    Dropped()\n"
+        "    return original(*a)\n"
+        "run.check_views = check_views\n"
+    )
+    status, err = _run_dropping(patch, crater_dir, out)
+    assert_one_line(status, err, 143, "interrupted", "already complete", str(out))
     assert out.exists()
 
 
@@ -631,13 +646,7 @@ def test_a_sigterm_dropped_mid_run_still_stops_the_run(crater_dir: Path, tmp_pat
     stops there (143, one line, no output), and does not go on with SIGTERM ignored (found
     in review: it ran to its end, deaf to further signals)."""
     out = tmp_path / "o.tif"
-    script = (
-        "import os, signal, sys, time\n"
-        "import orthomvp.engine.run as run\n"
-        "class Dropped:\n"
-        "    def __del__(self):\n"
-        "        os.kill(os.getpid(), signal.SIGTERM)\n"
-        "        for _ in range(10**6): pass  # the handler raises in here\n"
+    patch = (
         "original = run.results\n"
         "def results(*a, **k):\n"
         "    for i, r in enumerate(original(*a, **k)):\n"
@@ -646,18 +655,7 @@ def test_a_sigterm_dropped_mid_run_still_stops_the_run(crater_dir: Path, tmp_pat
         "        yield r\n"
         "        time.sleep(0.05)\n"
         "run.results = results\n"
-        "from orthomvp.cli import main_entry\n"
-        "sys.argv = ['orthomvp', *sys.argv[1:]]\n"
-        "main_entry()\n"
     )
-    args = ["-q", "ortho", crater_dir / "dem.tif", crater_dir / "oblique.tif"]
-    args += [crater_dir / "oblique.tsai", "-o", out, "--grid", "dem", "--tile", "8"]
-    done = subprocess.run(
-        [sys.executable, "-c", script, *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=ENV,
-    )
-    assert_one_line(done.returncode, done.stderr, 143, "interrupted", "no partial output")
+    status, err = _run_dropping(patch, crater_dir, out, "--grid", "dem", "--tile", "8")
+    assert_one_line(status, err, 143, "interrupted", "no partial output")
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
