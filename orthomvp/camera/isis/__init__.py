@@ -26,7 +26,14 @@ from pathlib import Path
 from typing import Any
 
 from orthomvp.camera.csm.isd import CsmCamera, camera_from_isd
-from orthomvp.camera.isis import apollo_metric, dawn_fc, lro_nac, messenger_mdis, mro_ctx
+from orthomvp.camera.isis import (
+    apollo_metric,
+    dawn_fc,
+    kaguya_tc,
+    lro_nac,
+    messenger_mdis,
+    mro_ctx,
+)
 from orthomvp.camera.isis.core import Instrument, SpiceCube, instrument_key
 from orthomvp.camera.isis.tables import ISD_ROUTE
 from orthomvp.camera.isis.times import utc_to_et
@@ -37,6 +44,7 @@ __all__ = ["INSTRUMENTS", "Instrument", "SpiceCube", "cube_isd", "read_cube_came
 INSTRUMENTS: tuple[Instrument, ...] = (
     lro_nac.INSTRUMENT,
     mro_ctx.INSTRUMENT,
+    kaguya_tc.INSTRUMENT,
     apollo_metric.INSTRUMENT,
     messenger_mdis.INSTRUMENT,
     dawn_fc.INSTRUMENT,
