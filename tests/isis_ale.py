@@ -142,15 +142,18 @@ def pixel_differences(
     lines: tuple[float, float] | None = None,
     n: int = 9,
 ) -> np.ndarray:
-    """|pixel| differences (px; n x n by (u, v)) between the camera read from ``cube`` and the
-    camera of ALE's ``isd`` over a grid of ``samples`` x ``lines`` (default the image): ALE's
-    camera's ground points (at ``height``) projected by the cube's camera, and the cube's
-    points projected by ALE's."""
+    """|pixel| differences (px) between the camera read from ``cube`` and the camera of ALE's
+    ``isd`` over an n x n grid of ``samples`` x ``lines`` (default the image): at the ground
+    points (at ``height``) of ALE's camera, the two cameras' projections (u, v); and the
+    distance between the two cameras' ground points of the grid in ground pixels (the distance
+    to the next sample's), as a third column."""
     ours, theirs = read_cube_camera(cube), camera_from_isd(isd)
     samples = samples or (0.0, isd["image_samples"] - 1.0)
     lines = lines or (0.0, isd["image_lines"] - 1.0)
     u, v = np.meshgrid(np.linspace(*samples, n), np.linspace(*lines, n))
     uv = np.stack([u.ravel(), v.ravel()], -1)
-    there = ours.project(theirs.image_to_ground(uv, height))[0] - uv
-    back = theirs.project(ours.image_to_ground(uv, height))[0] - uv
-    return np.abs(np.concatenate([there, back]))
+    ground = theirs.image_to_ground(uv, height)
+    projected = np.abs(ours.project(ground)[0] - theirs.project(ground)[0])
+    step = np.linalg.norm(theirs.image_to_ground(uv + [1.0, 0.0], height) - ground, axis=1)
+    apart = np.linalg.norm(ours.image_to_ground(uv, height) - ground, axis=1) / step
+    return np.column_stack([projected, apart])

@@ -31,6 +31,7 @@ from orthomvp.camera.isis import (
     dawn_fc,
     kaguya_tc,
     lro_nac,
+    lro_wac,
     messenger_mdis,
     mro_ctx,
 )
@@ -45,6 +46,7 @@ INSTRUMENTS: tuple[Instrument, ...] = (
     lro_nac.INSTRUMENT,
     mro_ctx.INSTRUMENT,
     kaguya_tc.INSTRUMENT,
+    lro_wac.INSTRUMENT,
     apollo_metric.INSTRUMENT,
     messenger_mdis.INSTRUMENT,
     dawn_fc.INSTRUMENT,

@@ -160,3 +160,69 @@ def line_scan_isd(
         starting_detector_line=0.0,
     )
     return isd
+
+
+def push_frame_isd(
+    cube: SpiceCube,
+    ikid: int,
+    *,
+    start_time: float,
+    exposure: float,
+    interframe_delay: float,
+    framelet_height: int,
+    center: tuple[float, float],
+    summing: float = 1.0,
+    first_line: float = 0.0,
+    flipped: bool = False,
+) -> dict[str, Any]:
+    """The ISD of a push-frame camera (usgscsm's): framelets of ``framelet_height`` detector
+    lines, the first exposed at ET ``start_time`` + ``exposure`` / 2 and each
+    ``interframe_delay`` seconds after the one before; detector ``center`` (line, sample),
+    ``summing`` both ways, the framelet's ``first_line`` on the detector. A cube cropped or
+    reduced (AlphaCube) is refused: its lines no longer fall into whole framelets."""
+    alpha = cube.alpha
+    samples, lines = cube.size
+    if (alpha.samples, alpha.lines, alpha.start_sample, alpha.start_line) != (
+        samples,
+        lines,
+        0.5,
+        0.5,
+    ) or (alpha.sample_slope, alpha.line_slope) != (1.0, 1.0):
+        raise cube.error(
+            "a cropped or reduced push-frame cube (AlphaCube) is not supported: give the "
+            "whole image"
+        )
+    per_framelet = framelet_height / summing
+    if per_framelet != int(per_framelet) or lines % int(per_framelet):
+        raise cube.error(
+            f"the cube's {lines} lines are not whole framelets of {per_framelet:g} lines"
+        )
+    isd = base_isd(cube, ikid)
+    frames = lines // int(per_framelet)
+    end = start_time + frames * interframe_delay
+    for key in ("instrument_pointing", "instrument_position"):
+        times = isd[key]["ephemeris_times"]
+        if start_time < times[0] - interframe_delay or end > times[-1] + interframe_delay:
+            raise cube.error(
+                f"the cube's framelets are exposed over ET [{start_time:.6f}, {end:.6f}], "
+                f"beyond its {key} table's [{times[0]:.6f}, {times[-1]:.6f}] (never "
+                "extrapolated)"
+            )
+    isd.update(
+        name_model="USGS_ASTRO_PUSH_FRAME_SENSOR_MODEL",
+        starting_ephemeris_time=start_time,
+        ending_ephemeris_time=end,
+        center_ephemeris_time=(start_time + end) / 2.0,
+        exposure_duration=exposure,
+        interframe_delay=interframe_delay,
+        framelet_order_reversed=False,
+        framelets_flipped=flipped,
+        framelet_height=framelet_height,
+        num_lines_overlap=0,
+        detector_center={"line": center[0], "sample": center[1]},
+        detector_sample_summing=summing,
+        detector_line_summing=summing,
+        starting_detector_sample=0.0,
+        starting_detector_line=first_line,
+    )
+    return isd
