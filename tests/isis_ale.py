@@ -68,16 +68,31 @@ def _pvl(value: object) -> str:
 
 def _table(name: str, keywords: dict, columns: dict[str, np.ndarray], start: int) -> str:
     fields = "".join(
-        f"\n  Group = Field\n    Name = {key}\n    Type = Double\n    Size = 1\n  End_Group\n"
-        for key in columns
+        f"\n  Group = Field\n    Name = {key}\n    Type = {_type(values)}\n    Size = 1\n"
+        "  End_Group\n"
+        for key, values in columns.items()
     )
     records = len(next(iter(columns.values())))
     head = "".join(f"  {k} = {_pvl(v)}\n" for k, v in keywords.items())
     return (
         f"Object = Table\n  Name = {name}\n  StartByte = {start}\n"
-        f"  Bytes = {records * 8 * len(columns)}\n  Records = {records}\n  ByteOrder = Lsb\n"
+        f"  Bytes = {len(_records(columns))}\n  Records = {records}\n  ByteOrder = Lsb\n"
         f"{head}{fields}End_Object\n\n"
     )
+
+
+def _type(values: np.ndarray) -> str:
+    """ISIS's field type of a column: Integer (32 bits) for integers, else Double."""
+    return "Integer" if np.asarray(values).dtype.kind == "i" else "Double"
+
+
+def _records(columns: dict[str, np.ndarray]) -> bytes:
+    """The table's bytes: its records, little-endian, fields in order."""
+    dtype = [(k, "<i4" if _type(v) == "Integer" else "<f8") for k, v in columns.items()]
+    rows = np.zeros(len(next(iter(columns.values()))), dtype)
+    for key, values in columns.items():
+        rows[key] = values
+    return rows.tobytes()
 
 
 def _spice_tables(isd: dict) -> list[tuple[str, dict, dict[str, np.ndarray]]]:
@@ -126,7 +141,7 @@ def spice_cube(
     objects = ""
     for name, keywords, columns in (*_spice_tables(isd), *tables):
         objects += _table(name, keywords, columns, _LABEL_BYTES + len(body) + 1)
-        body += np.stack(list(columns.values()), -1).astype("<f8").tobytes()
+        body += _records(columns)
     head = (text + "\n" + objects + block(label, "NaifKeywords") + "End\n").encode("latin-1")
     assert len(head) <= _LABEL_BYTES
     path.write_bytes(head + bytes(_LABEL_BYTES - len(head)) + bytes(body))

@@ -4,9 +4,10 @@ the camera of ALE's ISD of the same image gives, within 0.01 px (both through
 orthomvp.camera.csm), and the times that decide them agree.
 
 Real spiceinit'd cubes (MRO CTX, LRO NAC, MESSENGER MDIS) are read as they are, edited only
-where ALE's 1 x 1 copies of them (ISIS makecube + copylabel) need it; for the others (Dawn FC,
-Kaguya TC) the real ISIS label of the image, with the NaifKeywords spiceinit wrote into it,
-gets the four SPICE tables written from ALE's ISD (its labels come without the tables' bytes).
+where ALE's 1 x 1 copies of them (ISIS makecube + copylabel) need it; for the others (Dawn
+FC, Kaguya TC, LRO WAC, Mars Express HRSC) the real ISIS label of the image, with the
+NaifKeywords spiceinit wrote into it, gets the four SPICE tables written from ALE's ISD (its
+labels come without the tables' bytes).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orthomvp.camera.isis import cube_isd
+from orthomvp.camera.csm.isd import camera_from_isd
+from orthomvp.camera.isis import cube_isd, read_cube_camera
 from orthomvp.errors import FormatError
 from tests.isis_ale import DATA, ale_isd, pixel_differences, real_cube, spice_cube
 
@@ -174,3 +176,58 @@ def test_lro_wac_refuses_a_cropped_cube(tmp_path: Path) -> None:
     with pytest.raises(FormatError, match="cropped or reduced push-frame cube") as info:
         cube_isd(path)
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def _hrsc(tmp_path: Path, edit=str) -> tuple[Path, dict]:
+    """The HRSC IR cube: the real ISIS label with ALE's ISD's tables and the LineScanTimes
+    table of ALE's test (its three rates: ALE's test_mex_load gives them to its driver)."""
+    isd = ale_isd("mex_hrsc", "mexhrsc_isis_isd.json.gz")
+    label = (DATA / "mex_hrsc" / "h5270_0000_ir2_isis3.lbl").read_text()
+    times = {
+        "EphemerisTime": np.array([255744599.02748165, 255744684.33197814, 255744684.34504557]),
+        "ExposureTime": np.array(
+            [0.012800790786743165, 0.012907449722290038, 0.013227428436279297]
+        ),
+        "LineStart": np.array([1, 6665, 6666], dtype=np.int32),
+    }
+    tables = (("LineScanTimes", {}, times),)
+    return spice_cube(tmp_path / "hrsc.cub", label, isd, edit=edit, tables=tables), isd
+
+
+def test_mex_hrsc_variable_line_rate(tmp_path: Path) -> None:
+    """HRSC's IR line (summing 4): the line rate changing twice, from the cube's
+    LineScanTimes table; the filter's focal plane and origin."""
+    path, isd = _hrsc(tmp_path)
+    _same_times(path, isd)
+    ours = cube_isd(path)
+    np.testing.assert_allclose(ours["line_scan_rate"], isd["line_scan_rate"], rtol=0, atol=1e-9)
+    assert ours["center_ephemeris_time"] == pytest.approx(isd["center_ephemeris_time"], abs=1e-6)
+    for height in HEIGHTS:
+        assert pixel_differences(path, isd, height).max() < 0.01
+
+
+@pytest.mark.parametrize("slope", [1.0, 2.0])
+def test_mex_hrsc_crop_across_a_rate_change(tmp_path: Path, slope: float) -> None:
+    """A crop (and a 2x reduction) of the HRSC cube starting at line 6001, across the rate
+    changes at lines 6665 and 6666: the cube's pixel (u, v) is the original image's
+    (slope (u + 0.5) + a0 - 1) on each axis, a0 the AlphaCube's start (ISIS's AlphaCube)."""
+    a0_s, a0_l, beta_s, beta_l = 100.5, 6000.5, 400, 1000
+
+    def crop(text: str) -> str:
+        text = _size(beta_s, beta_l)(text)
+        alpha = (
+            f"  Group = AlphaCube\n    AlphaSamples = 1288\n    AlphaLines = 15088\n"
+            f"    AlphaStartingSample = {a0_s}\n    AlphaStartingLine = {a0_l}\n"
+            f"    AlphaEndingSample = {a0_s + slope * beta_s}\n"
+            f"    AlphaEndingLine = {a0_l + slope * beta_l}\n"
+            f"    BetaSamples = {beta_s}\n    BetaLines = {beta_l}\n  End_Group\n"
+        )
+        return text[: text.rindex("End_Object")] + alpha + "End_Object\n"
+
+    path, isd = _hrsc(tmp_path, crop)
+    ours, full = read_cube_camera(path), camera_from_isd(isd)
+    u, v = np.meshgrid(np.linspace(0, beta_s - 1, 7), np.linspace(0, beta_l - 1, 31))
+    uv = np.stack([u.ravel(), v.ravel()], -1)
+    in_full = slope * (uv + 0.5) + np.array([a0_s, a0_l]) - 1.0
+    ground = full.image_to_ground(in_full, 0.0)
+    assert np.abs(ours.project(ground)[0] - uv).max() < 0.01

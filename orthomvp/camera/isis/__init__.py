@@ -33,6 +33,7 @@ from orthomvp.camera.isis import (
     lro_nac,
     lro_wac,
     messenger_mdis,
+    mex_hrsc,
     mro_ctx,
 )
 from orthomvp.camera.isis.core import Instrument, SpiceCube, instrument_key
@@ -47,6 +48,7 @@ INSTRUMENTS: tuple[Instrument, ...] = (
     mro_ctx.INSTRUMENT,
     kaguya_tc.INSTRUMENT,
     lro_wac.INSTRUMENT,
+    mex_hrsc.INSTRUMENT,
     apollo_metric.INSTRUMENT,
     messenger_mdis.INSTRUMENT,
     dawn_fc.INSTRUMENT,

@@ -7,6 +7,7 @@ scanner (:func:`line_scan_isd`), both built on the keys every instrument shares
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -121,36 +122,49 @@ def line_scan_isd(
     cube: SpiceCube,
     ikid: int,
     *,
-    start_time: float,
-    line_rate: float,
+    start_time: float = 0.0,
+    line_rate: float = 0.0,
+    rows: Sequence[tuple[float, float, float]] = (),
     center: tuple[float, float],
     summing: float = 1.0,
     first_sample: float = 0.0,
 ) -> dict[str, Any]:
     """The ISD of a line scanner whose original image starts (the top edge of its first line,
     CSM line 0; ISIS's and ALE's start time) at ET ``start_time``, each line lasting
-    ``line_rate`` seconds: detector ``center`` (line, sample), the instrument's cross-track
-    ``summing`` and ``first_sample`` read out, the AlphaCube folded in (the cube's lines start
-    later, and a reduced cube's lines last longer)."""
-    if not line_rate > 0:
-        raise cube.error(f"the line rate {line_rate!r} s is not positive")
+    ``line_rate`` seconds, or, for a rate that changes, whose ``rows`` (CSM line of the
+    original image where a rate begins, ET there, seconds per line) say so: detector ``center``
+    (line, sample), the instrument's cross-track ``summing`` and ``first_sample`` read out,
+    the AlphaCube folded in (the cube's lines start later, and a reduced cube's lines last
+    longer)."""
+    rows = list(rows) or [(0.0, start_time, line_rate)]
+    if any(not rate > 0 for _, _, rate in rows):
+        raise cube.error(f"the line rates {[r for _, _, r in rows]!r} s are not all positive")
     alpha = cube.alpha
     isd = base_isd(cube, ikid)
-    rate = line_rate * alpha.line_slope
-    start = start_time + alpha.full_line(0.0) * line_rate
-    end = start + isd["image_lines"] * rate
+    lines = isd["image_lines"]
+    # the rows on the cube's lines: line b of the original image is the cube's (b - b0) / slope
+    b0 = alpha.full_line(0.0)
+    cube_rows = [((b - b0) / alpha.line_slope, t, r * alpha.line_slope) for b, t, r in rows]
+    before = [k for k, row in enumerate(cube_rows) if row[0] <= 0.0]
+    if not before:
+        raise cube.error("the line times begin after the cube's first line")
+    first = before[-1]
+    b, t, r = cube_rows[first]
+    kept = [(0.0, t - b * r, r)] + [row for row in cube_rows[first + 1 :] if row[0] < lines]
+    b, t, r = kept[-1]
+    start, end = kept[0][1], t + (lines - b) * r
     for key in ("instrument_pointing", "instrument_position"):
         times = isd[key]["ephemeris_times"]
-        if start < times[0] - 0.5 * rate or end > times[-1] + 0.5 * rate:
+        if start < times[0] - 0.5 * kept[0][2] or end > times[-1] + 0.5 * r:
             raise cube.error(
                 f"the cube's lines are exposed over ET [{start:.6f}, {end:.6f}], beyond its "
                 f"{key} table's [{times[0]:.6f}, {times[-1]:.6f}] (never extrapolated)"
             )
-    middle = start + 0.5 * isd["image_lines"] * rate
+    middle = (start + end) / 2.0 if len(kept) > 1 else start + 0.5 * lines * kept[0][2]
     isd.update(
         name_model="USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL",
         interpolation_method="lagrange",
-        line_scan_rate=[[0.5, start - middle, rate]],
+        line_scan_rate=[[b + 0.5, t - middle, r] for b, t, r in kept],
         starting_ephemeris_time=start,
         center_ephemeris_time=middle,
         detector_center={"line": center[0], "sample": center[1]},
