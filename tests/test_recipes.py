@@ -34,6 +34,7 @@ def _filled(path: Path) -> float:
 
 EXPECTED = {
     "hadley.tif": 0.5,
+    "nac.tif": 0.5,
     "ls-ortho.tif": 0.3,
     "ngi-0182.tif": 0.5,
     "quickbird.tif": 0.5,
