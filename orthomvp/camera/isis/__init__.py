@@ -11,7 +11,9 @@ the ISD's. The shared part: :mod:`.core` (the cube: label, NaifKeywords, AlphaCu
 each instrument is a module with its :class:`~.core.Instrument` (keys, timing rule,
 distortion), listed in :data:`INSTRUMENTS`:
 
-- line scanners: LRO NAC left and right (:mod:`.lro_nac`), MRO CTX (:mod:`.mro_ctx`);
+- line scanners: LRO NAC left and right (:mod:`.lro_nac`), MRO CTX (:mod:`.mro_ctx`), Kaguya
+  TC1 and TC2 (:mod:`.kaguya_tc`), Mars Express HRSC (:mod:`.mex_hrsc`, a changing line rate);
+- push frame: LRO WAC UV and VIS (:mod:`.lro_wac`);
 - frame cameras: Apollo 15, 16 and 17 Metric (:mod:`.apollo_metric`), MESSENGER MDIS NAC and
   WAC filters (:mod:`.messenger_mdis`), Dawn FC1 and FC2 (:mod:`.dawn_fc`).
 
