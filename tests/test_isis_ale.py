@@ -231,3 +231,88 @@ def test_mex_hrsc_crop_across_a_rate_change(tmp_path: Path, slope: float) -> Non
     in_full = slope * (uv + 0.5) + np.array([a0_s, a0_l]) - 1.0
     ground = full.image_to_ground(in_full, 0.0)
     assert np.abs(ours.project(ground)[0] - uv).max() < 0.01
+
+
+def _kaguya(tmp_path: Path, edit=str) -> Path:
+    isd = ale_isd("kaguya_tc", "kaguyatc_isis_isd.json.gz")
+    label = (DATA / "kaguya_tc" / "TC1S2B0_01_06691S820E0465_isis3.lbl").read_text()
+    return spice_cube(tmp_path / "tc.cub", label, isd, edit=edit)
+
+
+def _wac(tmp_path: Path, edit=str) -> Path:
+    isd = ale_isd("lro_wac", "lrolrocwac_isd.json.gz")
+    label = (DATA / "lro_wac" / "wac0000a1c4.uv.even_isis3.lbl").read_text()
+    return spice_cube(tmp_path / "wac.cub", label, isd, edit=edit)
+
+
+def _hirise(tmp_path: Path) -> Path:
+    isd = ale_isd("kaguya_tc", "kaguyatc_isis_isd.json.gz")  # any tables: refused before them
+    label = (DATA / "mro_hirise" / "PSP_001446_1790_BG12_0_isis3.lbl").read_text()
+    return spice_cube(tmp_path / "hirise.cub", label, isd)
+
+
+def _hrsc_without_times(tmp_path: Path) -> Path:
+    isd = ale_isd("mex_hrsc", "mexhrsc_isis_isd.json.gz")
+    label = (DATA / "mex_hrsc" / "h5270_0000_ir2_isis3.lbl").read_text()
+    return spice_cube(tmp_path / "hrsc.cub", label, isd)
+
+
+def _hrsc_truncated(tmp_path: Path) -> Path:
+    path, _ = _hrsc(tmp_path)
+    data = path.read_bytes()
+    path.write_bytes(data[:-30])  # LineScanTimes is the last table: half its bytes are gone
+    return path
+
+
+BAD = {
+    "hirise-unsupported": (
+        _hirise,
+        r"instrument 'HIRISE' of 'MARS RECONNAISSANCE ORBITER' is not supported .*"
+        r"give an ISD from ALE's isd_generate instead",
+    ),
+    "hrsc-no-line-times": (
+        _hrsc_without_times,
+        r"no Table LineScanTimes: HRSC's line times, which hrsc2isis writes",
+    ),
+    "hrsc-truncated-line-times": (_hrsc_truncated, r"truncated Table LineScanTimes"),
+    "kaguya-swath": (
+        lambda tmp: _kaguya(tmp, lambda text: _swath(text, "WIDE")),
+        r"Instrument SwathModeId = 'WIDE' is not one of",
+    ),
+    "kaguya-lines-beyond-tables": (
+        lambda tmp: _kaguya(tmp, lambda text: _no_alpha(_size(3208, 4656)(text))),
+        r"the cube's lines are exposed over ET \[.*\], beyond its instrument_pointing table",
+    ),
+    "wac-filter": (
+        lambda tmp: _wac(
+            tmp, lambda text: text.replace("FilterNumber = (1, 2)", "FilterNumber = 5")
+        ),
+        r"BandBin FilterNumber = 5 is not a filter of the WAC-UV camera",
+    ),
+    "wac-framelets": (
+        lambda tmp: _wac(tmp, _size(128, 1041)),
+        r"the cube's 1041 lines are not whole framelets of 4 lines",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_cubes_of_the_new_instruments(
+    tmp_path: Path, capsys: pytest.CaptureFixture, case: str
+) -> None:
+    """One line naming the cube and what is wrong, from the API (the orthomvp.errors family)
+    and from `orthomvp isd` (exit status 2, no ISD written)."""
+    from orthomvp.cli import main
+    from orthomvp.errors import InputError
+
+    build, expect = BAD[case]
+    path = build(tmp_path)
+    with pytest.raises(InputError, match=expect) as info:
+        read_cube_camera(path)
+    assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+    out = tmp_path / "x.json"
+    capsys.readouterr()
+    assert main(["isd", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("orthomvp: error: ") and str(path) in err[0]
+    assert not out.exists()

@@ -26,7 +26,11 @@ from orthomvp.camera.isis.tables import _item
 def isd(cube: SpiceCube) -> dict[str, Any]:
     """The line-scan ISD of an HRSC cube."""
     ikid = ikid_of(cube)
-    table = cube.table("LineScanTimes")
+    table = cube.table(
+        "LineScanTimes",
+        missing="HRSC's line times, which hrsc2isis writes from the PDS image; import the "
+        "image again with hrsc2isis",
+    )
     starts, times, rates = (
         cube._column(table, key) for key in ("LineStart", "EphemerisTime", "ExposureTime")
     )

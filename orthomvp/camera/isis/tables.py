@@ -82,12 +82,15 @@ class TableReader:
     path: Path
     label: Any
 
-    def table(self, name: str) -> Table:
-        """The attached table ``name``; FormatError for one that is absent (run spiceinit, or
-        attach the kernels it names), described badly, or truncated."""
+    def table(self, name: str, *, missing: str | None = None) -> Table:
+        """The attached table ``name``; FormatError for one that is absent (``missing``: what
+        to say then; by default run spiceinit, or attach the kernels it names), described
+        badly, or truncated."""
         for key, node in self.label.items():
             if key.casefold() == "table" and str(_item(node, "Name")) == name:
                 return self._read_table(name, node)
+        if missing is not None:
+            raise self.error(f"no Table {name}: {missing}")
         kernels = self.group("Kernels")
         source = None if kernels is None else _item(kernels, name)
         values = source if isinstance(source, list | tuple) else [source]
