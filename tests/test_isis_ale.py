@@ -316,3 +316,21 @@ def test_bad_cubes_of_the_new_instruments(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("orthomvp: error: ") and str(path) in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "build", [_kaguya, _wac, lambda tmp: _hrsc(tmp)[0]], ids=["tc", "wac", "hrsc"]
+)
+def test_beyond_the_first_and_last_lines_is_nan(tmp_path: Path, build) -> None:
+    """Ground points seen before the first or after the last line (framelet) project to NaN,
+    and rays of lines beyond the image are NaN: never extrapolated pixels."""
+    path = build(tmp_path)
+    camera = read_cube_camera(path)
+    samples, lines = cube_isd(path)["image_samples"], cube_isd(path)["image_lines"]
+    first, last = camera.image_to_ground(
+        np.array([[samples / 2, 0.0], [samples / 2, lines - 1]]), 0.0
+    )
+    beyond = np.array([first - (last - first) * 0.5, last + (last - first) * 0.5])
+    assert np.isnan(camera.project(beyond)[0]).all()
+    outside = np.array([[samples / 2, -0.3 * lines], [samples / 2, 1.3 * lines]])
+    assert np.isnan(camera.ray(outside)[1]).all()
