@@ -334,3 +334,22 @@ def test_beyond_the_first_and_last_lines_is_nan(tmp_path: Path, build) -> None:
     assert np.isnan(camera.project(beyond)[0]).all()
     outside = np.array([[samples / 2, -0.3 * lines], [samples / 2, 1.3 * lines]])
     assert np.isnan(camera.ray(outside)[1]).all()
+
+
+@pytest.mark.parametrize(
+    "build", [_kaguya, _wac, lambda tmp: _hrsc(tmp)[0]], ids=["tc", "wac", "hrsc"]
+)
+def test_the_isd_written_is_the_cube_camera(tmp_path: Path, build) -> None:
+    """`orthomvp isd CUBE -o X.json` of each new model (line scan, push frame, changing line
+    rate): the ISD file's camera projects as the cube's own."""
+    from orthomvp.camera import read_camera
+    from orthomvp.cli import main
+
+    path = build(tmp_path)
+    out = tmp_path / "cube.json"
+    assert main(["-q", "isd", str(path), "-o", str(out)]) == 0
+    cube, written = read_cube_camera(path), read_camera(out)
+    samples, lines = cube_isd(path)["image_samples"], cube_isd(path)["image_lines"]
+    u, v = np.meshgrid(np.linspace(0, samples - 1, 5), np.linspace(0, lines - 1, 5))
+    ground = cube.image_to_ground(np.stack([u.ravel(), v.ravel()], -1), 0.0)
+    np.testing.assert_allclose(written.project(ground)[0], cube.project(ground)[0], atol=1e-9)
