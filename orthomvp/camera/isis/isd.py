@@ -1,8 +1,9 @@
 """The ISD assembly of the cube reader: a :class:`~.core.SpiceCube` and an instrument's
 timing and detector numbers turned into the USGS CSM ISD (ALE's keys) of a frame camera
-(:func:`frame_isd`, its tables reduced to the exposure time by :func:`states_at`) or a line
-scanner (:func:`line_scan_isd`), both built on the keys every instrument shares
-(:func:`base_isd`), with the cube's AlphaCube crop and reduction folded in.
+(:func:`frame_isd`, its tables reduced to the exposure time by :func:`states_at`), a line
+scanner (:func:`line_scan_isd`, one line rate or several) or a push-frame camera
+(:func:`push_frame_isd`), all built on the keys every instrument shares (:func:`base_isd`),
+with the cube's AlphaCube crop and reduction folded in (refused for a push frame).
 """
 
 from __future__ import annotations
@@ -160,6 +161,7 @@ def line_scan_isd(
                 f"the cube's lines are exposed over ET [{start:.6f}, {end:.6f}], beyond its "
                 f"{key} table's [{times[0]:.6f}, {times[-1]:.6f}] (never extrapolated)"
             )
+    # one rate: the middle as ALE writes it (equal to (start + end) / 2 but for rounding)
     middle = (start + end) / 2.0 if len(kept) > 1 else start + 0.5 * lines * kept[0][2]
     isd.update(
         name_model="USGS_ASTRO_LINE_SCANNER_SENSOR_MODEL",
@@ -190,8 +192,8 @@ def push_frame_isd(
     flipped: bool = False,
 ) -> dict[str, Any]:
     """The ISD of a push-frame camera (usgscsm's): framelets of ``framelet_height`` detector
-    lines, the first exposed at ET ``start_time`` + ``exposure`` / 2 and each
-    ``interframe_delay`` seconds after the one before; detector ``center`` (line, sample),
+    lines, framelet n exposed around ET ``start_time`` (the ISD's start) + ``exposure`` / 2 +
+    n x ``interframe_delay`` (usgscsm's rule); detector ``center`` (line, sample),
     ``summing`` both ways, the framelet's ``first_line`` on the detector. A cube cropped or
     reduced (AlphaCube) is refused: its lines no longer fall into whole framelets."""
     alpha = cube.alpha
