@@ -19,7 +19,6 @@ from orthomvp.cli.options import (
     dem_options,
     eps_option,
     levels_option,
-    pairs_argument,
     quiet,
 )
 from orthomvp.errors import InputError, OrthoMVPWarning
@@ -41,9 +40,18 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+def _pairs(ctx: click.Context, param: click.Parameter, value: tuple[Path, ...]) -> list:
+    """IMAGE CAMERA pairs: none (no clicks) or at least 2 (the objective needs 2 views)."""
+    if len(value) % 2:
+        raise click.UsageError("needs IMAGE CAMERA pairs: got an odd number of files", ctx)
+    if len(value) == 2:
+        raise click.UsageError("clicks need at least 2 IMAGE CAMERA pairs (or give none)", ctx)
+    return list(zip(value[::2], value[1::2], strict=True))
+
+
 @click.command(cls=Command, short_help="look at a DEM, its views and outputs in the browser")
 @dem_argument
-@pairs_argument(minimum=0)
+@click.argument("pairs", type=PATH, nargs=-1, callback=_pairs, metavar="[IMAGE CAMERA ...]")
 @click.option(
     "--ortho",
     "orthos",

@@ -23,6 +23,7 @@ from orthomvp.codes import Code
 from orthomvp.errors import InputError
 from orthomvp.explore import ExploreError, Explorer
 from orthomvp.explore.plots import height_plot, patches_plot, tilt_plot
+from orthomvp.explore.session import DEFAULTS
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.occlusion.raycast import RayCaster
@@ -73,7 +74,7 @@ class Posts:
         names: list[str],
         *,
         eps: float | None = None,
-        levels: int = 1,
+        levels: int = DEFAULTS.levels,
     ) -> None:
         self.layers, self.terrain = layers, terrain
         self.images, self.cameras, self.names = images, cameras, names
