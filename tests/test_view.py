@@ -365,7 +365,7 @@ def test_page_in_a_browser(live: str, app: tuple, view_scene: dict) -> None:
         assert float(shown) == pytest.approx(_explorers_own(view_scene, c, r)[0], abs=5e-4)
         assert abs(float(shown) - float(view_scene["truth"].values[r, c])) <= 3.0
         sizes = driver.execute_script(
-            "return Array.from(document.querySelectorAll('#plots img')).map(i => i.naturalWidth)"
+            "return Array.from(document.querySelectorAll('#below img')).map(i => i.naturalWidth)"
         )
         assert len(sizes) == 3 and min(sizes) > 200
         # 3D: the scene appears and rotates with a drag

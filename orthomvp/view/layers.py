@@ -104,6 +104,13 @@ def _read(
     return out
 
 
+def _horizontal(crs: object) -> CRS:
+    """The horizontal part of a CRS (a compound CRS's first; the DEM's may carry a vertical
+    datum that its outputs do not)."""
+    crs = CRS.from_user_input(crs.to_wkt() if hasattr(crs, "to_wkt") else crs)
+    return crs.sub_crs_list[0] if crs.is_compound else crs
+
+
 @dataclass
 class Problem:
     """A file the viewer could not show, and why (one line)."""
@@ -155,7 +162,9 @@ class LayerSet:
     def _open(self, path: Path) -> rasterio.DatasetReader:
         src = open_raster(path)
         try:
-            if src.crs is None or CRS.from_user_input(src.crs.to_wkt()) != self.crs:
+            if src.crs is None or not _horizontal(src.crs).equals(
+                _horizontal(self.crs), ignore_axis_order=True
+            ):
                 raise InputError(f"{path}: not on the DEM's grid (its CRS is not the DEM's)")
             left, bottom, right, top = src.bounds
             l0, b0, r0, t0 = self.bounds

@@ -164,8 +164,8 @@
   }
   function showClick(d) {
     const status = document.getElementById("status"), result = document.getElementById("result");
-    const plots = document.getElementById("plots");
-    plots.innerHTML = ""; result.innerHTML = "";
+    const plots = document.getElementById("plots"), patches = document.getElementById("patches");
+    plots.innerHTML = ""; patches.innerHTML = ""; result.innerHTML = "";
     if (d.error) { status.className = "error"; status.textContent = d.error; }
     else status.textContent = "";
     if (!d.post) return;
@@ -180,7 +180,7 @@
     }
     html += "<table><tr><th>view</th><th>code</th><th>emission</th><th>used</th><th>corr</th></tr>";
     d.views.forEach((v) => {
-      html += `<tr><td>${v.name}</td><td>${v.code}</td><td>${v.emission.toFixed(1)}&deg;</td>` +
+      html += `<tr><td title="${v.name}">${v.name}</td><td>${v.code}</td><td>${v.emission.toFixed(1)}&deg;</td>` +
         `<td>${v.used ? "yes" : "no"}</td><td>${isNaN(v.loo) || v.loo === null ? "" : v.loo.toFixed(2)}</td></tr>`;
     });
     result.innerHTML = html + "</table>";
@@ -188,7 +188,7 @@
       [["rplot", d.rplot.png], ["llplot", d.llplot.png], ["patches", d.patches.png]].forEach(([id, src]) => {
         const img = document.createElement("img");
         img.id = `plot-${id}`; img.src = src; img.alt = id;
-        plots.appendChild(img);
+        (id === "patches" ? patches : plots).appendChild(img);
       });
     }
   }
