@@ -94,6 +94,16 @@ def _shot(url: str, layer: str, click: tuple[float, float], hwin: int, out: Path
         driver.save_screenshot(str(out))
     finally:
         driver.quit()
+    _shrink(out)
+
+
+def _shrink(path: Path, width: int = 1200) -> None:
+    """Scale a screenshot to ``width`` pixels and 256 colours (a README picture, not a map)."""
+    from PIL import Image
+
+    img = Image.open(path).convert("RGB")
+    img = img.resize((width, round(img.height * width / img.width)), Image.Resampling.LANCZOS)
+    img.quantize(256, method=Image.Quantize.FASTOCTREE).save(path, optimize=True)
 
 
 def ngi_picture(data: Path, tmp: Path) -> None:
