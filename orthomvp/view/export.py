@@ -36,32 +36,39 @@ def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
     return z
 
 
-def write_export(layers: LayerSet, outdir: str | Path) -> int:
-    """Write the static page of ``layers`` into ``outdir`` (atomically); returns the number of
-    tiles written."""
+def write_export(layers: LayerSet, outdir: str | Path, **page: str) -> int:
+    """Write the static page of ``layers`` into the folder ``outdir`` (atomically); returns the
+    number of tiles written. ``page``: see :func:`export_into`."""
+    with atomic_dir(outdir) as tmp:
+        return export_into(layers, tmp, **page)
+
+
+def export_into(layers: LayerSet, folder: Path, *, title: str = "", report: str = "") -> int:
+    """Write ``index.html``, ``static/`` and ``tiles/`` into the existing ``folder``; ``title``
+    heads the page, ``report`` (HTML) follows the map (a run's pictures and summary). Returns
+    the number of tiles written."""
     pyramid = Pyramid.of(layers)
     deepest = export_zooms(layers, pyramid)
     static = Pyramid(pyramid.left, pyramid.top, pyramid.span, deepest)
     config = page_config(layers, static, False, [])
-    files = static_files()
     count = 0
     left, bottom, right, top = layers.bounds
-    with atomic_dir(outdir) as tmp:
-        (tmp / "index.html").write_text(index_html(config, live=False))
-        for name, path in files.items():
-            if name in STATIC or name.startswith("vendor/leaflet-"):
-                target = tmp / "static" / name
-                target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(path, target)
-        for layer in layers.layers.values():
-            for z in range(deepest + 1):
-                side = pyramid.span / 2**z
-                for x in range(int((right - left) // side) + 1):
-                    for y in range(int((top - bottom) // side) + 1):
-                        if not pyramid.valid(z, x, y):
-                            continue
-                        target = tmp / "tiles" / layer.id / str(z) / str(x) / f"{y}.png"
-                        target.parent.mkdir(parents=True, exist_ok=True)
-                        target.write_bytes(tile_png(layers, pyramid, layer, z, x, y))
-                        count += 1
+    text = index_html(config, live=False, title=title, report=report)
+    (folder / "index.html").write_text(text, encoding="utf-8")
+    for name, path in static_files().items():
+        if name in STATIC or name.startswith("vendor/leaflet-"):
+            target = folder / "static" / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, target)
+    for layer in layers.layers.values():
+        for z in range(deepest + 1):
+            side = pyramid.span / 2**z
+            for x in range(int((right - left) // side) + 1):
+                for y in range(int((top - bottom) // side) + 1):
+                    if not pyramid.valid(z, x, y):
+                        continue
+                    target = folder / "tiles" / layer.id / str(z) / str(x) / f"{y}.png"
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    target.write_bytes(tile_png(layers, pyramid, layer, z, x, y))
+                    count += 1
     return count

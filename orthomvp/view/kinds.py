@@ -189,7 +189,7 @@ KINDS: dict[str, Kind] = {
     k.name: k
     for k in (
         Kind("relief", _shaded, _percentiles, _ramp(HEIGHT_CMAP, "m", "height"), _metres),
-        Kind("height", _shaded, _percentiles, _ramp(HEIGHT_CMAP, "m", "fitted height"), _metres),
+        Kind("height", _shaded, _percentiles, _ramp(HEIGHT_CMAP, "m", "height"), _metres),
         Kind(
             "image",
             _image,
@@ -203,7 +203,7 @@ KINDS: dict[str, Kind] = {
             "change",
             _sequential(ERROR_CMAP),
             _change_stats,
-            _ramp(ERROR_CMAP, "m", "fitted - input (red up, blue down)"),
+            _ramp(ERROR_CMAP, "m", "height change, red up, blue down"),
             lambda v: _metres(v, sign=True),
             files=2,
             combine=lambda a: a[0][:1] - a[1][:1],
@@ -212,7 +212,7 @@ KINDS: dict[str, Kind] = {
             "uncertainty",
             _sequential(UNCERTAINTY_CMAP),
             lambda s: _percentiles(s, 0, 99),
-            _ramp(UNCERTAINTY_CMAP, "m", "1-sigma height uncertainty"),
+            _ramp(UNCERTAINTY_CMAP, "m", "1-sigma"),
             lambda v: _metres(v, prefix="± "),
         ),
     )

@@ -9,6 +9,7 @@ path in a request opens a file, and nothing in a request is evaluated.
 
 from __future__ import annotations
 
+import html
 import json
 import secrets
 from importlib import resources
@@ -23,6 +24,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from orthomvp import __version__
 from orthomvp.errors import OrthoMVPError
+from orthomvp.explore import ExploreError
 from orthomvp.view.layers import LayerSet
 from orthomvp.view.post import Controls, Posts
 from orthomvp.view.tiles import Pyramid, graticule, tile_png
@@ -128,11 +130,14 @@ def clean(value: object) -> object:
     return value
 
 
-def index_html(config: dict, *, live: bool = True) -> str:
-    """The page with its configuration inlined (JSON inside a script element)."""
+def index_html(config: dict, *, live: bool = True, title: str = "", report: str = "") -> str:
+    """The page with its configuration inlined (JSON inside a script element); ``title``
+    (default "orthomvp view") and ``report``, HTML after the map (an export's)."""
     text = (resources.files("orthomvp.view") / "static" / "index.html").read_text()
     blob = json.dumps(clean(config)).replace("</", "<\\/")
     text = text.replace("{{STATIC}}", "static/").replace("{{MODULES}}", MODULES if live else "")
+    text = text.replace("{{TITLE}}", html.escape(title or "orthomvp view"))
+    text = text.replace("{{REPORT}}", f'<section id="report">{report}</section>' if report else "")
     return text.replace("{{CONFIG}}", blob)
 
 
@@ -197,7 +202,10 @@ def create_app(layers: LayerSet, token: str, posts: Posts | None = None) -> ASGI
             t_range=float(q.get("trange", 20)),
             t_steps=int(q.get("tsteps", 21)),
         )
-        return _json(posts.click(_float(request, "x"), _float(request, "y"), controls))
+        try:  # what the page says in its status line (a click off the DEM, say)
+            return _json(posts.click(_float(request, "x"), _float(request, "y"), controls))
+        except ExploreError as exc:
+            return _json({"error": str(exc)})
 
     def scene(request: Request) -> Response:
         if posts is None:

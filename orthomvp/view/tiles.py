@@ -20,7 +20,7 @@ from orthomvp.view.layers import Bounds, Layer, LayerSet
 
 TILE = 256
 """Tile side, pixels."""
-OVERZOOM = 2
+OVERZOOM = 3
 """Zoom levels past the finest layer's pixels that the map allows (pixels drawn larger)."""
 GRATICULE_LINES = 6
 """About how many graticule lines per direction cover the DEM."""

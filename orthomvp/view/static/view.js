@@ -10,7 +10,8 @@
     infinite: true,
   });
   const map = L.map("map", {
-    crs: crs, minZoom: -1, maxZoom: cfg.maxZoom, zoomSnap: 1, attributionControl: false,
+    crs: crs, minZoom: -1, maxZoom: cfg.maxZoom, zoomSnap: 0.25, zoomDelta: 0.5,
+    attributionControl: false,
   });
   map.fitBounds(cfg.bounds);
   const state = { layer: null, tiles: null, busy: false };
@@ -55,7 +56,7 @@
     const g = lay.legend, div = document.getElementById("legend");
     div.innerHTML = "";
     if (g.type === "ramp") {
-      div.innerHTML = `<div>${g.label} (${g.unit})</div>` +
+      div.innerHTML = `<div>${lay.title}: ${g.label} (${g.unit})</div>` +
         `<div class="ramp" style="background:linear-gradient(to right,${g.colours.join(",")})"></div>` +
         `<div class="ramp-labels"><span>${fmt(g.lo)} ${g.unit}</span>` +
         `<span>${fmt((g.lo + g.hi) / 2)}</span><span>${fmt(g.hi)} ${g.unit}</span></div>`;
