@@ -51,7 +51,15 @@ def _pairs(ctx: click.Context, param: click.Parameter, value: tuple[Path, ...]) 
 
 @click.command(cls=Command, short_help="look at a DEM, its views and outputs in the browser")
 @dem_argument
-@click.argument("pairs", type=PATH, nargs=-1, callback=_pairs, metavar="[IMAGE CAMERA ...]")
+@click.argument(
+    "pairs",
+    type=PATH,
+    nargs=-1,
+    callback=_pairs,
+    metavar="[IMAGE CAMERA ...]",
+    help="the views, each image followed by its camera (at least 2 for clicks; none: the map "
+    "alone)",
+)
 @click.option(
     "--ortho",
     "orthos",
