@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import socket
-import sys
 import threading
 import warnings
 import webbrowser
@@ -227,8 +226,6 @@ def _serve(layers, posts, sock: socket.socket, host: str, no_browser: bool) -> N
         threading.Timer(0.5, webbrowser.open, args=(url,)).start()
     try:
         server.run(sockets=[sock])
-    finally:
+    finally:  # Ctrl-C ends it as every command: status 130 (uvicorn re-raises the signal)
         sock.close()
         layers.close()
-    if not quiet():
-        print("orthomvp: view stopped", file=sys.stderr)
