@@ -1,6 +1,6 @@
-"""``orthomvp view`` through Starlette's TestClient and the command line: the token on every
-request, only the named files, tiles and hover values against the files, a click's objective
-against the explorer's own and the crater scene's truth, bad input, the static export."""
+"""``orthomvp view``'s application through Starlette's TestClient and in headless Chromium: the
+token on every request, only the named files, tiles and hover values against the files, a
+click's objective against the explorer's own and the crater scene's truth, the 3D scene."""
 
 from __future__ import annotations
 
