@@ -3,7 +3,8 @@
 Visibility, naive and occlusion-aware orthophotos and a mosaic of the oblique and near-nadir
 views; a refined DEM from a perturbed start (MVP fit, all four views); objective plots at one
 post (the explorer); offscreen 3D snapshots; exported meshes; every figure scored against the
-scene's analytic truth, and an ``index.html`` that shows them all.
+scene's analytic truth, and an ``index.html`` that shows them all: ``orthomvp view``'s static
+export of the outputs' map, followed by the pictures.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from orthomvp.present.figures import (
     scene_overview,
 )
 from orthomvp.present.snapshot import SnapshotOptions, snapshot
-from orthomvp.present.webpage import write_index
+from orthomvp.present.webpage import report_html
 from orthomvp.synthetic import (
     SceneData,
     away_from_boundaries,
@@ -86,13 +87,40 @@ def run_demo(outdir: str | Path, quiet: bool = False) -> dict:
         about = _about(scene)
         with atomic_path(tmp / "summary.json") as f:
             f.write_text(json.dumps({**figures, "about": dict(about)}, indent=2))
-        write_index(
-            tmp / "index.html", "orthomvp demo: the crater scene", lines, PAGE, FILES, about
-        )
+        _page(tmp, lines, about)
     if not quiet:
         for line in lines:
             print(f"orthomvp: {line.removeprefix('orthomvp ')}")
     return figures
+
+
+LAYERS = [
+    ("image", ["oblique-ortho.tif"], "oblique orthophoto (occlusion-aware)"),
+    ("image", ["oblique-naive.tif"], "oblique orthophoto (naive, with ghosts)"),
+    ("image", ["mosaic.tif"], "mosaic of the oblique and nadir views"),
+    ("source", ["mosaic-source.tif"], "mosaic source (view 1 oblique, 2 nadir)"),
+    ("visibility", ["oblique-visibility.tif"], "visibility of the oblique view"),
+    ("height", ["fitted-dem.tif"], "fitted DEM"),
+    ("change", ["fitted-dem.tif", "start-dem.tif"], "fitted - start DEM"),
+    ("change", ["fitted-dem.tif", "scene/dem.tif"], "fitted - truth (height error)"),
+]
+"""The layers of the page's map (``orthomvp view``'s kinds), over the true DEM shaded."""
+
+
+def _page(tmp: Path, lines: list[str], about: list[tuple[str, str]]) -> None:
+    """``index.html``: ``orthomvp view --export``'s page of the outputs (the map, its layers
+    and legends), followed by the summary, the pictures and the files."""
+    from orthomvp.view.export import export_into
+    from orthomvp.view.layers import LayerSet
+
+    layers = LayerSet(tmp / "scene" / "dem.tif")
+    for kind, files, title in LAYERS:
+        layers.add(kind, [tmp / f for f in files], title)
+    try:
+        report = report_html(lines, PAGE, FILES, about)
+        export_into(layers, tmp, title="orthomvp demo: the crater scene", report=report)
+    finally:
+        layers.close()
 
 
 def _orthophotos(tmp: Path, scene: SceneData) -> tuple[dict, dict]:
@@ -283,6 +311,8 @@ FILES = [
     ("objective-rplot.csv", "data of the rplot"),
     ("objective-llplot.csv", "data of the llplot"),
     ("summary.json", "every figure in the summary"),
+    ("static/", "the page's scripts and style sheets (Leaflet 1.9.4)"),
+    ("tiles/", "the map's layers as pre-rendered tiles"),
 ]  # fmt: skip
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 from pathlib import Path
 from types import ModuleType
 
@@ -82,3 +83,74 @@ def city_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("city")
     make_scene("city", size=64).write(out, supersample=1)
     return out
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="needs Debian's chromium and chromium-driver (.ci/run installs them)",
+)
+
+
+def chromium(width: int = 1000, height: int = 900, *, offline: bool = False):  # noqa: ANN201
+    """A headless Chromium WebDriver (Debian's chromium and chromium-driver) that keeps the
+    console log and the network requests (performance log); WebGL through SwiftShader;
+    ``offline``: every host name fails to resolve (no network)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    flags = [
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        f"--window-size={width},{height}",
+    ]
+    if offline:
+        flags.append("--host-resolver-rules=MAP * ~NOTFOUND")
+    for flag in flags:
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    return webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
+
+
+VIEW_NAMES = ("oblique", "nadir", "fore", "aft")
+"""The crater scene's views, in the order the viewer tests give them."""
+VIEW_START_OFFSET = 25.0
+"""Metres: the viewer tests' DEM is the crater's truth raised by this much (a fit's start)."""
+VIEW_SIGMA = 1.5
+"""Metres: the viewer tests' constant uncertainty raster."""
+
+
+@pytest.fixture(scope="session")
+def view_scene(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The crater scene with a DEM VIEW_START_OFFSET above the truth (the fit's start), the truth
+    as the "fitted" DEM, a constant uncertainty and a source raster of views 0..4."""
+    out = tmp_path_factory.mktemp("view")
+    import numpy as np
+    import rasterio
+
+    from orthomvp.geometry.terrain import Terrain
+
+    truth = Terrain.read(crater_dir / "dem.tif")
+    with rasterio.open(crater_dir / "dem.tif") as src:
+        profile = src.profile | {"dtype": "float32", "nodata": None}
+        values = src.read(1).astype(np.float32)
+    files = {"start": out / "start.tif", "sigma": out / "sigma.tif", "source": out / "source.tif"}
+    for key, data in (
+        ("start", values + VIEW_START_OFFSET),
+        ("sigma", np.full_like(values, VIEW_SIGMA)),
+        ("source", (np.indices(values.shape).sum(axis=0) % 5).astype(np.float32)),
+    ):
+        with rasterio.open(files[key], "w", **profile) as dst:
+            dst.write(data, 1)
+    vis = np.stack([Terrain.read(crater_dir / f"{n}.visibility.tif").values for n in VIEW_NAMES])
+    return {"dir": crater_dir, "truth": truth, "vis": vis, **files}

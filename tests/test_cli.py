@@ -24,7 +24,7 @@ from orthomvp.cli.command import spell_out
 
 COMMANDS = (
     "demo", "info", "synth", "mesh", "render", "visibility", "ortho", "mosaic", "explore", "fit",
-    "eps-study", "check", "isd", "bench",
+    "eps-study", "check", "isd", "bench", "view",
 )  # fmt: skip
 
 

@@ -79,9 +79,9 @@ def test_demo_meshes_open_in_trimesh_and_open3d(demo: tuple[Path, str]) -> None:
 
 
 def page_report(page: Path, width: int = 1000) -> dict:
-    """Load ``page`` in headless Chromium, ``width`` pixels wide, and report every <img> with
-    whether it loaded and its natural size, whether the summary <pre> and the page fit their
-    width, and the page's text."""
+    """Load ``page`` in headless Chromium, ``width`` pixels wide, and report every <img> outside
+    the map (its tiles are the viewer test's) with whether it loaded and its natural size,
+    whether the summary <pre> and the page fit their width, and the page's text."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -106,7 +106,8 @@ def page_report(page: Path, width: int = 1000) -> dict:
         driver.get(page.resolve().as_uri())
         return driver.execute_script(
             "const pre = document.querySelector('pre');"
-            "return {images: Array.from(document.images).map(i => [i.getAttribute('src'),"
+            "return {images: Array.from(document.images)"
+            "  .filter(i => !i.closest('.leaflet-container')).map(i => [i.getAttribute('src'),"
             "  i.complete && i.naturalWidth > 0, i.naturalWidth, i.naturalHeight]),"
             " pre: [pre.scrollWidth, pre.clientWidth],"
             " page: [document.documentElement.scrollWidth, window.innerWidth],"
@@ -137,6 +138,10 @@ def test_index_page_loads_every_picture_in_a_browser(
         page = page_report(out / "index.html", width)
         (pre_scroll, pre_width), (page_scroll, window) = page["pre"], page["page"]
         assert pre_scroll <= pre_width and page_scroll <= window, (width, page)
+    # the page is orthomvp view's export: its map holds the outputs, each layer's tiles written
+    assert "Layers" in page["text"] and "fitted - truth (height error)" in page["text"]
+    for layer in range(9):
+        assert (out / "tiles" / f"L{layer}" / "0" / "0" / "0.png").is_file(), layer
     # the page says what made it: the version, the date and the demo's parameters
     text = page["text"]
     assert f"orthomvp\t{orthomvp.__version__}" in text
@@ -158,7 +163,7 @@ def test_index_page_loads_every_picture_in_a_browser(
     assert len(sizes) == 4 and all(w * h < 0.8 * 900 * 640 for w, h in sizes.values()), sizes
     # the check can fail: a copy of the page with one picture missing is caught
     broken = tmp_path / "broken"
-    shutil.copytree(out, broken, ignore=shutil.ignore_patterns("scene", "*.tif", "*.ply"))
+    shutil.copytree(out, broken, ignore=shutil.ignore_patterns("scene", "*.tif", "*.ply", "tiles"))
     (broken / "snap-mosaic.png").unlink()
     bad = [src for src, ok in image_report(broken / "index.html") if not ok]
     assert bad == ["snap-mosaic.png"]

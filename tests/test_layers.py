@@ -53,6 +53,7 @@ LAYERS = [
     ("orthomvp.engine", "orthomvp.explore", "orthomvp.synthetic"),
     ("orthomvp.present",),
     ("orthomvp.quality",),
+    ("orthomvp.view",),
     ("orthomvp.bench", "orthomvp.demo"),
     ("orthomvp.cli",),
     ("orthomvp._entry",),

@@ -1,9 +1,9 @@
 """Regenerate every picture used in the README into viz/.
 
-Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``, ``eps``,
-``explore`` and ``linescan`` (default: all). Pictures from the real data are made when it is
-present: the directory named by ORTHOMVP_DATA, by default ``../shared/data`` beside the
-repository.
+Run from the repository root: ``python viz/gallery.py [PART ...]`` with parts ``demo``,
+``eps``, ``explore``, ``linescan`` and ``view`` (default: all). Pictures from the real data are
+made when it is present: the directory named by ORTHOMVP_DATA, by default ``../shared/data``
+beside the repository.
 """
 
 from __future__ import annotations
@@ -25,6 +25,9 @@ from orthomvp.io.raster import read_image
 from orthomvp.present.figures import empty_legend, lonlat_degrees, orthophoto_axes
 from orthomvp.quality.eps_study import eps_study, save
 from orthomvp.synthetic import make_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from view_pictures import view_pictures  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DATA = Path(os.environ.get("ORTHOMVP_DATA") or HERE.parents[1] / "shared" / "data")
@@ -144,6 +147,7 @@ PARTS = {
     "eps": eps_pictures,
     "explore": explore_pictures,
     "linescan": linescan_pictures,
+    "view": lambda tmp: view_pictures(tmp, DATA),
 }
 
 

@@ -295,6 +295,7 @@ COMMANDS = {
     "check": ("orthomvp.cli.check", "check"),
     "isd": ("orthomvp.cli.isd", "isd"),
     "bench": ("orthomvp.cli.bench", "bench"),
+    "view": ("orthomvp.cli.view", "view"),
 }
 """Each command's (module, attribute), in the order --help lists them."""
 

@@ -117,6 +117,12 @@ def peer_data_default() -> Path | None:
     "over the threaded run's",
 )
 @click.option(
+    "--view",
+    is_flag=True,
+    help="only the viewer benchmark: orthomvp view's first map paint, tiles and clicks at hwin "
+    "10 on the demo's crater scene and, with --peer-data, the ngi-aerial mosaic",
+)
+@click.option(
     "--json", "json_path", type=PATH, metavar="FILE", help="also write the figures as JSON"
 )
 @overwrite_option
@@ -133,6 +139,7 @@ def bench(
     peer_repeat: int,
     scale_sizes: tuple[int, ...],
     scale_dask: int | None,
+    view: bool,
     json_path: Path | None,
     overwrite: bool,
 ) -> None:
@@ -153,7 +160,7 @@ def bench(
     from orthomvp.synthetic.scene import check_scene_memory
 
     check_outputs([Output("--json", json_path, ())], overwrite=overwrite)
-    if not peer:  # every check before the first benchmark runs
+    if not peer and not view:  # every check before the first benchmark runs
         check_raycast_memory(size, rays, "choose a smaller --size or fewer --rays")
         if ortho_size:
             check_ortho_memory(ortho_size, "choose a smaller --ortho-size (0 skips)")
@@ -161,7 +168,9 @@ def bench(
             check_ortho_memory(linescan_size, "choose a smaller --linescan-size (0 skips)")
         if mvp_size:
             check_scene_memory(mvp_size, 0.8, "choose a smaller --mvp-size (0 skips)")
-    if peer:
+    if view:
+        results = {"view": bench_view(peer_data)}
+    elif peer:
         results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
     elif scale_sizes:
         results = {"scale": bench_scale(scale_sizes, scale_dask)}
@@ -180,6 +189,25 @@ def bench(
     if json_path:
         with atomic_path(json_path) as tmp:
             tmp.write_text(json.dumps(results, indent=2))
+
+
+def bench_view(data: Path | None) -> list[dict]:
+    """``bench --view``: the viewer on the demo's crater scene, and on the ngi-aerial mosaic
+    when ``data`` holds it; printed."""
+    from orthomvp.bench import view as v
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="orthomvp-view-") as tmp:
+        cases = [v.demo_case(Path(tmp) / "demo")]
+        if data is not None and (data / "dem.tif").is_file():
+            (Path(tmp) / "ngi").mkdir()
+            cases.append(v.ngi_case(data, Path(tmp) / "ngi"))
+        else:
+            print("orthomvp: no ngi-aerial data (--peer-data or $ORTHOMVP_DATA): the demo only")
+        for case in cases:
+            rows.append(v.bench_view(case))
+            print(v.format_view(rows[-1]), flush=True)
+    return rows
 
 
 def bench_scale(sizes: tuple[int, ...], dask: int | None) -> list[dict]:

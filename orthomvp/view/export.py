@@ -1,0 +1,74 @@
+"""``orthomvp view --export DIR``: the page as static files, with its tiles pre-rendered.
+
+The export opens from ``file://`` with no server and no network: the page, its scripts and
+style sheets, and every tile of every layer from zoom 0 to the deepest zoom whose tiles number
+at most :data:`MAX_TILES` per layer, as PNG files under ``tiles/ID/Z/X/Y.png``. Hover values,
+clicks and the 3D view need the live viewer.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from orthomvp.io.outputs import atomic_dir
+from orthomvp.view.layers import LayerSet
+from orthomvp.view.server import index_html, page_config, static_files
+from orthomvp.view.tiles import Pyramid, tile_png
+
+MAX_TILES = 400
+"""Most tiles of one layer at the deepest exported zoom."""
+STATIC = ("view.js", "view.css", "vendor/README.txt")
+"""The page's own files an export copies (and Leaflet's folder)."""
+
+
+def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
+    """The deepest zoom exported: the finest native zoom, or shallower so that the tiles over
+    the DEM number at most MAX_TILES."""
+    left, bottom, right, top = layers.bounds
+    z = 0
+    while z < pyramid.max_native:
+        side = pyramid.span / 2 ** (z + 1)
+        count = -(-(right - left) // side) * -(-(top - bottom) // side)
+        if count > MAX_TILES:
+            break
+        z += 1
+    return z
+
+
+def write_export(layers: LayerSet, outdir: str | Path, **page: str) -> int:
+    """Write the static page of ``layers`` into the folder ``outdir`` (atomically); returns the
+    number of tiles written. ``page``: see :func:`export_into`."""
+    with atomic_dir(outdir) as tmp:
+        return export_into(layers, tmp, **page)
+
+
+def export_into(layers: LayerSet, folder: Path, *, title: str = "", report: str = "") -> int:
+    """Write ``index.html``, ``static/`` and ``tiles/`` into the existing ``folder``; ``title``
+    heads the page, ``report`` (HTML) follows the map (a run's pictures and summary). Returns
+    the number of tiles written."""
+    pyramid = Pyramid.of(layers)
+    deepest = export_zooms(layers, pyramid)
+    static = Pyramid(pyramid.left, pyramid.top, pyramid.span, deepest)
+    config = page_config(layers, static, False, [])
+    count = 0
+    left, bottom, right, top = layers.bounds
+    text = index_html(config, live=False, title=title, report=report)
+    (folder / "index.html").write_text(text, encoding="utf-8")
+    for name, path in static_files().items():
+        if name in STATIC or name.startswith("vendor/leaflet-"):
+            target = folder / "static" / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, target)
+    for layer in layers.layers.values():
+        for z in range(deepest + 1):
+            side = pyramid.span / 2**z
+            for x in range(int((right - left) // side) + 1):
+                for y in range(int((top - bottom) // side) + 1):
+                    if not pyramid.valid(z, x, y):
+                        continue
+                    target = folder / "tiles" / layer.id / str(z) / str(x) / f"{y}.png"
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    target.write_bytes(tile_png(layers, pyramid, layer, z, x, y))
+                    count += 1
+    return count

@@ -1,0 +1,135 @@
+"""``orthomvp view`` on the command line: the host warning, files it cannot show, bad input,
+Ctrl-C, and ``--export``'s static page opened from file:// with no server and no network."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+from affine import Affine
+from conftest import chromium, needs_chromium
+from test_view import TestClient, _map_pixels, _severe, _wait_tiles
+
+from orthomvp.cli import main
+from orthomvp.geometry.terrain import Terrain
+
+pytest.importorskip("uvicorn")
+
+
+def _no_serve(monkeypatch: pytest.MonkeyPatch) -> list:
+    served: list = []
+    monkeypatch.setattr(
+        "orthomvp.cli.view._serve", lambda layers, posts, sock, host, nb: served.append(layers)
+    )
+    return served
+
+
+def test_host_warning_bad_files_and_port_in_use(
+    view_scene: dict, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture, tmp_path: Path
+) -> None:
+    served = _no_serve(monkeypatch)
+    dem = str(view_scene["start"])
+    assert main(["view", dem, "--port", "0"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert main(["view", dem, "--port", "0", "--host", "0.0.0.0"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("orthomvp: warning: serving on 0.0.0.0")
+    # a missing and an off-grid layer are named (stderr and page); the rest is served
+    other = tmp_path / "other.tif"
+    Terrain(np.zeros((4, 4)), Affine(10, 0, 5e5, 0, -10, 0), "EPSG:32633").write(other)
+    args = ["view", dem, "--port", "0", "--ortho", str(tmp_path / "gone.tif")]
+    args += ["--ortho", str(other)]
+    assert main([*args, "--visibility", str(view_scene["dir"] / "nadir.visibility.tif")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "gone.tif" in err[0] and "not on the DEM's grid" in err[1]
+    assert [lay.kind.name for lay in served[-1].layers.values()] == ["relief", "visibility"]
+    assert len(served[-1].problems) == 2
+    from orthomvp.view import create_app
+
+    page = TestClient(create_app(served[-1], "t")).get("/?token=t").text
+    assert "gone.tif: raster not found" in page and "other.tif: not on the DEM" in page
+    # bad input: one line, status 2
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        assert main(["view", dem, "--port", str(port)]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and f"cannot serve on 127.0.0.1 port {port}" in err[0], err
+    for argv, words in (
+        (["view", str(tmp_path / "none.tif")], "none.tif"),
+        (["view", __file__], "not a readable raster"),
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith("orthomvp: error:") and words in err[0], err
+
+
+@pytest.mark.slow
+def test_serves_until_ctrl_c(view_scene: dict) -> None:
+    """The command as a user runs it: prints the URL, serves a tile with the token (403
+    without), and Ctrl-C stops it cleanly."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "orthomvp", "view", str(view_scene["start"]), "--port", "0",
+         "--no-browser"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )  # fmt: skip
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("orthomvp: view at http://127.0.0.1:"), line
+        url = line.split()[3]
+        base, token = url.split("/?token=")
+        with urllib.request.urlopen(f"{base}/tiles/L0/0/0/0.png?token={token}") as resp:
+            assert resp.status == 200 and resp.read(8) == b"\x89PNG\r\n\x1a\n"
+        with pytest.raises(urllib.error.HTTPError, match="403"):
+            urllib.request.urlopen(f"{base}/tiles/L0/0/0/0.png")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err  # the command line's status for Ctrl-C
+    assert err.strip().splitlines() == ["orthomvp: interrupted; no partial output was kept"]
+
+
+@pytest.mark.slow
+@needs_chromium
+def test_export_opens_from_file_with_no_server_and_no_network(
+    view_scene: dict, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+
+    out = tmp_path / "page"
+    args = ["view", str(view_scene["start"]), "--export", str(out)]
+    assert main([*args, "--visibility", str(view_scene["dir"] / "oblique.visibility.tif")]) == 0
+    assert "tiles of 2 layers" in capsys.readouterr().out
+    driver = chromium(1000, 800, offline=True)
+    try:
+        driver.get((out / "index.html").as_uri())
+        _wait_tiles(driver)
+        before = _map_pixels(driver)
+        driver.find_element("css selector", 'input[value="L1"]').click()
+        _wait_tiles(driver)
+        assert (before != _map_pixels(driver)).any(axis=-1).mean() > 0.3
+        tiles = driver.execute_script(
+            "return Array.from(document.querySelectorAll('img.leaflet-tile'))"
+            ".map(i => [i.complete && i.naturalWidth > 0, i.src])"
+        )
+        assert tiles and all(ok for ok, _ in tiles), tiles
+        requests = [
+            json.loads(e["message"])["message"]["params"]["request"]["url"]
+            for e in driver.get_log("performance")
+            if '"Network.requestWillBeSent"' in e["message"]
+        ]
+        assert requests and all(u.startswith(("file://", "data:")) for u in requests), requests
+        assert _severe(driver) == []
+    finally:
+        driver.quit()
