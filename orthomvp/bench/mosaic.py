@@ -112,7 +112,9 @@ def _measure(conn: object, dem: Path, views: list[View], options: dict) -> None:
     t0 = time.perf_counter()
     plan = plan_ortho(dem, views, res=options["res"], world="map", progress=False)
     planning = time.perf_counter() - t0
-    report = run_plan(plan, Outputs(ortho=Path(options["folder"]) / "mosaic.tif"), progress=False)
+    report = run_plan(
+        plan, Outputs(ortho=Path(options["folder"]) / "mosaic.tif", overwrite=True), progress=False
+    )
     conn.send(  # type: ignore[attr-defined]
         {
             "planning_s": planning,
