@@ -4,6 +4,8 @@ finds; plans are the same with and without the index."""
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,7 @@ from orthomvp.engine.halo import image_box
 from orthomvp.engine.plan import IMAGE_MARGIN, _sees, grow
 from orthomvp.engine.tiling import SMALL_TILE, auto_tile, mosaic_tile
 from orthomvp.engine.view_index import ViewIndex
+from orthomvp.io.preflight import count_text
 from tests.conftest import SHARED_DATA
 
 NGI = SHARED_DATA / "ngi-aerial"
@@ -129,3 +132,41 @@ def test_mosaic_tiles_shrink_with_the_views_of_a_tile_not_the_images(planned: di
     largest = mosaic_tile(most, 3, plan.margin)
     assert plan.tile == auto_tile(plan.grid.shape, largest=largest, smallest=SMALL_TILE)
     assert mosaic_tile(lambda side: 16, 3, 13) == mosaic_tile(16, 3, 13)
+
+
+def test_huge_grids_are_refused_before_any_tile_is_planned(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A grid cut into more tiles than a plan holds (1 m posts on the 5 km crater in tiles of
+    2 posts: millions), one beyond the free space of the output folder, and one finer than
+    the images are refused (InputError, one line) before the views are indexed or any tile
+    planned; a 20 m grid in one tile of 512 posts is planned."""
+    import shutil
+
+    from orthomvp.engine import grid_choice
+    from orthomvp.errors import InputError
+
+    dem = crater_dir / "dem.tif"
+    views = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in ("oblique", "nadir")]
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("planning started")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(plan_module, "ViewIndex", never)
+        patch.setattr(plan_module, "plan_tiles", never)
+        with pytest.raises(InputError, match="tiles of 2 posts, more than the 250,000") as info:
+            plan_ortho(dem, views, res="1m", tile=2, progress=False)
+        cols, rows, count = re.search(
+            r"of ([\d,]+) x ([\d,]+) posts would be (\S+) tiles", str(info.value)
+        ).groups()
+        cols, rows = int(cols.replace(",", "")), int(rows.replace(",", ""))
+        assert rows > 4000 and count == count_text(math.ceil(rows / 2) * math.ceil(cols / 2))
+        usage = shutil.disk_usage(tmp_path)
+        patch.setattr(grid_choice.shutil, "disk_usage", lambda _: usage._replace(free=1000))
+        with pytest.raises(InputError, match=f"free in {tmp_path}"):
+            plan_ortho(dem, views, res="1m", output_dir=tmp_path, progress=False)
+        with pytest.raises(InputError, match="posts per pixel"):
+            plan_ortho(dem, views, res="1cm", progress=False)
+    plan = plan_ortho(dem, views, res="20m", tile=512, progress=False)
+    assert len(plan.tiles) == 1 and plan.tiles[0].views == (0, 1)

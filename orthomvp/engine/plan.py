@@ -30,6 +30,7 @@ from orthomvp.engine.grid_choice import (
     Box,
     check_grid_size,
     check_plan,
+    check_tile_count,
     choose_grid,
     grid_spacing,
     read_source,
@@ -443,16 +444,13 @@ def tile_grid(
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     out = choose_grid(source, sources, grid=grid, res=res, bounds=bounds, crs=crs)
     check_grid_size(out, source, sources, output_dir)
+    check_tile_count(out, largest if tile is None else tile)
     to_dem = grid_to_dem(out, source)
     found = ViewIndex(source, to_dem, out.shape, sources, 0.5 + IMAGE_MARGIN)
     if tile is None and stack:
-
-        def most(side: int) -> int:  # views that can see one tile of ``side`` posts
-            windows = (grow(w, margin, out.shape) for w in out.tiles(side))
-            return max(len(found.views(w)) for w in windows)
-
-        largest = min(largest, mosaic_tile(most, stack, margin))
+        largest = min(largest, mosaic_tile(found.most(margin), stack, margin))
     tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
+    check_tile_count(out, tile)
     jobs, boxes, reach, elevation = plan_tiles(
         out.tiles(tile),
         lambda i, window: _job(source, to_dem, out, sources, i, window, occlusion, margin, found),

@@ -58,6 +58,7 @@ class ViewIndex:
         of the image's outer pixel centres."""
         rows, cols = shape
         self.step = max(1, math.ceil(max(rows, cols) / LATTICE))
+        self.shape = shape
         rr, cc = _axis(rows, self.step), _axis(cols, self.step)
         c, r = np.meshgrid(cc.astype(np.float64), rr.astype(np.float64))
         dc, dr = to_dem(c.ravel(), r.ravel())
@@ -98,6 +99,30 @@ class ViewIndex:
         hi = self.high[:, :, a:b, c:d].max(axis=(2, 3)).T
         meets = (hi >= -self.margin) & (lo <= self.size - 1 + self.margin)
         return np.flatnonzero(meets.all(axis=1))
+
+    def most(self, margin: int) -> Callable[[int], int]:
+        """For a tile side (posts), the most views that can see one of the grid's tiles of
+        that side grown by ``margin`` posts (as :meth:`views` finds them)."""
+
+        def most(side: int) -> int:
+            rows, cols = self.shape
+            counts = [
+                len(
+                    self.views(
+                        (
+                            max(r - margin, 0),
+                            min(r + side + margin, rows),
+                            max(c - margin, 0),
+                            min(c + side + margin, cols),
+                        )
+                    )
+                )
+                for r in range(0, rows, side)
+                for c in range(0, cols, side)
+            ]
+            return max(counts, default=0)
+
+        return most
 
 
 def _erode(ok: np.ndarray) -> np.ndarray:
