@@ -3,9 +3,10 @@
 Two sets, each N run in a fresh process (so that its peak resident set size is its own):
 
 - growing: the four ngi-aerial frames (or, without the data, four synthetic frames over
-  synthetic hills) tiled K x K over their DEM tiled K x K (cameras shifted by whole DEM
-  extents), N = 4 K^2, so that every image covers the same number of posts; the grid is the
-  part of the DEM the images see, at ``res`` metres;
+  synthetic hills) tiled K x K over the part of their DEM they see, tiled K x K (cameras
+  shifted by whole extents of that part), N = 4 K^2, so that every image covers the same
+  number of posts and the grid (the part of the DEM the images see, at ``res`` metres) grows
+  as N;
 - fixed: N copies of one frame (their centres spread over a few metres) all over one grid
   at ``res`` metres, the worst case of overlap.
 
@@ -26,7 +27,8 @@ from affine import Affine
 from scipy.ndimage import gaussian_filter
 
 from orthomvp.bench.peer import PEER_IMAGE, SYNTHETIC_PEER_CRS
-from orthomvp.camera import PinholeCamera, read_camera
+from orthomvp.camera import PinholeCamera
+from orthomvp.engine.images import image_source
 from orthomvp.errors import InputError, OrthoMVPError
 from orthomvp.io.raster import open_raster, write_geotiff
 
@@ -39,8 +41,8 @@ def _frames(data: Path | None, workdir: Path) -> tuple[Path, list[View], str]:
     if data is not None and (data / "dem.tif").is_file():
         views = []
         for image in sorted(data.glob("*_RGB.tif")):
-            camera = read_camera(image.with_suffix(".converted.tsai"), image)
-            views.append((image, camera))
+            source = image_source(image, image.with_suffix(".converted.tsai"))  # sized
+            views.append((image, source.camera))
         return data / "dem.tif", views, "ngi-aerial"
     rows, cols, step = 508, 327, 24.0
     r, c = np.mgrid[0:rows, 0:cols].astype(np.float64)
@@ -69,10 +71,12 @@ def growing_scene(data: Path | None, n: int, workdir: Path) -> tuple[Path, list[
     if n < 4 or 4 * k * k != n:
         raise InputError(f"the growing mosaic set needs N = 4 K^2 images (4, 16, 36, 64), got {n}")
     dem, frames, name = _frames(data, workdir)
+    r0, r1, c0, c1 = _seen_window(dem, frames)
     with open_raster(dem) as src:
-        values, profile, transform = src.read(), src.profile, src.transform
+        values, profile = src.read()[:, r0:r1, c0:c1], src.profile
+        transform = src.transform * Affine.translation(c0, r0)
     rows, cols = values.shape[1:]
-    profile.update(height=rows * k, width=cols * k)
+    profile.update(height=rows * k, width=cols * k, transform=transform)
     tiled = workdir / f"dem-{k}x{k}.tif"
     with _write(tiled, profile) as dst:
         dst.write(np.tile(values, (1, k, k)))
@@ -84,6 +88,24 @@ def growing_scene(data: Path | None, n: int, workdir: Path) -> tuple[Path, list[
         for image, camera in frames
     ]
     return tiled, views, name
+
+
+def _seen_window(dem: Path, frames: list[View]) -> tuple[int, int, int, int]:
+    """The window (r0, r1, c0, c1) of the DEM posts that some frame sees (projects into its
+    image): the DEM of the growing set is this window tiled, so that its grid grows as the
+    number of images."""
+    from orthomvp.geometry.terrain import Terrain
+
+    terrain = Terrain.read(dem, world="map")
+    points = terrain.world_points()
+    seen = np.zeros(terrain.shape, bool)
+    for _, camera in frames:
+        uv, _ = camera.project(points)
+        ok = np.isfinite(uv).all(axis=-1)
+        ok[ok] = camera.in_image(uv[ok])
+        seen |= ok
+    rows, cols = np.nonzero(seen)
+    return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
 
 
 def fixed_scene(data: Path | None, n: int, workdir: Path) -> tuple[Path, list[View], str]:
