@@ -74,7 +74,7 @@ def growing_scene(data: Path | None, n: int, workdir: Path) -> tuple[Path, list[
     r0, r1, c0, c1 = _seen_window(dem, frames)
     with open_raster(dem) as src:
         values, profile = src.read()[:, r0:r1, c0:c1], src.profile
-        transform = src.transform * Affine.translation(c0, r0)
+        transform = src.transform @ Affine.translation(c0, r0)
     rows, cols = values.shape[1:]
     profile.update(height=rows * k, width=cols * k, transform=transform)
     tiled = workdir / f"dem-{k}x{k}.tif"
