@@ -184,6 +184,11 @@ def bench_mosaic(
     image count of ``counts``: the best of ``repeat`` runs (the counts alternating), with
     seconds per image over that of the smallest count (``per_image``, 1.0 = linear) and the
     peak RSS (MB)."""
+    odd = [n for n in counts if n < 4 or 4 * math.isqrt(n // 4) ** 2 != n]
+    if res and odd:
+        raise InputError(
+            f"the growing mosaic set needs N = 4 K^2 images (4, 16, 36, 64), got {odd[0]}"
+        )
     sets = [("growing", r, growing_scene) for r in res]
     if fixed_res:
         sets.append(("fixed", fixed_res, fixed_scene))

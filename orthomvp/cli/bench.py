@@ -121,7 +121,7 @@ def peer_data_default() -> Path | None:
     "mosaic_counts",
     cls=Variadic,
     type=click.IntRange(min=2),
-    metavar="N [N ...]",
+    metavar="N...",
     help="only the mosaic benchmark: mosaics of N images (4 K^2 for the growing set), each in "
     "a fresh process; time per image relative to the first N, and peak memory; e.g. "
     "--mosaic-scale 4 16 64",
@@ -130,12 +130,13 @@ def peer_data_default() -> Path | None:
     "--mosaic-res",
     cls=Variadic,
     type=POSITIVE,
-    metavar="M [M ...]",
+    metavar="M...",
     help="--mosaic-scale: grid spacings (metres) of the growing set (the ngi-aerial frames "
-    "tiled K x K over their DEM tiled to match, from --peer-data) [default: 24]",
+    "tiled K x K over the part of their DEM they see, tiled to match; from --peer-data) "
+    "[default: 24]",
 )
 @click.option(
-    "--mosaic-fixed-res",
+    "--mosaic-fixed",
     type=click.FloatRange(min=0),
     default=6.0,
     show_default=True,
@@ -170,7 +171,7 @@ def bench(
     scale_dask: int | None,
     mosaic_counts: tuple[int, ...],
     mosaic_res: tuple[float, ...],
-    mosaic_fixed_res: float,
+    mosaic_fixed: float,
     mosaic_repeat: int,
     json_path: Path | None,
     overwrite: bool,
@@ -208,7 +209,7 @@ def bench(
     elif mosaic_counts:
         res = mosaic_res or (24.0,)
         results = {
-            "mosaic": bench_mosaic(mosaic_counts, peer_data, res, mosaic_fixed_res, mosaic_repeat)
+            "mosaic": bench_mosaic(mosaic_counts, peer_data, res, mosaic_fixed, mosaic_repeat)
         }
     else:
         results = {"raycast": b.bench_raycast(size=size, rays=rays)}
