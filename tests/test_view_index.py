@@ -115,6 +115,7 @@ def test_plans_with_the_index_are_the_brute_forces(
         assert plan.reach == brute.reach and plan.elevation == brute.elevation
 
 
+@pytest.mark.slow
 def test_mosaic_tiles_shrink_with_the_views_of_a_tile_not_the_images(planned: dict) -> None:
     """The default side of a mosaic's tiles: mosaic_tile of the most views that the index
     finds in one tile, which on the growing set at 12 m is fewer than all 16 (so the tiles are
