@@ -51,7 +51,8 @@ def test_bench_mosaic_scale_reports_every_count(tmp_path: Path) -> None:
     assert [(r["set"], r["images"]) for r in rows] == [
         ("growing", 4), ("growing", 16), ("fixed", 4), ("fixed", 16)
     ]  # fmt: skip
-    assert rows[0]["per_image"] == 1 and rows[2]["per_image"] == 1
+    assert rows[0]["per_image"] == 1 and rows[2]["per_image"] == 1 == rows[2]["cpu_per_image"]
+    assert all(r["cpu_s"] > 0 for r in rows)
     assert rows[3]["posts"] == rows[2]["posts"]
     assert 3.5 < rows[1]["posts"] / rows[0]["posts"] < 4.5
     assert all(r["peak_rss_mb"] > 50 and r["tiles"] >= 1 for r in rows)

@@ -127,11 +127,17 @@ def _write(path: Path, profile: dict):  # noqa: ANN202 (rasterio's writer)
     return rasterio.open(path, "w", **profile)
 
 
+def _cpu() -> float:
+    """CPU seconds (user and system) of this process and its threads so far."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _measure(conn: object, dem: Path, views: list[View], options: dict) -> None:
     """Child process: plan and run the mosaic, send back the figures."""
     from orthomvp.engine import Outputs, plan_ortho, run_plan
 
-    t0 = time.perf_counter()
+    cpu0, t0 = _cpu(), time.perf_counter()
     plan = plan_ortho(dem, views, res=options["res"], world="map", progress=False)
     planning = time.perf_counter() - t0
     report = run_plan(
@@ -142,6 +148,7 @@ def _measure(conn: object, dem: Path, views: list[View], options: dict) -> None:
             "planning_s": planning,
             "run_s": report.seconds,
             "seconds": planning + report.seconds,
+            "cpu_s": _cpu() - cpu0,
             "phases_s": report.phases,
             "tiles": report.tiles_run,
             "tile": plan.tile,
@@ -153,7 +160,8 @@ def _measure(conn: object, dem: Path, views: list[View], options: dict) -> None:
 
 def measure(dem: Path, views: list[View], res: float, folder: Path) -> dict:
     """Plan and run one mosaic of ``views`` on ``dem`` at ``res`` metres in a fresh process
-    (threads, one per core): seconds planning and running, tiles, peak RSS (MB)."""
+    (threads, one per core): seconds planning and running, CPU seconds of both (all threads;
+    steadier than wall-clock time on a shared machine), tiles, peak RSS (MB)."""
     ctx = multiprocessing.get_context("spawn")
     ours, theirs = ctx.Pipe()
     options = {"res": res, "folder": str(folder)}
@@ -182,8 +190,8 @@ def bench_mosaic(
 ) -> list[dict]:
     """Per set (growing at each of ``res``, fixed at ``fixed_res``; None skips it) and per
     image count of ``counts``: the best of ``repeat`` runs (the counts alternating), with
-    seconds per image over that of the smallest count (``per_image``, 1.0 = linear) and the
-    peak RSS (MB)."""
+    seconds per image over that of the smallest count (``per_image``, 1.0 = linear; and
+    ``cpu_per_image`` in CPU seconds) and the peak RSS (MB)."""
     odd = [n for n in counts if n < 4 or 4 * math.isqrt(n // 4) ** 2 != n]
     if res and odd:
         raise InputError(
@@ -204,8 +212,10 @@ def bench_mosaic(
                 if n not in best or row["seconds"] < best[n]["seconds"]:
                     best[n] = dict(row, set=kind, res=r, images=n, scene=name)
         base = best[counts[0]]["seconds"] / counts[0]
+        cpu = best[counts[0]]["cpu_s"] / counts[0]
         for n in counts:
             best[n]["per_image"] = best[n]["seconds"] / n / base
+            best[n]["cpu_per_image"] = best[n]["cpu_s"] / n / cpu
             rows.append(best[n])
     return rows
 
@@ -213,13 +223,14 @@ def bench_mosaic(
 def format_mosaic(rows: list[dict]) -> str:
     """A text table of :func:`bench_mosaic`."""
     lines = [
-        "set      grid  images   posts        tile  plan s   run s  per image (x N=first)  "
-        "peak RSS MB"
+        "set      grid  images   posts        tile  plan s   run s   CPU s  per image (x N=first): "
+        "wall   CPU  peak RSS MB"
     ]
     for row in rows:
         lines.append(
             f"{row['set']:<8} {row['res']:>3g} m  {row['images']:>6}  {row['posts']:>11,}  "
             f"{row['tile']:>5}  {row['planning_s']:>6.1f}  {row['run_s']:>6.1f}  "
-            f"{row['per_image']:>21.2f}  {row['peak_rss_mb']:>11.0f}"
+            f"{row['cpu_s']:>6.1f}  {row['per_image']:>28.2f}  {row['cpu_per_image']:>4.2f}  "
+            f"{row['peak_rss_mb']:>11.0f}"
         )
     return "\n".join(lines)
