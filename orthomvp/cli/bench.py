@@ -123,6 +123,42 @@ def peer_data_default() -> Path | None:
     "10 on the demo's crater scene and, with --peer-data, the ngi-aerial mosaic",
 )
 @click.option(
+    "--mosaic-scale",
+    "mosaic_counts",
+    cls=Variadic,
+    type=click.IntRange(min=2),
+    metavar="N...",
+    help="only the mosaic benchmark: mosaics of N images (4 K^2 for the growing set), each in "
+    "a fresh process; time per image relative to the first N, and peak memory; e.g. "
+    "--mosaic-scale 4 16 64",
+)
+@click.option(
+    "--mosaic-res",
+    cls=Variadic,
+    type=POSITIVE,
+    metavar="M...",
+    help="--mosaic-scale: grid spacings (metres) of the growing set (the ngi-aerial frames "
+    "tiled K x K over the part of their DEM they see, tiled to match; from --peer-data) "
+    "[default: 24]",
+)
+@click.option(
+    "--mosaic-fixed",
+    type=click.FloatRange(min=0),
+    default=6.0,
+    show_default=True,
+    metavar="M",
+    help="--mosaic-scale: grid spacing (metres) of the fixed set, N copies of one frame over "
+    "one grid (0 skips)",
+)
+@click.option(
+    "--mosaic-repeat",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    metavar="N",
+    help="--mosaic-scale keeps the best of N runs of each count (alternating)",
+)
+@click.option(
     "--json", "json_path", type=PATH, metavar="FILE", help="also write the figures as JSON"
 )
 @overwrite_option
@@ -140,6 +176,10 @@ def bench(
     scale_sizes: tuple[int, ...],
     scale_dask: int | None,
     view: bool,
+    mosaic_counts: tuple[int, ...],
+    mosaic_res: tuple[float, ...],
+    mosaic_fixed: float,
+    mosaic_repeat: int,
     json_path: Path | None,
     overwrite: bool,
 ) -> None:
@@ -153,7 +193,9 @@ def bench(
     side-by-side comparison with Orthority (when installed): one ngi-aerial frame (or, without
     the data, a synthetic aerial scene) onto the same grid with both tools, end to end from
     files to GeoTIFF, best of --peer-repeat alternating runs; ratio = orthomvp time /
-    Orthority time. --scale runs instead the engine's scale benchmark (threads = cores)."""
+    Orthority time. --scale runs instead the engine's scale benchmark (threads = cores).
+    --mosaic-scale runs instead the mosaic benchmark (threads = cores). --view runs instead
+    the viewer benchmark."""
     from orthomvp import bench as b
     from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
     from orthomvp.io.outputs import atomic_path
@@ -174,6 +216,11 @@ def bench(
         results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
     elif scale_sizes:
         results = {"scale": bench_scale(scale_sizes, scale_dask)}
+    elif mosaic_counts:
+        res = mosaic_res or (24.0,)
+        results = {
+            "mosaic": bench_mosaic(mosaic_counts, peer_data, res, mosaic_fixed, mosaic_repeat)
+        }
     else:
         results = {"raycast": b.bench_raycast(size=size, rays=rays)}
         print(b.format_raycast(results["raycast"]))
@@ -227,6 +274,34 @@ def bench_scale(sizes: tuple[int, ...], dask: int | None) -> list[dict]:
             line = format_scale([other]).splitlines()[-1]
             print(f"{line}  ({other['over_threads']:.2f}x the threaded run)", flush=True)
             rows.append(other)
+    return rows
+
+
+def bench_mosaic(
+    counts: tuple[int, ...],
+    data: Path | None,
+    res: tuple[float, ...],
+    fixed_res: float,
+    repeat: int,
+) -> list[dict]:
+    """``bench --mosaic-scale``: the growing and fixed mosaic sets of
+    :mod:`orthomvp.bench.mosaic` (on the ngi-aerial frames in ``data``, synthetic ones
+    without), printed."""
+    from orthomvp.bench.mosaic import bench_mosaic as run
+    from orthomvp.bench.mosaic import format_mosaic
+
+    if not (data is not None and (data / "dem.tif").is_file()):
+        print("orthomvp: no ngi-aerial data given: using a synthetic aerial scene")
+    with tempfile.TemporaryDirectory(prefix="orthomvp-mosaic-") as tmp:
+        rows = run(
+            counts,
+            data=data,
+            folder=Path(tmp),
+            res=res,
+            fixed_res=fixed_res or None,
+            repeat=repeat,
+        )
+    print(format_mosaic(rows))
     return rows
 
 

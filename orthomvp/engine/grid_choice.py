@@ -75,6 +75,11 @@ COMPRESSION = 10
 planning: a grid whose outputs would not fit even at this ratio is refused."""
 
 
+MAX_TILES = 250_000
+"""Tiles of a plan above which its grid is refused before planning (a grid of 16 x 16 thousand
+tiles of 1,024 posts, 2.7e11 posts: a terabyte a band as float32)."""
+
+
 class HaloWarning(UserWarning):
     """A camera whose lines of sight are so low that each tile needs most of the DEM."""
 
@@ -248,6 +253,19 @@ def check_grid_size(
                 f"the output grid would be {size}, more than the {size_text(free)} free in "
                 f"{output_dir} even compressed {COMPRESSION} times: {advice}"
             )
+
+
+def check_tile_count(grid: OutputGrid, tile: int) -> None:
+    """Refuse, before any tile is planned, a grid cut into more than :data:`MAX_TILES` tiles
+    of ``tile`` posts a side: InputError, one line with the grid and the count."""
+    rows, cols = grid.shape
+    tiles = -(-rows // tile) * -(-cols // tile)
+    if tiles > MAX_TILES:
+        raise InputError(
+            f"the output grid of {cols:,} x {rows:,} posts would be {count_text(tiles)} tiles of "
+            f"{tile} posts, more than the {MAX_TILES:,} a plan holds: choose larger tiles, a "
+            "coarser res or smaller bounds"
+        )
 
 
 def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> str:

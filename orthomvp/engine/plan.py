@@ -30,6 +30,7 @@ from orthomvp.engine.grid_choice import (
     Box,
     check_grid_size,
     check_plan,
+    check_tile_count,
     choose_grid,
     grid_spacing,
     read_source,
@@ -52,6 +53,7 @@ from orthomvp.engine.tiling import (
     mosaic_tile,
     peak_bytes,
 )
+from orthomvp.engine.view_index import ViewIndex
 from orthomvp.errors import InputError
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.occlusion.occluders import BOUND_BYTES
@@ -250,10 +252,12 @@ def _job(
     window: WindowT,
     occlusion: bool,
     margin: int = 0,
+    candidates: ViewIndex | None = None,
 ) -> tuple[TileJob, list[Box | None], list[Halo | None]]:
     """Plan one tile: the job (the views that see it, its DEM window), and per view the
     tile's image box and its occluder halo (None where not computed), all for the tile grown
-    by ``margin`` posts (the posts it computes)."""
+    by ``margin`` posts (the posts it computes). With ``candidates``, an index of the grid, only
+    the views it finds can see the tile are tried (the others' boxes stay None)."""
     tile, window = window, grow(window, margin, grid.shape)
     boxes: list[Box | None] = [None] * len(views)
     halos: list[Halo | None] = [None] * len(views)
@@ -261,7 +265,9 @@ def _job(
     if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
         return TileJob(index, tile, (), None, ()), boxes, halos
     seen, windows = [], []
-    for k, view in enumerate(views):
+    among = range(len(views)) if candidates is None else candidates.views(window)
+    for k in among:
+        view = views[k]
         boxes[k] = image_box(dem, to_dem, window, view.camera)
         if not _sees(boxes[k], view):
             continue
@@ -309,7 +315,8 @@ def plan_ortho(
     that cannot be written (:func:`~orthomvp.engine.grid_choice.check_grid_size`, with the
     free space of ``output_dir`` when given) is refused before any tile is planned. It is cut
     into tiles of ``tile`` x ``tile`` posts (default :func:`auto_tile`: 1024, smaller on a grid
-    too small to give every core a tile; for a mosaic at most :func:`mosaic_tile`).
+    too small to give every core a tile; for a mosaic at most :func:`mosaic_tile` of the views
+    that see one tile).
     ``occlusion``, ``eps`` (DEM posts) and ``interp`` are those of
     :func:`orthomvp.ortho.orthophoto.orthorectify`; ``dem_crs`` overrides the DEM file's
     CRS, ``radius_values`` and ``world`` ("auto", "body", "map") as for
@@ -350,10 +357,8 @@ def plan_ortho(
         raise InputError(f"mosaic must be MosaicOptions or None, got {type(mosaic).__name__}")
     mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else None
     margin = mosaic.margin if mosaic is not None else 0
-    largest, smallest = TILE, SINGLE_VIEW_TILE
-    if mosaic is not None:
-        largest = mosaic_tile(len(sources), max(v.bands for v in sources), margin)
-        smallest = SMALL_TILE
+    smallest = SINGLE_VIEW_TILE if mosaic is None else SMALL_TILE
+    stack = max(v.bands for v in sources) if mosaic is not None else 0
     source, sources, out, jobs, reach, elevation, tile = tile_grid(
         dem,
         sources,
@@ -369,9 +374,9 @@ def plan_ortho(
         res=res,
         bounds=bounds,
         crs=crs,
-        largest=largest,
         smallest=smallest,
         heights=HeightOptions(vertical_datum, height_offset),
+        stack=stack,
     )
     spacing = source.post_spacing()
     post_scale = 1.0 if out.on_dem else grid_spacing(out, source) / spacing
@@ -426,26 +431,40 @@ def tile_grid(
     largest: int = TILE,
     smallest: int = SMALL_TILE,
     heights: HeightOptions | None = None,
+    stack: int = 0,
 ) -> TiledGrid:
     """What every engine plan starts with: the DEM and views
     (:func:`~orthomvp.engine.grid_choice.read_source`), the output grid (``grid``, ``res``,
     ``bounds``, ``crs``: :func:`~orthomvp.engine.grid_choice.choose_grid`), checked for size
     (with the free space of ``output_dir``), and its tiles of ``tile`` posts (None:
-    :func:`auto_tile`, from ``smallest`` to ``largest``), each with ``margin`` posts around it,
+    :func:`auto_tile`, from ``smallest`` to ``largest``, for a mosaic of ``stack`` bands at most
+    :func:`mosaic_tile` of the views that see a tile), each with ``margin`` posts around it,
     its DEM window (with the occluder halo when ``occlusion``) and its image boxes
     (:func:`plan_tiles`), checked (:func:`check_plan`)."""
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     out = choose_grid(source, sources, grid=grid, res=res, bounds=bounds, crs=crs)
     check_grid_size(out, source, sources, output_dir)
-    tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
+    check_tile_count(out, largest if tile is None else tile)
     to_dem = grid_to_dem(out, source)
+    found = ViewIndex(source, to_dem, out.shape, sources, 0.5 + IMAGE_MARGIN)
+    if tile is None and stack:
+        largest = min(largest, mosaic_tile(found.most(margin), stack, margin))
+    tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
+    check_tile_count(out, tile)
     jobs, boxes, reach, elevation = plan_tiles(
         out.tiles(tile),
-        lambda index, window: _job(source, to_dem, out, sources, index, window, occlusion, margin),
+        lambda i, window: _job(source, to_dem, out, sources, i, window, occlusion, margin, found),
         len(sources),
         progress,
     )
     seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
+    for k in range(len(sources)):
+        if not seen[k]:  # its box in every tile, for the message saying why
+            alone = (sources[k],)
+            tiles = enumerate(out.tiles(tile))
+            boxes[k] = [
+                _job(source, to_dem, out, alone, i, w, False, margin)[1][0] for i, w in tiles
+            ]
     check_plan(source, sources, boxes, seen, reach, elevation)
     return TiledGrid(source, sources, out, jobs, reach, elevation, tile)
 

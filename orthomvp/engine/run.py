@@ -96,11 +96,14 @@ def check_memory(plan: Any, need: int, workers: int) -> int:
 
 
 def _worker_init(plan: Any, parent: int) -> None:
-    """Set up a worker process of :func:`executor`: keep ``plan``; leave SIGINT to the parent
-    ``parent`` (pid; a Ctrl-C reaches the whole process group, and the parent stops the pool:
-    no traceback of every worker), and die with the parent, even when it is killed outright."""
+    """Set up a worker process of :func:`executor`: keep ``plan``; keep the images' datasets
+    open between its tiles (:func:`~orthomvp.io.raster.held_rasters`, for the life of the
+    worker, which ends with the run); leave SIGINT to the parent ``parent`` (pid; a Ctrl-C
+    reaches the whole process group, and the parent stops the pool: no traceback of every
+    worker), and die with the parent, even when it is killed outright."""
     global _PLAN
     _PLAN = plan
+    _HELD.enter_context(held_rasters())
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, HELD_SIGNALS)  # held while it was started
     die_with_parent(parent)
@@ -146,6 +149,8 @@ PR_SET_PDEATHSIG = 1
 
 
 _PLAN: Any = None
+_HELD = contextlib.ExitStack()
+"""A worker process's scope of held datasets (:func:`_worker_init`)."""
 
 
 def _process_tile(work: Callable[..., Any], index: int, *args: Any) -> Any:
@@ -200,7 +205,7 @@ def executor(
     else:
         pool = cf.ThreadPoolExecutor(workers)
         submit = lambda i, *a: pool.submit(work, plan, i, *a)  # noqa: E731
-    # the images' datasets kept open between tiles (in threads; a worker process reads anew)
+    # the images' datasets kept open between tiles (threads; a worker process holds its own)
     with held_rasters() if not processes else contextlib.nullcontext():
         try:
             yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)

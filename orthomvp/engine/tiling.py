@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -85,15 +85,22 @@ def auto_tile(
     return min(largest, max(smallest, split))
 
 
-def mosaic_tile(views: int, bands: int, margin: int) -> int:
+def mosaic_tile(views: int | Callable[[int], int], bands: int, margin: int) -> int:
     """The largest default tile side of a mosaic (a multiple of 128, at least
-    :data:`SMALL_TILE`, at most :data:`TILE`) whose stack of every view's samples (float32,
-    with the ``margin`` around the tile) stays below the heap's mmap threshold
-    (:data:`orthomvp.engine.heap.MMAP_THRESHOLD`): larger blocks come afresh from the kernel
-    at every allocation, and compose's temporaries of that size then cost page faults (a
-    4-view RGB mosaic at 3 m on ngi-aerial: compose 8.0 s in 1,024-post tiles, 4.6 s in 768)."""
-    side = math.isqrt(MMAP_THRESHOLD // (views * max(4 * bands, 8))) - 2 * margin
-    return min(TILE, max(SMALL_TILE, side // 128 * 128))
+    :data:`SMALL_TILE`, at most :data:`TILE`) whose stack of the samples of the views that see
+    one tile (float32, with the ``margin`` around the tile) stays below the heap's mmap
+    threshold (:data:`orthomvp.engine.heap.MMAP_THRESHOLD`): larger blocks come afresh from the
+    kernel at every allocation, and compose's temporaries of that size then cost page faults (a
+    4-view RGB mosaic at 3 m on ngi-aerial: compose 8.0 s in 1,024-post tiles, 4.6 s in 768).
+    ``views``: the most views that see one tile, for a side of posts (a function of the side),
+    or every view (a count). The memory rule: a tile's stack holds only its own views, so
+    tiles shrink as more views overlap one place, not as more images join the mosaic."""
+    per_post = max(4 * bands, 8)
+    for side in range(TILE, SMALL_TILE - 1, -128):
+        count = views if isinstance(views, int) else views(side)
+        if (side + 2 * margin) ** 2 * max(count, 1) * per_post <= MMAP_THRESHOLD:
+            return side
+    return SMALL_TILE
 
 
 def check_tile(tile: object) -> int | None:

@@ -22,6 +22,8 @@ from orthomvp.jit import cached_jit
 _TINY = np.float32(1e-12)
 _ONE = np.float32(1.0)
 _TWO = np.float32(2.0)
+_FEW = 8
+"""Values a seam median sorts outright (:func:`_middle`); more are selected."""
 
 
 def _box(a: np.ndarray, radius: int, out: np.ndarray, tmp: np.ndarray) -> None:
@@ -97,17 +99,12 @@ def _seam_labels(
                     m += 1
             for b in range(bands):
                 j = 0
-                for k in range(n):  # insertion sort of the visible views' values
+                for k in range(n):  # the visible views' values
                     if visible[k, r, c]:
-                        x = values[k, b, r, c]
-                        i = j
-                        while i > 0 and ordered[i - 1] > x:
-                            ordered[i] = ordered[i - 1]
-                            i -= 1
-                        ordered[i] = x
+                        ordered[j] = values[k, b, r, c]
                         j += 1
                 if m > 0:
-                    median[b] = (ordered[(m - 1) // 2] + ordered[m // 2]) / _TWO
+                    median[b] = _middle(ordered, m)
             for k in range(n):
                 if not visible[k, r, c]:
                     quanta[k, r, c] = 0
@@ -127,6 +124,58 @@ def _seam_labels(
     for k in range(n):
         _box(quanta[k], radius, quanta[k], tmp)
     _least(quanta, seen, visible, label)
+
+
+def _middle(a: np.ndarray, m: int) -> np.float32:
+    """The median of ``a[:m]`` (finite; m >= 1) in float32, the mean of its two middle values
+    when m is even (as numpy's sorted median), found by selection: an insertion sort up to
+    :data:`_FEW` values, else a quickselect (three-way partitions about a median of three,
+    linear in m on average). ``a[:m]`` is reordered."""
+    hi = m // 2
+    if m <= _FEW:
+        for j in range(1, m):
+            x, i = a[j], j
+            while i > 0 and a[i - 1] > x:
+                a[i] = a[i - 1]
+                i -= 1
+            a[i] = x
+        return (a[(m - 1) // 2] + a[hi]) / _TWO
+    upper = _select(a, m, hi)
+    if m % 2:
+        return (upper + upper) / _TWO
+    lower = a[0]  # a[:hi] holds the hi smallest values: the lower middle is their largest
+    for i in range(1, hi):
+        if a[i] > lower:
+            lower = a[i]
+    return (lower + upper) / _TWO
+
+
+def _select(a: np.ndarray, m: int, k: int) -> np.float32:
+    """The ``k``-th smallest (0-based) of ``a[:m]``, with ``a[:m]`` reordered so that the values
+    before position ``k`` are no larger (quickselect)."""
+    lo, hi = 0, m - 1
+    while lo < hi:
+        x, y, z = a[lo], a[(lo + hi) // 2], a[hi]
+        pivot = max(min(x, y), min(max(x, y), z))  # the median of the three
+        lt, i, gt = lo, lo, hi
+        while i <= gt:  # a[lo:lt] < pivot, a[lt:i] == pivot, a[gt + 1 : hi + 1] > pivot
+            v = a[i]
+            if v < pivot:
+                a[i], a[lt] = a[lt], v
+                lt += 1
+                i += 1
+            elif v > pivot:
+                a[i], a[gt] = a[gt], v
+                gt -= 1
+            else:
+                i += 1
+        if k < lt:
+            hi = lt - 1
+        elif k > gt:
+            lo = gt + 1
+        else:
+            return pivot
+    return a[k]
 
 
 def _least(cost: np.ndarray, seen: np.ndarray, visible: np.ndarray, label: np.ndarray) -> None:
@@ -207,6 +256,8 @@ def _blend(
 
 _box = cached_jit(_box, fastmath=False, error_model="numpy")
 _count = cached_jit(_count, fastmath=False, error_model="numpy", inline="always")
+_select = cached_jit(_select, fastmath=False, error_model="numpy")
+_middle = cached_jit(_middle, fastmath=False, error_model="numpy")
 _least = cached_jit(_least, fastmath=False, error_model="numpy")
 _seam_labels = cached_jit(_seam_labels, fastmath=False, error_model="numpy")
 _blend = cached_jit(_blend, fastmath=False, error_model="numpy")
