@@ -53,7 +53,7 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
         len(plan.views),
         progress,
     )
-    plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, fill="none")
+    plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, holes="empty")
     coarse = replace(
         plan,
         grid=grid,

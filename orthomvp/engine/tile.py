@@ -30,6 +30,7 @@ from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import Visibility, compute_visibility
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import compose, doubtful, nadir_angle
+from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 
 
@@ -45,7 +46,10 @@ class TileResult:
     that no image sees: all of them, unread); ``seconds`` per phase (read, mesh, visibility,
     sample, compose); ``stack`` (kind "stack" of a mosaic plan) every view's samples (views,
     bands, rows, cols) and codes (views, rows, cols), uncomposed; ``taken`` per view the posts
-    whose value it gave (zeros unless values or sources were made)."""
+    whose value it gave (zeros unless values or sources were made); ``flags`` for a mosaic the
+    posts of each :class:`~orthomvp.ortho.holes.Flag` value (0 ..
+    :data:`~orthomvp.ortho.holes.FLAGS` - 1; all empty outside unless values or sources were
+    made)."""
 
     index: int
     window: WindowT
@@ -59,6 +63,7 @@ class TileResult:
     seconds: dict[str, float] = field(default_factory=dict)
     stack: tuple[np.ndarray, np.ndarray] | None = None
     taken: list[int] = field(default_factory=list)
+    flags: list[int] = field(default_factory=list)
 
 
 @contextmanager
@@ -84,6 +89,7 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
         [[shape[0] * shape[1], 0, 0, 0] for _ in range(n)],
         shape[0] * shape[1],
         taken=[0] * n,
+        flags=[shape[0] * shape[1]] + [0] * (FLAGS - 1) if plan.mosaic is not None else [],
     )
 
 
@@ -379,14 +385,15 @@ def _mosaic_tile(
     m = len(views)
     values = np.empty((m, plan.bands, *shape), np.float32)  # samples, NaN where none
     codes = np.zeros((m, *shape), np.uint8)
-    fill, priority = plan.mosaic.fill, plan.mosaic.priority
+    holes, priority = plan.mosaic.holes, plan.mosaic.priority
     emission = np.full((m, *shape), np.inf)
     # GSD and nadir angles only where the options use them (else read-only infinities)
-    use_gsd, use_nadir = priority == "gsd", priority == "nadir" or fill == "naive"
+    use_gsd, use_nadir = priority == "gsd", priority == "nadir" or holes == "naive"
     none = np.broadcast_to(np.inf, (m, *shape))
     gsd = np.full((m, *shape), np.inf) if use_gsd else none
     nadir = np.full((m, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((m, *shape), bool)
+    slack = np.zeros((m, *shape))
     fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
@@ -400,12 +407,13 @@ def _mosaic_tile(
         if use_gsd:
             gsd[i] = vis.gsd[inner]
         doubt[i] = doubtful(vis.miss[inner], vis.eps[inner])
+        slack[i] = np.where(doubt[i], vis.eps[inner] - vis.miss[inner], 0.0)
         if use_nadir:
             nadir[i] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
-        if fill == "any-view":
+        if holes == "behind":
             need |= code == Code.FACING_AWAY
-        elif fill == "naive":
+        elif holes == "naive":
             need |= code != Code.NODATA
         wanted = result.data is not None or result.source is not None or "stack" in kinds
         if wanted and need.any():
@@ -429,10 +437,11 @@ def _mosaic_tile(
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
-            fused=plan.fused,
+            slack=slack, fused=plan.fused,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)
+    result.flags = np.bincount(comp.flags[core].ravel(), minlength=FLAGS).tolist()
     if result.data is not None:
         result.data = comp.data[:, core[0], core[1]]
     if result.source is not None:
