@@ -46,7 +46,6 @@ from orthomvp.ortho.composite import (
     nadir_angle,
     overlap_width,
 )
-from orthomvp.ortho.support import blocked as support_blocked
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -286,17 +285,9 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    blocked = np.zeros(shape, bool)
-    if n > 1:  # (only where a post has another view to prefer)
-        several = ((codes == Code.VISIBLE) & ~doubt).sum(axis=0) > 1
-        for k, (_, camera) in enumerate(views):
-            test = several & (codes[k] == Code.VISIBLE) & ~doubt[k]
-            uv = visibilities[k].uv
-            blocked[k] = support_blocked(terrain, whole, camera, uv, test, caster)
     comp = compose(
-        values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, fused=fused,
-    )  # fmt: skip
+        values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack, fused=fused
+    )
     return Mosaic(
         comp.data,
         comp.source.astype(np.uint8 if n < 255 else np.uint16),
