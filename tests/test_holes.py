@@ -140,3 +140,27 @@ def test_the_fill_option_is_a_deprecated_alias(crater_dir: Path, tmp_path: Path,
     assert main([*base, "-o", str(tmp_path / "b.tif"), "--holes", "behind"]) == 0
     with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
         np.testing.assert_array_equal(a.read(), b.read())
+
+
+def test_occluder_share_against_the_city_truth(city: Path) -> None:
+    """The occluder share of a view's sample is 1 at posts its truth occludes well inside
+    their shadow (every ray of every tap meets the occluder) and 0 at visible posts away from
+    every truth class boundary on open ground (no surface but the post's own near them)."""
+    from scipy.ndimage import binary_erosion
+
+    from orthomvp.synthetic.ghosts import occluder_share
+
+    scene = make_scene("city", size=96)
+    x, y = scene.post_local()
+    posts = np.stack([x, y, scene.surface.height(x, y)], axis=-1)
+    ground = scene.surface.pieces(x, y)[3] == 0
+    loaded = load_scene(city)
+    for name in ("ne", "sw"):
+        truth = loaded.views[name].truth
+        uv = mosaic(scene.terrain, [(loaded.views[name].image, scene.cameras[name])]).visibilities
+        uv = uv[0].uv
+        deep = binary_erosion(truth == Code.OCCLUDED, np.ones((7, 7), bool))
+        clear = binary_erosion((truth == Code.VISIBLE) & ground, np.ones((9, 9), bool))
+        assert deep.sum() > 20 and clear.sum() > 1000
+        np.testing.assert_array_equal(occluder_share(scene, name, uv[deep], posts[deep]), 1.0)
+        np.testing.assert_array_equal(occluder_share(scene, name, uv[clear], posts[clear]), 0.0)
