@@ -14,7 +14,7 @@ from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_ortho, run_plan
 from orthomvp.errors import InputError
 from orthomvp.ortho.composite import MosaicOptions
-from orthomvp.ortho.holes import HOLES, INPAINT_SIZE, Flag, inpaint
+from orthomvp.ortho.holes import FLAGS, HOLES, INPAINT_SIZE, Flag, inpaint
 from orthomvp.ortho.orthophoto import mosaic
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.loader import load_scene
@@ -116,7 +116,7 @@ def test_any_tiling_gives_the_same_holes(city: Path, tmp_path: Path, holes: str)
         assert tiled["report"].tiles_run > 4
         np.testing.assert_array_equal(tiled["ortho"], whole["ortho"])
         np.testing.assert_array_equal(tiled["source"], whole["source"])
-        assert tiled["report"].flags == np.bincount(flags.ravel(), minlength=12).tolist()
+        assert tiled["report"].flags == np.bincount(flags.ravel(), minlength=FLAGS).tolist()
     scene = load_scene(city)
     memory = mosaic(scene.terrain, [(scene.views[n].image, scene.views[n].camera) for n in NAMES])
     empty = memory.flags != Flag.VISIBLE

@@ -232,7 +232,7 @@ def ortho(
     help="also write which image each post came from (band 1), how or why not (band 2: 1 "
     "visible, 2 from behind, 3 naive, 4 doubtful, 5 inpainted; empty: 0 outside every image, "
     "8 facing away, 9 occluded, 10 occluded or facing away in every image, 11 seen only "
-    "doubtfully) and each image's blend weight (bands 3.., /255)",
+    "doubtfully, 12 no pixel value) and each image's blend weight (bands 3.., /255)",
 )
 @click.option(
     "--priority",

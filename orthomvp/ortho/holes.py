@@ -37,7 +37,8 @@ whole grid has the same edge.
 
 Hole reasons (band 2 of the source raster with the fill flags, :class:`Flag`), over the views
 that image the post (inside the image, with a pixel value where visible): none does
-(:attr:`Flag.OUTSIDE`, also posts without a height), every one faces away
+(:attr:`Flag.OUTSIDE`, also posts without a height; :attr:`Flag.NO_VALUE` where images see it
+but have no pixel value there, nodata pixels or the image's edge), every one faces away
 (:attr:`Flag.FACING_AWAY`), every one is occluded (:attr:`Flag.OCCLUDED`), each does one or
 the other (:attr:`Flag.HIDDEN`), or some see it but all only doubtfully
 (:attr:`Flag.DOUBTFUL_EMPTY`).
@@ -72,7 +73,7 @@ class Flag(IntEnum):
     """Band 2 of the source raster: how a post got its value, or why it has none."""
 
     OUTSIDE = 0
-    """empty: outside every image (or no height, or no pixel value)"""
+    """empty: outside every image (or no height)"""
     VISIBLE = 1
     """from the trusted views that see it"""
     BEHIND = 2
@@ -91,6 +92,8 @@ class Flag(IntEnum):
     """empty: occluded in some views imaging it, facing away in the others"""
     DOUBTFUL_EMPTY = 11
     """empty: seen only doubtfully (policy empty)"""
+    NO_VALUE = 12
+    """empty: inside images that have no pixel value there"""
 
     EMPTY = 0
     ANY_VIEW = 2
@@ -106,10 +109,16 @@ class Flag(IntEnum):
         return _LABELS[self]
 
 
-EMPTY_REASONS = (Flag.FACING_AWAY, Flag.OCCLUDED, Flag.HIDDEN, Flag.DOUBTFUL_EMPTY)
+EMPTY_REASONS = (
+    Flag.FACING_AWAY,
+    Flag.OCCLUDED,
+    Flag.HIDDEN,
+    Flag.DOUBTFUL_EMPTY,
+    Flag.NO_VALUE,
+)
 """The flags of empty posts besides :attr:`Flag.OUTSIDE`."""
 
-FLAGS = 12
+FLAGS = 13
 """Flag values counted per run (0 .. FLAGS - 1)."""
 
 _LABELS = {
@@ -123,6 +132,7 @@ _LABELS = {
     Flag.OCCLUDED: "occluded in every view",
     Flag.HIDDEN: "occluded or facing away in every view",
     Flag.DOUBTFUL_EMPTY: "seen only doubtfully",
+    Flag.NO_VALUE: "without a pixel value",
 }
 
 
@@ -136,6 +146,7 @@ def reasons(codes: np.ndarray, finite: np.ndarray) -> np.ndarray:
     away = (imaging & (codes == Code.FACING_AWAY)).any(axis=0)
     hidden = (imaging & (codes == Code.OCCLUDED)).any(axis=0)
     out = np.full(codes.shape[1:], Flag.OUTSIDE, np.uint8)
+    out[(codes != Code.NODATA).any(axis=0)] = Flag.NO_VALUE
     out[away] = Flag.FACING_AWAY
     out[hidden] = Flag.OCCLUDED
     out[away & hidden] = Flag.HIDDEN
