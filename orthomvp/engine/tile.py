@@ -32,6 +32,8 @@ from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
+from orthomvp.ortho.support import blocked as support_blocked
+from orthomvp.ortho.support import candidates, facing_gsd
 
 
 @dataclass
@@ -394,11 +396,15 @@ def _mosaic_tile(
     nadir = np.full((m, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((m, *shape), bool)
     slack = np.zeros((m, *shape))
-    fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
+    uvs = []
+    sizes = []
+    fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
+        uvs.append(uv)
+        sizes.append(facing_gsd(vis.gsd[inner], vis.emission[inner]))
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
@@ -434,10 +440,18 @@ def _mosaic_tile(
     correction = plan.correction
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
+    blocked = np.zeros((m, *shape), bool)
+    if caster is not None and m > 1:
+        with _timed(seconds, "visibility"):
+            tests = candidates((codes == Code.VISIBLE) & ~doubt)
+            for i, k in enumerate(views):
+                test = tests[i]
+                camera = plan.views[k].camera
+                blocked[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], test, caster)
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
-            slack=slack, fused=plan.fused,
+            slack=slack, blocked=blocked, fused=plan.fused,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)

@@ -45,6 +45,7 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.ortho.balance import BALANCES, Correction
 from orthomvp.ortho.holes import FILL_ALIASES, HOLES, INPAINT_HALO, Flag, fill_holes
+from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 """Which view a post prefers: smallest emission angle (surface normal to camera), finest
@@ -138,12 +139,12 @@ class MosaicOptions:
     @property
     def margin(self) -> int:
         """Posts around a post that its result depends on: the trust test
-        (:data:`TRUST_RADIUS`), the label's cost average and its costs' neighbourhoods
-        (2 :data:`SEAM_RADIUS`), the blend box (``blend // 2``) and inpainting's
-        (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
+        (:data:`TRUST_RADIUS`, :data:`~orthomvp.ortho.support.RADIUS`), the label's cost
+        average and its costs' neighbourhoods (2 :data:`SEAM_RADIUS`), the blend box
+        (``blend // 2``) and inpainting's (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
         seams = 2 * SEAM_RADIUS if self.seamlines else 0
         halo = INPAINT_HALO if self.holes == "inpaint" else 0
-        return TRUST_RADIUS + seams + self.blend // 2 + halo
+        return max(TRUST_RADIUS, SUPPORT_RADIUS) + seams + self.blend // 2 + halo
 
 
 @dataclass
@@ -258,11 +259,14 @@ def doubtful(miss: np.ndarray, eps: np.ndarray) -> np.ndarray:
         return np.isfinite(miss) & (miss > eps - DOUBT)
 
 
-def trusted(visible: np.ndarray, doubt: np.ndarray | None = None) -> np.ndarray:
+def trusted(
+    visible: np.ndarray, doubt: np.ndarray | None = None, blocked: np.ndarray | None = None
+) -> np.ndarray:
     """The views (views, rows, cols) a post may take among those ``visible``: never one in
-    ``doubt``; the views with all posts within :data:`TRUST_RADIUS` visible (off the grid
-    counts as visible) where the post has one, else those with its four nearest neighbours
-    visible, else the others."""
+    ``doubt``; those not ``blocked`` (their sample reaches an occluder in the image,
+    :mod:`orthomvp.ortho.support`) where the post has one; among them, the views with all posts
+    within :data:`TRUST_RADIUS` visible (off the grid counts as visible) where the post has
+    one, else those with its four nearest neighbours visible, else the others."""
     sure = visible if doubt is None else visible & ~doubt
     box = np.ones((2 * TRUST_RADIUS + 1,) * 2, np.uint8)
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
@@ -271,7 +275,8 @@ def trusted(visible: np.ndarray, doubt: np.ndarray | None = None) -> np.ndarray:
         # erosions of the view's visible posts, with every post off the grid visible
         four = cv2.erode(plane, cross, borderType=cv2.BORDER_CONSTANT, borderValue=1)
         every = cv2.erode(plane, box, borderType=cv2.BORDER_CONSTANT, borderValue=1)
-        tier[k] = np.where(sure[k], 1 + four + every, 0)
+        clear = 4 if blocked is None else np.where(blocked[k], 0, 4).astype(np.uint8)
+        tier[k] = np.where(sure[k], 1 + four + every + clear, 0)
     return sure & (tier == tier.max(axis=0))
 
 
@@ -333,6 +338,7 @@ def compose(
     doubt: np.ndarray | None = None,
     *,
     slack: np.ndarray | None = None,
+    blocked: np.ndarray | None = None,
     fused: bool = False,
 ) -> Composite:
     """Compose a mosaic window from per-view ``values`` (views, bands, rows, cols) float32
@@ -341,12 +347,13 @@ def compose(
     each post, following ``options``, after ``correction``; ``doubt`` (views, rows, cols)
     marks the visible posts a view is doubtful at (:func:`doubtful`; None: none) and
     ``slack`` (views, rows, cols) its epsilon minus its miss there (posts), the margin by
-    which :func:`orthomvp.ortho.holes.fill_holes` picks a doubtful view. ``fused``:
+    which :func:`orthomvp.ortho.holes.fill_holes` picks a doubtful view; ``blocked`` (views,
+    rows, cols) where a view's sample reaches an occluder (:func:`trusted`). ``fused``:
     labels and blend with the numba kernels of :mod:`orthomvp.ortho.composite_kernel` (the same
     result, bit for bit; about 3.5x faster, after a load of about 0.3 s a process)."""
     values = np.ascontiguousarray(values if correction is None else correction.apply(values))
     finite = np.isfinite(values).all(axis=1)
-    visible = trusted((codes == Code.VISIBLE) & finite, doubt)
+    visible = trusted((codes == Code.VISIBLE) & finite, doubt, blocked)
     cost = np.ascontiguousarray(priority_cost(options.priority, emission, gsd, nadir, visible))
     label = labels(cost, visible, values, options.seamlines, fused=fused)
     n, bands, rows, cols = values.shape

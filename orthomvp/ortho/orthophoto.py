@@ -46,6 +46,8 @@ from orthomvp.ortho.composite import (
     nadir_angle,
     overlap_width,
 )
+from orthomvp.ortho.support import blocked as support_blocked
+from orthomvp.ortho.support import candidates, facing_gsd
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -285,9 +287,18 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
+    blocked = np.zeros(shape, bool)
+    if n > 1:  # (only where a post has another view to prefer)
+        tests = candidates((codes == Code.VISIBLE) & ~doubt)
+        for k, (_, camera) in enumerate(views):
+            test = tests[k]
+            uv = visibilities[k].uv
+            facing = facing_gsd(visibilities[k].gsd, visibilities[k].emission)
+            blocked[k] = support_blocked(terrain, whole, camera, uv, facing, test, caster)
     comp = compose(
-        values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack, fused=fused
-    )
+        values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
+        blocked=blocked, fused=fused,
+    )  # fmt: skip
     return Mosaic(
         comp.data,
         comp.source.astype(np.uint8 if n < 255 else np.uint16),
