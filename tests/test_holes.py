@@ -164,3 +164,34 @@ def test_occluder_share_against_the_city_truth(city: Path) -> None:
         assert deep.sum() > 20 and clear.sum() > 1000
         np.testing.assert_array_equal(occluder_share(scene, name, uv[deep], posts[deep]), 1.0)
         np.testing.assert_array_equal(occluder_share(scene, name, uv[clear], posts[clear]), 0.0)
+
+
+def test_blocked_samples_hold_the_occluders(city: Path) -> None:
+    """The support test (orthomvp/ortho/support.py) against the city's exact geometry: near
+    occlusion boundaries, the samples it calls blocked have an occluder in them more than
+    three times as often as those it clears."""
+    from orthomvp.occlusion.visibility import occluder_caster
+    from orthomvp.ortho.composite import doubtful
+    from orthomvp.ortho.support import blocked, candidates, facing_gsd
+    from orthomvp.synthetic.ghosts import occluder_share
+
+    scene = make_scene("city", size=96)
+    x, y = scene.post_local()
+    posts = np.stack([x, y, scene.surface.height(x, y)], axis=-1)
+    loaded = load_scene(city)
+    views = [(loaded.views[n].image, scene.cameras[n]) for n in NAMES]
+    vis = mosaic(scene.terrain, views).visibilities
+    seen = np.array([v.codes == Code.VISIBLE for v in vis])
+    tests = candidates(seen & ~np.array([doubtful(v.miss, v.eps) for v in vis]))
+    caster, whole = occluder_caster(scene.terrain), (slice(None), slice(None))
+    shares = {True: [], False: []}
+    for k, (v, name) in enumerate(zip(vis, NAMES, strict=True)):
+        gsd = facing_gsd(v.gsd, v.emission)
+        hit = blocked(scene.terrain, whole, scene.cameras[name], v.uv, gsd, tests[k], caster)
+        assert not (hit & ~tests[k]).any()
+        for flag in (True, False):
+            at = tests[k] & (hit == flag)
+            shares[flag].append(occluder_share(scene, name, v.uv[at], posts[at]))
+    dirty = {flag: float((np.concatenate(s) > 0).mean()) for flag, s in shares.items()}
+    assert len(np.concatenate(shares[True])) > 50
+    assert dirty[True] > 3 * dirty[False], dirty

@@ -65,9 +65,10 @@ def blocked(
     caster: RayCaster | Occluders,
 ) -> np.ndarray:
     """Where (rows, cols) the sample of ``camera`` at the posts ``inner`` of ``grid`` (image
-    positions ``uv`` (rows, cols, 2)) reaches an occluder (module docstring), tested at the
+    positions ``uv`` (rows, cols, 2), GSDs ``facing`` (rows, cols) metres on a surface facing
+    the camera, :func:`facing_gsd`) reaches an occluder (module docstring), tested at the
     posts ``test`` (rows, cols) only (False elsewhere); ``caster`` casts on the occluder
-    surface; ``post_scale`` the size of a grid post in DEM posts."""
+    surface (world frame, metres)."""
     out = np.zeros(test.shape, bool)
     if not test.any():
         return out
