@@ -281,7 +281,11 @@ def ortho(
     "(never occluded), inpainted from the posts around (holes up to 16 posts), or the most "
     "nadir naive value (ghosts); flagged in --source",
 )
-@click.option("--fill", type=click.Choice(FILLS), hidden=True, help="deprecated: --holes")
+@click.option(
+    "--fill",
+    type=click.Choice(FILLS),
+    help="deprecated: --holes (none = empty, any-view = behind, naive = naive)",
+)
 @click.option(
     "--visibility",
     "visibility_out",
