@@ -31,6 +31,7 @@ from orthomvp.ortho.composite import (
     trusted,
     visible_median,
 )
+from orthomvp.ortho.holes import HOLES
 from orthomvp.ortho.orthophoto import mosaic, orthorectify
 
 VIEWS = ("oblique", "nadir", "fore")
@@ -72,18 +73,26 @@ def gained(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 CASES = [
     {},
-    {"priority": "nadir", "fill": "naive", "blend": 6},
-    {"priority": "gsd", "fill": "any-view", "balance": "gain-offset", "reference": 0},
+    {"priority": "nadir", "holes": "naive", "blend": 6},
+    {"priority": "gsd", "holes": "behind", "balance": "gain-offset", "reference": 0},
     {"priority": "order", "seamlines": False, "blend": 0, "balance": "gain"},
+    {"holes": "inpaint"},
+    {"holes": "inpaint", "seamlines": False, "blend": 0},
 ]
 
 
 @pytest.mark.parametrize("options", CASES, ids=lambda o: ",".join(map(str, o.values())))
 def test_tiled_equals_untiled(crater_dir: Path, views: list, tmp_path: Path, options) -> None:
-    """Tiles of 16 posts (margins up to 12 posts around them) give the whole grid's mosaic;
-    without balance also the in-memory one's."""
+    """Tiles of 16 posts (margins up to 12 posts around them, 31 when inpainting) give the whole
+    grid's mosaic, and tiles of 24 posts the same; without balance also the in-memory one's."""
     tiled = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, "t", tile=16, **options)
     whole = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, "w", tile=64, **options)
+    other = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, "o", tile=24, **options)
+    np.testing.assert_array_equal(other["source"], whole["source"])
+    np.testing.assert_array_equal(other["ortho"], whole["ortho"])
+    assert tiled["report"].flags == whole["report"].flags
+    counts = np.bincount(whole["source"][1].ravel(), minlength=len(whole["report"].flags))
+    assert whole["report"].flags == counts.tolist()
     assert len(tiled["report"].counts) == 3 and tiled["report"].tiles_run == 16
     np.testing.assert_array_equal(tiled["source"], whole["source"])
     np.testing.assert_array_equal(np.isnan(tiled["ortho"]), np.isnan(whole["ortho"]))
@@ -312,16 +321,17 @@ def test_visible_median_is_numpys_bit_for_bit(views: int) -> None:
     np.testing.assert_array_equal(got, expected)
 
 
-@pytest.mark.parametrize("fill", FILLS)
-def test_fill_policies_and_occlusion(crater_dir: Path, tmp_path: Path, fill) -> None:
+@pytest.mark.parametrize("holes", ["empty", "behind", "naive"])
+def test_hole_policies_and_occlusion(crater_dir: Path, tmp_path: Path, holes: str) -> None:
     """Values only where the rule says, flagged; a view gives weight only to posts it sees
-    (naive fills, flagged, excepted); filled values are that view's naive orthophoto. The
-    oblique view twice (the second a copy of its image: a view given twice is refused): the
-    crater's only view with hidden posts (the others see all)."""
+    (naive fills, flagged, excepted); filled values are that view's naive orthophoto; every
+    empty post carries the reason its codes give. The oblique view twice (the second a copy
+    of its image: a view given twice is refused): the crater's only view with hidden posts
+    (the others see all)."""
     copy = shutil.copy(crater_dir / "oblique.tif", tmp_path / "oblique-copy.tif")
     views = [(crater_dir / "oblique.tif", crater_dir / "oblique.tsai")]
     views.append((copy, crater_dir / "oblique.tsai"))
-    got = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, fill, tile=32, fill=fill)
+    got = engine_mosaic(crater_dir / "dem.tif", views, tmp_path, holes, tile=32, holes=holes)
     data, src, codes = got["ortho"], got["source"], got["visibility"]
     view, flags, weights = src[0].astype(int), src[1], src[2:]
     visible = codes == Code.VISIBLE
@@ -330,23 +340,38 @@ def test_fill_policies_and_occlusion(crater_dir: Path, tmp_path: Path, fill) -> 
     filled = np.isfinite(data).all(axis=0)
     np.testing.assert_array_equal(filled & ~hole, ~hole)
     np.testing.assert_array_equal(flags[~hole], Flag.VISIBLE)
-    expect = {"none": Flag.EMPTY, "any-view": Flag.ANY_VIEW, "naive": Flag.NAIVE}[fill]
-    if fill == "none":
+    expect = {"empty": None, "behind": Flag.BEHIND, "naive": Flag.NAIVE}[holes]
+    if holes == "empty":
         rule = np.zeros_like(hole)
-    elif fill == "any-view":
+    elif holes == "behind":
         rule = hole & (codes == Code.FACING_AWAY).any(axis=0)
     else:
         rule = hole & (codes != Code.NODATA).any(axis=0)
     np.testing.assert_array_equal(filled & hole, rule)
     np.testing.assert_array_equal(flags[rule], expect)
-    assert not flags[hole & ~rule].any() and not view[hole & ~rule].any()
+    assert not view[hole & ~rule].any()
+    inside = (codes != Code.NODATA).sum(axis=0)
+    reason = np.select(
+        [
+            inside == 0,
+            (codes == Code.FACING_AWAY).sum(axis=0) == inside,
+            (codes == Code.OCCLUDED).sum(axis=0) == inside,
+        ],
+        [Flag.OUTSIDE, Flag.FACING_AWAY, Flag.OCCLUDED],
+        Flag.HIDDEN,
+    )
+    empty = hole & ~rule
+    assert empty.any() == (holes != "naive") and (reason[empty] != Flag.OUTSIDE).any() == (
+        holes != "naive"
+    )
+    np.testing.assert_array_equal(flags[empty], reason[empty])
     blended = flags == Flag.VISIBLE
     for k in range(len(views)):
         # weights only where the view sees the post (fills: only the chosen view)
         assert not (weights[k][blended] > 0)[~visible[k][blended]].any()
-        if fill != "none":
+        if holes != "empty":
             mine = rule & (view == k + 1)
-            if fill == "any-view":
+            if holes == "behind":
                 assert (codes[k][mine] == Code.FACING_AWAY).all()
             else:
                 assert (codes[k][mine] != Code.NODATA).all()
@@ -356,9 +381,9 @@ def test_fill_policies_and_occlusion(crater_dir: Path, tmp_path: Path, fill) -> 
                     Terrain.read(crater_dir / "dem.tif"), image, camera, occlusion=False
                 )
                 np.testing.assert_allclose(data[:, mine], naive.data[:, mine], rtol=1e-6)
-    if fill == "naive":
+    if holes == "naive":
         assert rule.sum() > 0 and (codes[view[rule] - 1, rule] == Code.OCCLUDED).any()
-    if fill == "any-view":
+    if holes == "behind":
         assert rule.sum() > 0
 
 
@@ -367,7 +392,7 @@ def test_cli_options_and_errors(crater_dir: Path, tmp_path: Path, capsys) -> Non
     dem, out = str(crater_dir / "dem.tif"), str(tmp_path / "m.tif")
     base = ["-q", "mosaic", dem, *pairs, "-o", out, "--overwrite"]
     args = ["--priority", "nadir", "--balance", "gain", "--balance-reference", "2"]
-    assert main([*base, *args, "--fill", "naive", "--source", str(tmp_path / "s.tif")]) == 0
+    assert main([*base, *args, "--holes", "naive", "--source", str(tmp_path / "s.tif")]) == 0
     src = read(tmp_path / "s.tif")
     assert src.shape[0] == 4 and set(np.unique(src[1])) <= {0, 1, 3}
     capsys.readouterr()
@@ -377,7 +402,9 @@ def test_cli_options_and_errors(crater_dir: Path, tmp_path: Path, capsys) -> Non
     for bad, word in (
         (["--blend", "-2"], "--blend"),
         (["--priority", "best"], "--priority"),
+        (["--holes", "all"], "--holes"),
         (["--fill", "all"], "--fill"),
+        (["--fill", "naive", "--holes", "behind"], "contradicts"),
         (["--balance-reference", "3"], "3"),
         (["--balance-reference", "x"], "--balance-reference"),
     ):
@@ -387,6 +414,7 @@ def test_cli_options_and_errors(crater_dir: Path, tmp_path: Path, capsys) -> Non
     from orthomvp.cli import ortho as cli_ortho
 
     assert cli_ortho.PRIORITIES == PRIORITIES and cli_ortho.FILLS == FILLS
+    assert cli_ortho.HOLES == HOLES
     assert cli_ortho.BALANCES == ("none", *BALANCES)
 
 
@@ -429,7 +457,7 @@ def test_cli_reports_the_posts_taken_from_each_image(
     out = tmp_path / "m.tif"
     args = [str(p) for pair in views for p in pair]
     assert main(["mosaic", str(crater_dir / "dem.tif"), *args, "-o", str(out)]) == 0
-    line = capsys.readouterr().out.strip().splitlines()[-1]
+    line, holes = capsys.readouterr().out.strip().splitlines()[-2:]
     parts = line.split(": ", 2)[2].rsplit("; ", 1)
     taken = [int(part.split(" posts from ")[0].replace(",", "")) for part in parts[0].split(", ")]
     none = int(parts[1].split()[0].replace(",", ""))
@@ -437,6 +465,11 @@ def test_cli_reports_the_posts_taken_from_each_image(
     filled = int(np.isfinite(data).all(axis=0).sum())
     assert len(taken) == len(views) and all(n > 0 for n in taken), line
     assert sum(taken) == filled and filled + none == data[0].size, line
+    # the holes line counts the empty posts by reason: together the posts from no image
+    text = holes.split(": ", 2)[2]
+    counts = [int(p.split()[0].replace(",", "")) for p in text.split(", ")]
+    assert holes.startswith("orthomvp: empty posts: ") and "outside every image" in holes, holes
+    assert sum(counts) == none, holes
 
 
 def test_seam_labels_take_a_nan_cost_as_zero() -> None:
@@ -480,11 +513,11 @@ def random_stack(views: int, seed: int, shape: tuple[int, int] = (40, 56)) -> tu
 FUSED_CASES = [
     MosaicOptions(),
     MosaicOptions(blend=0),
-    MosaicOptions(blend=3, fill="any-view"),
-    MosaicOptions(seamlines=False, fill="naive"),
+    MosaicOptions(blend=3, holes="behind"),
+    MosaicOptions(seamlines=False, holes="naive"),
     MosaicOptions(priority="gsd", blend=6),
     MosaicOptions(priority="nadir", seamlines=False, blend=0),
-    MosaicOptions(priority="order", blend=5, fill="naive"),
+    MosaicOptions(priority="order", blend=5, holes="naive"),
 ]
 
 
@@ -662,7 +695,7 @@ def partial_views(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) ->
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"priority": "order", "balance": "gain", "fill": "naive"}, {"priority": "gsd"}],
+    [{}, {"priority": "order", "balance": "gain", "holes": "naive"}, {"priority": "gsd"}],
     ids=lambda o: ",".join(map(str, o.values())) or "default",
 )
 def test_tiles_compose_only_their_views(

@@ -10,9 +10,11 @@ from pyproj import CRS
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.terrain import Terrain, unit_vector
-from orthomvp.occlusion.visibility import compute_visibility, default_eps
+from orthomvp.occlusion.visibility import compute_visibility, default_eps, occluder_caster
 from orthomvp.ortho.composite import MosaicOptions, doubtful, trusted
 from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image
+from orthomvp.ortho.support import blocked as support_blocked
+from orthomvp.ortho.support import candidates, facing_gsd
 from orthomvp.quality.eps_study import eps_study, reclassify
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
 
@@ -62,10 +64,19 @@ def test_mosaic_fills_hidden_posts(scene) -> None:
     filled = np.isfinite(result.data[0])[hidden].mean()
     assert filled >= 0.99
     assert (result.source[hidden] == 2).all()
-    # where both see a post and trust it alike, the smaller emission angle wins
+    # where both see a post and trust it alike (samples clear of occluders in the image near
+    # occlusion boundaries included), the smaller emission angle wins
     vis = result.visibilities
     seen = np.array([v.codes == 1 for v in vis])
-    trust = trusted(seen, np.array([doubtful(v.miss, v.eps) for v in vis]))
+    doubt = np.array([doubtful(v.miss, v.eps) for v in vis])
+    tests = candidates(seen & ~doubt)
+    caster, whole = occluder_caster(scene.terrain), (slice(None), slice(None))
+    blocked = np.zeros(seen.shape, bool)
+    for k, (v, (_, cam)) in enumerate(zip(vis, views, strict=True)):
+        gsd = facing_gsd(v.gsd, v.emission)
+        blocked[k] = support_blocked(scene.terrain, whole, cam, v.uv, gsd, tests[k], caster)
+    assert blocked.any()
+    trust = trusted(seen, doubt, blocked)
     both = trust[0] & trust[1]
     assert both.sum() > 0.5 * (seen[0] & seen[1]).sum()
     e0, e1 = result.visibilities[0].emission, result.visibilities[1].emission

@@ -44,8 +44,10 @@ if TYPE_CHECKING:
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 FILLS = ("none", "any-view", "naive")
+HOLES = ("empty", "behind", "inpaint", "naive")
 BALANCES = ("none", "gain", "gain-offset")
-"""As :data:`orthomvp.ortho.composite.PRIORITIES` and ``FILLS``, and
+"""As :data:`orthomvp.ortho.composite.PRIORITIES` and ``FILLS``, :data:`orthomvp.ortho.holes.HOLES`,
+and
 :data:`orthomvp.ortho.balance.BALANCES` (not imported: --help stays fast; a test checks that they
 agree)."""
 NAMED_IMAGES = 4
@@ -227,8 +229,10 @@ def ortho(
     "--source",
     type=OUT_FILE,
     metavar="SOURCE.tif",
-    help="also write which image each post came from (band 1), how (band 2: 1 visible, "
-    "2 filled from any view, 3 filled naive) and each image's blend weight (bands 3.., /255)",
+    help="also write which image each post came from (band 1), how or why not (band 2: 1 "
+    "visible, 2 from behind, 3 naive, 4 doubtful, 5 inpainted; empty: 0 outside every image, "
+    "8 facing away, 9 occluded, 10 occluded or facing away in every image, 11 seen only "
+    "doubtfully, 12 no pixel value) and each image's blend weight (bands 3.., /255)",
 )
 @click.option(
     "--priority",
@@ -269,13 +273,18 @@ def ortho(
     help="image held fixed by --balance (1-based), or the mean gain 1 and offset 0",
 )
 @click.option(
+    "--holes",
+    type=click.Choice(HOLES),
+    default=None,
+    help="posts no image sees with trust: leave empty [default]; or, after those seen only "
+    "doubtfully (from the image of largest margin): from an image that sees them from behind "
+    "(never occluded), inpainted from the posts around (holes up to 16 posts), or the most "
+    "nadir naive value (ghosts); flagged in --source",
+)
+@click.option(
     "--fill",
     type=click.Choice(FILLS),
-    default="none",
-    show_default=True,
-    help="posts visible in no image: leave empty, take the least-bad image that covers them "
-    "facing away or not (never occluded), or the most nadir naive value (ghosts); flagged in "
-    "--source",
+    help="deprecated: --holes (none = empty, any-view = behind, naive = naive)",
 )
 @click.option(
     "--visibility",
@@ -300,7 +309,8 @@ def mosaic(
     blend: int,
     balance: str,
     balance_reference: int | None,
-    fill: str,
+    holes: str | None,
+    fill: str | None,
     visibility_out: Path | None,
     interp: Interp,
     eps: float | None,
@@ -313,8 +323,9 @@ def mosaic(
     dem, --res, --bounds, --crs) into one seamless mosaic: each post prefers the visible image
     of --priority, seamlines run away from occlusion boundaries and disagreement, seams are
     feathered over --blend posts, optionally balanced; an image never gives a post it does
-    not see (except --fill naive, flagged). --source records which image (1-based, in
-    command-line order; 0 = none) each post came from, how, and the blend weights. --odm DIR
+    not see (except --holes naive, flagged); the summary counts the empty posts by reason.
+    --source records which image (1-based, in command-line order; 0 = none) each post came
+    from, how (or why it is empty), and the blend weights. --odm DIR
     takes the DEM, images and cameras of an OpenDroneMap dataset (the cameras in the DEM's
     CRS)."""
     outputs = [
@@ -326,6 +337,16 @@ def mosaic(
     check_outputs(outputs, inputs, overwrite, replace_input)
     from orthomvp.errors import InputError
     from orthomvp.ortho.composite import MosaicOptions
+    from orthomvp.ortho.holes import FILL_ALIASES
+
+    if fill is not None:
+        if holes is not None and holes != FILL_ALIASES[fill]:
+            raise usage_error(f"--fill {fill} contradicts --holes {holes}")
+        print(
+            f"orthomvp: warning: --fill is deprecated; use --holes {FILL_ALIASES[fill]}",
+            file=sys.stderr,
+        )
+        holes = FILL_ALIASES[fill]
 
     if balance_reference is not None and balance_reference >= len(pairs):
         raise InputError(
@@ -337,7 +358,7 @@ def mosaic(
         blend=blend,
         balance=None if balance == "none" else balance,
         reference=balance_reference,
-        fill=fill,
+        holes=holes or "empty",
     )
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)
@@ -356,6 +377,23 @@ def mosaic(
         f"wrote {output}: {taken_text(report.taken, [image for image, _ in pairs])}; {none:,} "
         "posts from no image"
     )
+    say(holes_text(report.flags))
+
+
+def holes_text(flags: list[int]) -> str:
+    """The summary's line on holes: the posts of each reason for an empty post and of each
+    way a hole was filled (:class:`orthomvp.ortho.holes.Flag`, counted in ``flags``), those
+    with posts."""
+    from orthomvp.ortho.holes import EMPTY_REASONS, Flag
+
+    filled = [f for f in (Flag.DOUBTFUL, Flag.BEHIND, Flag.INPAINTED, Flag.NAIVE) if flags[f]]
+    empty = [f for f in (Flag.OUTSIDE, *EMPTY_REASONS) if flags[f]]
+    text = "empty posts: " + (
+        ", ".join(f"{flags[f]:,} {f.label}" for f in empty) if empty else "none"
+    )
+    if filled:
+        text += "; filled holes: " + ", ".join(f"{flags[f]:,} {f.label}" for f in filled)
+    return text
 
 
 def taken_text(taken: list[int], images: list[Path]) -> str:

@@ -39,6 +39,7 @@ from orthomvp.engine.writer import Outputs, output_set, plan_inputs
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.io.raster import held_rasters
 from orthomvp.ortho.balance import Correction
+from orthomvp.ortho.holes import FLAGS
 from orthomvp.validate import number, of_type
 
 
@@ -50,7 +51,8 @@ class RunReport:
     tiles that no image sees count whole), and per view the posts inside the image, the posts
     taken from it (``taken``, when values or sources are made) and the posts of each
     visibility code (``counts``); for a mosaic, the radiometric ``correction`` applied and the
-    ``blend`` width used (posts)."""
+    ``blend`` width used (posts), and the posts of each :class:`~orthomvp.ortho.holes.Flag`
+    value (``flags``: how each post was filled or why it is empty)."""
 
     tiles_run: int = 0
     tiles_skipped: int = 0
@@ -63,6 +65,7 @@ class RunReport:
     counts: list[list[int]] = field(default_factory=list)
     correction: Correction | None = None
     blend: int | None = None
+    flags: list[int] = field(default_factory=lambda: [0] * FLAGS)
 
 
 def available_memory() -> int:
@@ -439,6 +442,8 @@ def _account(report: RunReport, result: TileResult, write_seconds: float) -> Non
 def _add_counts(report: RunReport, result: TileResult) -> None:
     """Add a tile's valid posts and code counts to the report."""
     report.valid += result.valid
+    for flag, count in enumerate(result.flags):
+        report.flags[flag] += count
     for total, counts in zip(report.counts, result.counts, strict=True):
         for code, count in enumerate(counts):
             total[code] += count

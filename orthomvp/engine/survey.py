@@ -47,13 +47,13 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
         grid = output_grid(plan.dem, res, box, plan.grid.crs)
         post_scale = grid_spacing(grid, plan.dem) / plan.spacing
     to_dem = grid_to_dem(grid, plan.dem)
+    plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, holes="empty")
     jobs, *_ = plan_tiles(
         grid.tiles(plan.tile),
-        lambda i, w: _job(plan.dem, to_dem, grid, plan.views, i, w, plan.occlusion),
+        lambda i, w: _job(plan.dem, to_dem, grid, plan.views, i, w, plan.occlusion, plain.margin),
         len(plan.views),
         progress,
     )
-    plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, fill="none")
     coarse = replace(
         plan,
         grid=grid,

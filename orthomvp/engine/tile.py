@@ -30,7 +30,10 @@ from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import Visibility, compute_visibility
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import compose, doubtful, nadir_angle
+from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
+from orthomvp.ortho.support import blocked as support_blocked
+from orthomvp.ortho.support import candidates, facing_gsd
 
 
 @dataclass
@@ -45,7 +48,10 @@ class TileResult:
     that no image sees: all of them, unread); ``seconds`` per phase (read, mesh, visibility,
     sample, compose); ``stack`` (kind "stack" of a mosaic plan) every view's samples (views,
     bands, rows, cols) and codes (views, rows, cols), uncomposed; ``taken`` per view the posts
-    whose value it gave (zeros unless values or sources were made)."""
+    whose value it gave (zeros unless values or sources were made); ``flags`` for a mosaic the
+    posts of each :class:`~orthomvp.ortho.holes.Flag` value (0 ..
+    :data:`~orthomvp.ortho.holes.FLAGS` - 1; all empty outside unless values or sources were
+    made)."""
 
     index: int
     window: WindowT
@@ -59,6 +65,7 @@ class TileResult:
     seconds: dict[str, float] = field(default_factory=dict)
     stack: tuple[np.ndarray, np.ndarray] | None = None
     taken: list[int] = field(default_factory=list)
+    flags: list[int] = field(default_factory=list)
 
 
 @contextmanager
@@ -84,6 +91,7 @@ def empty_result(plan: Plan, job: TileJob, kinds: frozenset[str]) -> TileResult:
         [[shape[0] * shape[1], 0, 0, 0] for _ in range(n)],
         shape[0] * shape[1],
         taken=[0] * n,
+        flags=[shape[0] * shape[1]] + [0] * (FLAGS - 1) if plan.mosaic is not None else [],
     )
 
 
@@ -379,19 +387,24 @@ def _mosaic_tile(
     m = len(views)
     values = np.empty((m, plan.bands, *shape), np.float32)  # samples, NaN where none
     codes = np.zeros((m, *shape), np.uint8)
-    fill, priority = plan.mosaic.fill, plan.mosaic.priority
+    holes, priority = plan.mosaic.holes, plan.mosaic.priority
     emission = np.full((m, *shape), np.inf)
     # GSD and nadir angles only where the options use them (else read-only infinities)
-    use_gsd, use_nadir = priority == "gsd", priority == "nadir" or fill == "naive"
+    use_gsd, use_nadir = priority == "gsd", priority == "nadir" or holes == "naive"
     none = np.broadcast_to(np.inf, (m, *shape))
     gsd = np.full((m, *shape), np.inf) if use_gsd else none
     nadir = np.full((m, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((m, *shape), bool)
-    fields = frozenset({"emission", "miss", *(["gsd"] if use_gsd else [])})
+    slack = np.zeros((m, *shape))
+    uvs = []
+    sizes = []
+    fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
+        uvs.append(uv)
+        sizes.append(facing_gsd(vis.gsd[inner], vis.emission[inner]))
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
@@ -400,12 +413,13 @@ def _mosaic_tile(
         if use_gsd:
             gsd[i] = vis.gsd[inner]
         doubt[i] = doubtful(vis.miss[inner], vis.eps[inner])
+        slack[i] = np.where(doubt[i], vis.eps[inner] - vis.miss[inner], 0.0)
         if use_nadir:
             nadir[i] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
-        if fill == "any-view":
+        if holes == "behind":
             need |= code == Code.FACING_AWAY
-        elif fill == "naive":
+        elif holes == "naive":
             need |= code != Code.NODATA
         wanted = result.data is not None or result.source is not None or "stack" in kinds
         if wanted and need.any():
@@ -426,13 +440,22 @@ def _mosaic_tile(
     correction = plan.correction
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
+    blocked = np.zeros((m, *shape), bool)
+    if caster is not None and m > 1:
+        with _timed(seconds, "visibility"):
+            tests = candidates((codes == Code.VISIBLE) & ~doubt)
+            for i, k in enumerate(views):
+                test = tests[i]
+                camera = plan.views[k].camera
+                blocked[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], test, caster)
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
-            fused=plan.fused,
+            slack=slack, blocked=blocked, fused=plan.fused,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)
+    result.flags = np.bincount(comp.flags[core].ravel(), minlength=FLAGS).tolist()
     if result.data is not None:
         result.data = comp.data[:, core[0], core[1]]
     if result.source is not None:

@@ -218,8 +218,8 @@ class Layer:
 
 def source_names(views: int) -> tuple[str, ...]:
     """Band names of a mosaic's source raster: the 1-based view (0 = none), the
-    :class:`~orthomvp.ortho.composite.Flag` (0 empty, 1 visible, 2 filled from any view, 3 filled
-    naive), and each view's blend weight in 1/255."""
+    :class:`~orthomvp.ortho.holes.Flag` (how the post was filled, or why it is empty), and each
+    view's blend weight in 1/255."""
     return ("view", "flag", *(f"weight {k}" for k in range(1, views + 1)))
 
 

@@ -46,6 +46,8 @@ from orthomvp.ortho.composite import (
     nadir_angle,
     overlap_width,
 )
+from orthomvp.ortho.support import blocked as support_blocked
+from orthomvp.ortho.support import candidates, facing_gsd
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -222,6 +224,7 @@ def mosaic(
     caster: RayCaster | None = None,
     progress: bool = False,
     options: MosaicOptions | None = None,
+    holes: str | None = None,
 ) -> Mosaic:
     """One orthophoto from several (image, camera) views, combined as ``options`` say
     (default :class:`~orthomvp.ortho.composite.MosaicOptions`: emission priority, seamlines,
@@ -230,11 +233,14 @@ def mosaic(
     decimated one), and the blend width is clamped to the widest overlap (BlendWarning).
     All images must have the same number of bands. ``eps`` and ``interp`` as in
     :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's occluder surface
-    (one is built otherwise)."""
+    (one is built otherwise). ``holes``: the hole policy
+    (:data:`~orthomvp.ortho.holes.HOLES`; None: that of ``options``, by default ``empty``)."""
     interp = Interp(interp)
     of_type(terrain, Terrain, "terrain")
     options = options or MosaicOptions()
     of_type(options, MosaicOptions, "options", " or None")
+    if holes is not None:
+        options = replace(options, holes=holes)
     if not isinstance(views, (list, tuple)) or not views:
         raise InputError(f"a mosaic needs a list of (image, camera) views, got {views!r:.40}")
     for k, view in enumerate(views, start=1):
@@ -252,6 +258,7 @@ def mosaic(
     codes = np.zeros(shape, np.uint8)
     emission, gsd, nadir = np.full(shape, np.inf), np.full(shape, np.inf), np.full(shape, np.inf)
     doubt = np.zeros(shape, bool)
+    slack = np.zeros(shape)
     visibilities = []
     whole = (slice(None), slice(None))
     fused = codes[0].size >= FUSED_POSTS  # (the numba kernels pay for their load)
@@ -264,12 +271,13 @@ def mosaic(
         visibilities.append(vis)
         codes[k], emission[k], gsd[k] = vis.codes, vis.emission, vis.gsd
         doubt[k] = doubtful(vis.miss, vis.eps)
+        slack[k] = np.where(doubt[k], vis.eps - vis.miss, 0.0)
         need = vis.codes == Code.VISIBLE
-        if options.fill == "any-view":
+        if options.holes == "behind":
             need |= vis.codes == Code.FACING_AWAY
-        elif options.fill == "naive":
+        elif options.holes == "naive":
             need |= vis.codes != Code.NODATA
-        if options.priority == "nadir" or options.fill == "naive":
+        if options.priority == "nadir" or options.holes == "naive":
             inside = finite_rows(vis.uv)
             nadir[k] = np.where(inside, nadir_angle(terrain, whole, camera, vis.uv), np.inf)
         values[k][:, need] = sample_image(image, vis.uv[need], interp)
@@ -279,7 +287,18 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    comp = compose(values, codes, emission, gsd, nadir, options, correction, doubt, fused=fused)
+    blocked = np.zeros(shape, bool)
+    if n > 1:  # (only where a post has another view to prefer)
+        tests = candidates((codes == Code.VISIBLE) & ~doubt)
+        for k, (_, camera) in enumerate(views):
+            test = tests[k]
+            uv = visibilities[k].uv
+            facing = facing_gsd(visibilities[k].gsd, visibilities[k].emission)
+            blocked[k] = support_blocked(terrain, whole, camera, uv, facing, test, caster)
+    comp = compose(
+        values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
+        blocked=blocked, fused=fused,
+    )  # fmt: skip
     return Mosaic(
         comp.data,
         comp.source.astype(np.uint8 if n < 255 else np.uint16),

@@ -1,0 +1,197 @@
+"""The mosaic's hole policies (orthomvp/ortho/holes.py) against the city's exact truth, their
+flags and reasons, inpainting against a known plane, and identical results for any tiling."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from orthomvp.cli import main
+from orthomvp.codes import Code
+from orthomvp.engine import Outputs, plan_ortho, run_plan
+from orthomvp.errors import InputError
+from orthomvp.ortho.composite import MosaicOptions
+from orthomvp.ortho.holes import FLAGS, HOLES, INPAINT_SIZE, Flag, inpaint
+from orthomvp.ortho.orthophoto import mosaic
+from orthomvp.synthetic import make_scene
+from orthomvp.synthetic.loader import load_scene
+
+NAMES = ("ne", "se", "sw", "nw")
+
+
+@pytest.fixture(scope="module")
+def city(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 96-post city (more holes than the 64-post one), one ray a pixel."""
+    out = tmp_path_factory.mktemp("city96")
+    make_scene("city", size=96).write(out, supersample=1)
+    return out
+
+
+def test_inpaint_recovers_a_plane_and_leaves_large_holes() -> None:
+    """A plane with a 4 x 5 hole comes back within 1% of its range; a hole wider than
+    INPAINT_SIZE and one at the window's edge stay empty."""
+    rows, cols = np.mgrid[0:60, 0:70].astype(np.float32)
+    plane = (0.2 + 0.004 * rows + 0.003 * cols)[None]
+    hole = np.zeros(plane.shape[1:], bool)
+    hole[20:24, 30:35] = True  # small: inpainted
+    hole[40:45, 10 : 11 + INPAINT_SIZE] = True  # one post too wide
+    hole[0:3, 50:53] = True  # at the edge
+    data = np.where(hole, np.nan, plane).astype(np.float32)
+    done = inpaint(data, hole)
+    small = np.zeros_like(hole)
+    small[20:24, 30:35] = True
+    np.testing.assert_array_equal(done, small)
+    span = float(plane.max() - plane.min())
+    assert np.abs(data[:, done] - plane[:, done]).max() < 0.01 * span
+    assert np.isnan(data[:, hole & ~done]).all()
+
+
+@pytest.mark.parametrize("holes", HOLES)
+def test_hole_policies_against_the_city_truth(city: Path, holes: str) -> None:
+    """Every policy: at most 0.05% of the posts flagged visible take weight from a view whose
+    truth occludes them (the trust test's: 1 of 9,016 on this city, 0 on those of 64 and 160
+    posts); every post with a value is flagged with how, every empty one
+    with its reason; fills take a single view (inpainted posts none). Inpainting is closer to
+    the true radiance than the naive value of the most nadir view at the same posts (mean
+    absolute error); the naive policy fills every post inside an image."""
+    scene = load_scene(city)
+    views = [(scene.views[n].image, scene.views[n].camera) for n in NAMES]
+    truth = np.array([scene.views[n].truth for n in NAMES])
+    got = mosaic(scene.terrain, views, holes=holes)
+    flags, data, weights = got.flags, got.data[0], got.weights
+    visible = flags == Flag.VISIBLE
+    assert visible.mean() > 0.97
+    assert ((weights > 0) & (truth == Code.OCCLUDED))[:, visible].any(axis=0).sum() <= 0.0005 * (
+        visible.sum()
+    )
+    filled = np.isfinite(data)
+    assert all(Flag(f).empty for f in np.unique(flags[~filled]))
+    assert not any(Flag(f).empty for f in np.unique(flags[filled]))
+    fills = filled & ~visible
+    np.testing.assert_array_equal(got.source[fills] > 0, flags[fills] != Flag.INPAINTED)
+    np.testing.assert_array_equal((weights[:, fills] > 0).sum(axis=0), got.source[fills] > 0)
+    if holes == "empty":
+        assert (~filled).sum() > 20 and not fills.any()
+        reason = flags[~filled]
+        assert set(np.unique(reason)) <= {Flag.OCCLUDED, Flag.HIDDEN, Flag.DOUBTFUL_EMPTY}
+        # (the 160-post city: 86% / 88% of its occluded / hidden holes are truly hidden)
+        assert (truth != Code.VISIBLE).all(axis=0)[~filled].mean() > 0.75
+    if holes == "inpaint":
+        done = flags == Flag.INPAINTED
+        assert done.sum() > 10
+        naive = mosaic(scene.terrain, views, holes="naive").data[0]
+        err = np.abs(data[done] - scene.radiance[done]).mean()
+        assert err < np.abs(naive[done] - scene.radiance[done]).mean()
+    if holes == "naive":
+        inside = (truth != Code.NODATA).any(axis=0)
+        np.testing.assert_array_equal(filled, inside)
+        assert (flags == Flag.NAIVE).sum() > 10
+
+
+def engine_run(city: Path, tmp_path: Path, tile: int, holes: str) -> dict:
+    views = [(city / f"{n}.tif", city / f"{n}.tsai") for n in NAMES]
+    plan = plan_ortho(
+        city / "dem.tif", views, tile=tile, progress=False, mosaic=MosaicOptions(holes=holes),
+        grid="dem",
+    )  # fmt: skip
+    outputs = Outputs(ortho=tmp_path / f"{tile}.tif", source=tmp_path / f"{tile}-s.tif")
+    report = run_plan(plan, outputs, threads=2, progress=False)
+    with rasterio.open(outputs.ortho) as a, rasterio.open(outputs.source) as b:
+        return {"ortho": a.read(), "source": b.read(), "report": report}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("holes", ["inpaint", "naive"])
+def test_any_tiling_gives_the_same_holes(city: Path, tmp_path: Path, holes: str) -> None:
+    """Tiles of 16 and 40 posts give the untiled mosaic bit for bit, inpainted posts
+    included, and the in-memory one's flags; the report counts the flags."""
+    whole = engine_run(city, tmp_path, 128, holes)
+    flags = whole["source"][1]
+    assert (flags == {"inpaint": Flag.INPAINTED, "naive": Flag.NAIVE}[holes]).sum() > 10
+    for tile in (16, 40):
+        tiled = engine_run(city, tmp_path, tile, holes)
+        assert tiled["report"].tiles_run > 4
+        np.testing.assert_array_equal(tiled["ortho"], whole["ortho"])
+        np.testing.assert_array_equal(tiled["source"], whole["source"])
+        assert tiled["report"].flags == np.bincount(flags.ravel(), minlength=FLAGS).tolist()
+    scene = load_scene(city)
+    memory = mosaic(scene.terrain, [(scene.views[n].image, scene.views[n].camera) for n in NAMES])
+    empty = memory.flags != Flag.VISIBLE
+    assert (flags[~empty] == Flag.VISIBLE).all() and empty.sum() == (flags != Flag.VISIBLE).sum()
+
+
+def test_the_fill_option_is_a_deprecated_alias(crater_dir: Path, tmp_path: Path, capsys) -> None:
+    """fill="any-view" is holes="behind" with a DeprecationWarning (a contradiction is an
+    error); --fill works with one warning line."""
+    with pytest.warns(DeprecationWarning, match="holes='behind'"):
+        assert MosaicOptions(fill="any-view") == MosaicOptions(holes="behind")
+    with pytest.raises(InputError, match="contradicts"):
+        MosaicOptions(fill="naive", holes="behind")
+    with pytest.raises(InputError, match="holes must be one of"):
+        MosaicOptions(holes="blur")
+    pairs = [str(crater_dir / f"oblique.{e}") for e in ("tif", "tsai")]
+    base = ["-q", "mosaic", str(crater_dir / "dem.tif"), *pairs, "--overwrite"]
+    assert main([*base, "-o", str(tmp_path / "a.tif"), "--fill", "any-view"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["orthomvp: warning: --fill is deprecated; use --holes behind"], err
+    assert main([*base, "-o", str(tmp_path / "b.tif"), "--holes", "behind"]) == 0
+    with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
+        np.testing.assert_array_equal(a.read(), b.read())
+
+
+def test_occluder_share_against_the_city_truth(city: Path) -> None:
+    """The occluder share of a view's sample is 1 at posts its truth occludes well inside
+    their shadow (every ray of every tap meets the occluder) and 0 at visible posts away from
+    every truth class boundary on open ground (no surface but the post's own near them)."""
+    from scipy.ndimage import binary_erosion
+
+    from orthomvp.synthetic.ghosts import occluder_share
+
+    scene = make_scene("city", size=96)
+    x, y = scene.post_local()
+    posts = np.stack([x, y, scene.surface.height(x, y)], axis=-1)
+    ground = scene.surface.pieces(x, y)[3] == 0
+    loaded = load_scene(city)
+    for name in ("ne", "sw"):
+        truth = loaded.views[name].truth
+        uv = mosaic(scene.terrain, [(loaded.views[name].image, scene.cameras[name])]).visibilities
+        uv = uv[0].uv
+        deep = binary_erosion(truth == Code.OCCLUDED, np.ones((7, 7), bool))
+        clear = binary_erosion((truth == Code.VISIBLE) & ground, np.ones((9, 9), bool))
+        assert deep.sum() > 20 and clear.sum() > 1000
+        np.testing.assert_array_equal(occluder_share(scene, name, uv[deep], posts[deep]), 1.0)
+        np.testing.assert_array_equal(occluder_share(scene, name, uv[clear], posts[clear]), 0.0)
+
+
+def test_blocked_samples_hold_the_occluders(city: Path) -> None:
+    """The support test (orthomvp/ortho/support.py) against the city's exact geometry: near
+    occlusion boundaries, the samples it calls blocked have an occluder in them more than
+    three times as often as those it clears."""
+    from orthomvp.occlusion.visibility import occluder_caster
+    from orthomvp.ortho.composite import doubtful
+    from orthomvp.ortho.support import blocked, candidates, facing_gsd
+    from orthomvp.synthetic.ghosts import occluder_share
+
+    scene = make_scene("city", size=96)
+    x, y = scene.post_local()
+    posts = np.stack([x, y, scene.surface.height(x, y)], axis=-1)
+    loaded = load_scene(city)
+    views = [(loaded.views[n].image, scene.cameras[n]) for n in NAMES]
+    vis = mosaic(scene.terrain, views).visibilities
+    seen = np.array([v.codes == Code.VISIBLE for v in vis])
+    tests = candidates(seen & ~np.array([doubtful(v.miss, v.eps) for v in vis]))
+    caster, whole = occluder_caster(scene.terrain), (slice(None), slice(None))
+    shares = {True: [], False: []}
+    for k, (v, name) in enumerate(zip(vis, NAMES, strict=True)):
+        gsd = facing_gsd(v.gsd, v.emission)
+        hit = blocked(scene.terrain, whole, scene.cameras[name], v.uv, gsd, tests[k], caster)
+        assert not (hit & ~tests[k]).any()
+        for flag in (True, False):
+            at = tests[k] & (hit == flag)
+            shares[flag].append(occluder_share(scene, name, v.uv[at], posts[at]))
+    dirty = {flag: float((np.concatenate(s) > 0).mean()) for flag, s in shares.items()}
+    assert len(np.concatenate(shares[True])) > 50
+    assert dirty[True] > 3 * dirty[False], dirty
