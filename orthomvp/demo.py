@@ -115,7 +115,10 @@ def _page(tmp: Path, lines: list[str], about: list[tuple[str, str]]) -> None:
 
     layers = LayerSet(tmp / "scene" / "dem.tif")
     for kind, files, title in LAYERS:
-        layers.add(kind, [tmp / f for f in files], title)
+        if kind == "source":
+            layers.add_source(tmp / files[0], title)
+        else:
+            layers.add(kind, [tmp / f for f in files], title)
     try:
         report = report_html(lines, PAGE, FILES, about)
         export_into(layers, tmp, title="orthomvp demo: the crater scene", report=report)

@@ -157,14 +157,14 @@ def view(
     if dem.path is None:
         raise InputError("view needs a DEM")
     layers = LayerSet(dem.path)
-    for kind, paths in (
-        ("image", orthos),
-        ("image", mosaics),
-        ("source", sources),
-        ("visibility", visibilities),
-    ):
-        for p in paths:
-            layers.add(kind, [p], f"{'mosaic' if p in mosaics else kind}: {p.name}")
+    for p in orthos:
+        layers.add("image", [p], f"image: {p.name}")
+    for p in mosaics:
+        layers.add("image", [p], f"mosaic: {p.name}")
+    for p in sources:
+        layers.add_source(p, f"source: {p.name}")
+    for p in visibilities:
+        layers.add("visibility", [p], f"visibility: {p.name}")
     if fitted is not None:
         layers.add("height", [fitted], f"fitted DEM: {fitted.name}")
         layers.add("change", [fitted, dem.path], f"change: {fitted.name} - {dem.path.name}")

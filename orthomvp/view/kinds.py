@@ -4,7 +4,8 @@ One :class:`Kind` per meaning, in :data:`KINDS`; adding a kind of layer is one e
 colours are the snapshots' (:mod:`orthomvp.present.colours`, :mod:`orthomvp.codes`): shaded
 heights on :data:`~orthomvp.present.colours.HEIGHT_CMAP`, images grey or RGB with no value
 violet, visibility codes in their fixed colours, height changes red up and blue down, views in
-the camera colours. Values come in as float64 (bands, rows, cols) with NaN where a file has no
+the camera colours, a mosaic's flags (how each post was filled, or why it is empty) in
+:data:`FLAG_RGB`. Values come in as float64 (bands, rows, cols) with NaN where a file has no
 value; colours go out as RGBA uint8 (rows, cols, 4).
 """
 
@@ -18,6 +19,7 @@ from matplotlib import colormaps
 from matplotlib.colors import LightSource, Normalize, to_hex
 
 from orthomvp.codes import CODE_RGB, Code
+from orthomvp.ortho.holes import Flag
 from orthomvp.present.colours import (
     CAMERA_COLOURS,
     ERROR_CMAP,
@@ -176,9 +178,49 @@ def _source_legend(stats: Stats) -> dict:
     return {"type": "classes", "items": [*items, ["none", _css(NAN_RGB)]]}
 
 
-def _describe_source(v: np.ndarray) -> str:
+FLAG_RGB: dict[int, tuple[int, int, int]] = {
+    Flag.OUTSIDE: tuple(int(c) for c in NAN_RGB),
+    Flag.VISIBLE: Code.VISIBLE.rgb,
+    Flag.BEHIND: (90, 140, 220),
+    Flag.NAIVE: (230, 60, 160),
+    Flag.DOUBTFUL: (240, 220, 60),
+    Flag.INPAINTED: (60, 200, 200),
+    Flag.FACING_AWAY: Code.FACING_AWAY.rgb,
+    Flag.OCCLUDED: Code.OCCLUDED.rgb,
+    Flag.HIDDEN: (20, 110, 40),
+    Flag.DOUBTFUL_EMPTY: (130, 130, 20),
+    Flag.NO_VALUE: (70, 70, 70),
+}
+"""Colours of the mosaic's flags (band 2 of its source raster: how a post was filled, or why
+it is empty): the visibility codes' colours where the meaning is the same (visible, occluded,
+facing away, no value), others for the fills and the remaining reasons."""
+
+_FLAG_LUT = np.zeros((256, 3), np.uint8)
+_FLAG_LUT[:] = NAN_RGB
+for _flag, _rgb in FLAG_RGB.items():
+    _FLAG_LUT[int(_flag)] = _rgb
+
+
+def _flags(values: np.ndarray, stats: Stats, mpp: float) -> np.ndarray:
+    v = values[0]
+    k = np.where(np.isfinite(v), v, 0).astype(np.int64).clip(0, 255)
+    return _rgba(_FLAG_LUT[k], v.shape)
+
+
+def _flag_legend(stats: Stats) -> dict:
+    return {"type": "classes", "items": [[Flag(f).label, _css(c)] for f, c in FLAG_RGB.items()]}
+
+
+def _describe_flag(v: np.ndarray) -> str:
     x = v[0]
-    return f"view {int(x)}" if np.isfinite(x) and x > 0 else "none"
+    return Flag(int(x)).label if np.isfinite(x) and int(x) in FLAG_RGB else "no value"
+
+
+def _describe_source(v: np.ndarray) -> str:
+    """The view a post came from, and (band 2) how it was filled or why it is empty."""
+    x = v[0]
+    view = f"view {int(x)}" if np.isfinite(x) and x > 0 else "none"
+    return f"{view} ({_describe_flag(v[1:2])})" if len(v) > 1 else view
 
 
 def _code_legend(stats: Stats) -> dict:
@@ -199,6 +241,15 @@ KINDS: dict[str, Kind] = {
         ),
         Kind("visibility", _codes, lambda s: {}, _code_legend, _describe_code, categorical=True),
         Kind("source", _source, _source_stats, _source_legend, _describe_source, categorical=True),
+        Kind(
+            "flags",
+            _flags,
+            lambda s: {},
+            _flag_legend,
+            _describe_flag,
+            categorical=True,
+            combine=lambda a: a[0][1:2],
+        ),
         Kind(
             "change",
             _sequential(ERROR_CMAP),

@@ -159,6 +159,13 @@ class LayerSet:
         self.layers[layer.id] = layer
         return layer
 
+    def add_source(self, path: Path, title: str | None = None) -> None:
+        """Add a mosaic's source raster: the source layer, and its flags layer (band 2: how
+        each post was filled, or why it is empty) when the file has that band."""
+        layer = self.add("source", [path], title)
+        if layer is not None and layer.datasets[0].count >= 2:
+            self.add("flags", [path], f"hole reasons: {Path(path).name}")
+
     def _open(self, path: Path) -> rasterio.DatasetReader:
         src = open_raster(path)
         try:
