@@ -20,6 +20,7 @@ from conftest import chromium, needs_chromium
 from PIL import Image
 
 from orthomvp.codes import CODE_RGB, Code
+from orthomvp.engine.grid import scan_dem
 from orthomvp.geometry.terrain import Terrain
 
 with warnings.catch_warnings():  # starlette >= 1.x prefers httpx2 but works with httpx
@@ -52,8 +53,8 @@ def app(view_scene: dict):  # noqa: ANN201
     views = [
         load_view(view_scene["dir"] / f"{n}.tif", view_scene["dir"] / f"{n}.tsai") for n in NAMES
     ]
-    terrain = Terrain.read(view_scene["start"])
-    posts = Posts(layers, terrain, [v[0] for v in views], [v[1] for v in views], list(NAMES))
+    images, cameras = [v[0] for v in views], [v[1] for v in views]
+    posts = Posts(layers, scan_dem(view_scene["start"]), images, cameras, list(NAMES))
     return create_app(layers, TOKEN, posts), layers, posts
 
 
