@@ -2,8 +2,9 @@
 
 The export opens from ``file://`` with no server and no network: the page, its scripts and
 style sheets, and every tile of every layer from zoom 0 to the deepest zoom whose tiles number
-at most :data:`MAX_TILES` per layer, as PNG files under ``tiles/ID/Z/X/Y.png``. Hover values,
-clicks and the 3D view need the live viewer.
+at most :data:`MAX_TILES` per layer, as PNG files under ``tiles/ID/Z/X/Y.png``, and for the
+hover readout each layer's values on a grid of at most :data:`HOVER` cells a side (in the page's
+configuration). Clicks and the 3D view need the live viewer.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from orthomvp.view.tiles import Pyramid, tile_png
 
 MAX_TILES = 400
 """Most tiles of one layer at the deepest exported zoom."""
+HOVER = 128
+"""Cells on the longer side of the value grid an export holds per layer for its hover readout
+(each layer's values as text, about 10 bytes a cell)."""
 STATIC = ("view.js", "view.css", "vendor/README.txt")
 """The page's own files an export copies (and Leaflet's folder)."""
 
@@ -36,6 +40,26 @@ def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
     return z
 
 
+def hover_grid(layers: LayerSet, cells: int = HOVER) -> dict:
+    """Each layer's values over the DEM's bounds on a grid of at most ``cells`` a side, worded
+    as the live readout words them (None where the layer's files all miss the DEM), read as the
+    layer's tiles are
+    (from the files' overviews, nearest posts for codes): ``cols``, ``rows``, ``bounds``
+    (left, bottom, right, top) and ``values`` by layer id, row by row from the top."""
+    left, bottom, right, top = layers.bounds
+    scale = cells / max(right - left, top - bottom)
+    cols, rows = max(1, round((right - left) * scale)), max(1, round((top - bottom) * scale))
+    values: dict[str, list[str | None]] = {}
+    for layer in layers.layers.values():
+        data = layer.read(layers.bounds, (cols, rows))
+        if data is None:
+            values[layer.id] = [None] * (cols * rows)
+            continue
+        flat = data.reshape(len(data), -1)
+        values[layer.id] = [layer.kind.describe(flat[:, k]) for k in range(flat.shape[1])]
+    return {"cols": cols, "rows": rows, "bounds": [left, bottom, right, top], "values": values}
+
+
 def write_export(layers: LayerSet, outdir: str | Path, **page: str) -> int:
     """Write the static page of ``layers`` into the folder ``outdir`` (atomically); returns the
     number of tiles written. ``page``: see :func:`export_into`."""
@@ -50,7 +74,7 @@ def export_into(layers: LayerSet, folder: Path, *, title: str = "", report: str 
     pyramid = Pyramid.of(layers)
     deepest = export_zooms(layers, pyramid)
     static = Pyramid(pyramid.left, pyramid.top, pyramid.span, deepest)
-    config = page_config(layers, static, False, [])
+    config = page_config(layers, static, False, []) | {"hover": hover_grid(layers)}
     count = 0
     left, bottom, right, top = layers.bounds
     text = index_html(config, live=False, title=title, report=report)

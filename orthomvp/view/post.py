@@ -237,7 +237,9 @@ class Posts:
         rplot = height_plot(curve, float(ex.theta[0]), where, path)
         ax = rplot.figure.axes[0]
         if fitted is not None:
-            ax.axvline(fitted, color="tab:green", lw=1.5, label=f"fitted DEM {fitted:.2f} m")
+            ax.axvline(
+                fitted, color="tab:green", lw=1.5, label=f"fitted DEM {fitted:.2f} m (deconvolved)"
+            )
             if sigma is not None:
                 ax.axvspan(
                     fitted - sigma,
