@@ -21,7 +21,7 @@ MAX_TILES = 400
 """Most tiles of one layer at the deepest exported zoom."""
 HOVER = 128
 """Cells on the longer side of the value grid an export holds per layer for its hover readout
-(each layer's values as text, about 10 bytes a cell)."""
+(each layer's distinct values as text, and an index into them a cell)."""
 STATIC = ("view.js", "view.css", "vendor/README.txt")
 """The page's own files an export copies (and Leaflet's folder)."""
 
@@ -42,21 +42,24 @@ def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
 
 def hover_grid(layers: LayerSet, cells: int = HOVER) -> dict:
     """Each layer's values over the DEM's bounds on a grid of at most ``cells`` a side, worded
-    as the live readout words them (None where the layer's files all miss the DEM), read as the
-    layer's tiles are
-    (from the files' overviews, nearest posts for codes): ``cols``, ``rows``, ``bounds``
-    (left, bottom, right, top) and ``values`` by layer id, row by row from the top."""
+    as the live readout words them, read as the layer's tiles are (from the files' overviews,
+    nearest posts for codes): ``cols``, ``rows``, ``bounds`` (left, bottom, right, top) and by
+    layer id its distinct ``words`` and each cell's index into them (row by row from the top;
+    -1 where the layer's files all miss the DEM)."""
     left, bottom, right, top = layers.bounds
     scale = cells / max(right - left, top - bottom)
     cols, rows = max(1, round((right - left) * scale)), max(1, round((top - bottom) * scale))
-    values: dict[str, list[str | None]] = {}
+    values: dict[str, dict] = {}
     for layer in layers.layers.values():
         data = layer.read(layers.bounds, (cols, rows))
         if data is None:
-            values[layer.id] = [None] * (cols * rows)
+            values[layer.id] = {"words": [], "cells": [-1] * (cols * rows)}
             continue
         flat = data.reshape(len(data), -1)
-        values[layer.id] = [layer.kind.describe(flat[:, k]) for k in range(flat.shape[1])]
+        said = [layer.kind.describe(flat[:, k]) for k in range(flat.shape[1])]
+        words = sorted(set(said))
+        index = {w: k for k, w in enumerate(words)}
+        values[layer.id] = {"words": words, "cells": [index[w] for w in said]}
     return {"cols": cols, "rows": rows, "bounds": [left, bottom, right, top], "values": values}
 
 

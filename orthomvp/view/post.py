@@ -136,8 +136,9 @@ class Posts:
         """Make the explorer of the DEM's centre and evaluate the objective there once (numba
         compiles its kernels), so that the first click is as fast as the others."""
         rows, cols = self.dem.shape
+        with self._lock:
+            ex, cl, rl = self.explorer(cols // 2, rows // 2)  # its visibility on every core
         with self._lock, _one_thread():
-            ex, cl, rl = self.explorer(cols // 2, rows // 2)
             try:
                 ex.set_poi(cl, rl)
                 ex.height_curve(10.0, 5)
@@ -197,8 +198,9 @@ class Posts:
         fit, rplot's minimum and the plots as PNG data URLs; ``error`` says why there are no
         plots (a post no two views see, a hole in the DEM)."""
         c, r = self.post_of(x, y)
+        with self._lock:
+            ex, cl, rl = self.explorer(c, r)  # made at a block's first click: on every core
         with self._lock, _one_thread():
-            ex, cl, rl = self.explorer(c, r)
             out: dict = {"post": [c, r]}
             ex.set_poi(cl, rl)
             lon, lat = ex.post_lonlat()

@@ -136,7 +136,8 @@
       const i = Math.floor((ll.lng - l) / (r - l) * h.cols), j = Math.floor((t - ll.lat) / (t - b) * h.rows);
       const inside = i >= 0 && i < h.cols && j >= 0 && j < h.rows;
       cfg.layers.forEach((lay) => {
-        const v = inside ? h.values[lay.id][j * h.cols + i] : null;
+        const g = h.values[lay.id], k = inside ? g.cells[j * h.cols + i] : -1;
+        const v = k < 0 ? null : g.words[k];
         html += `<tr><td>${lay.title}</td><td data-layer="${lay.id}">${v === null ? "outside" : v}</td></tr>`;
       });
       html += `<tr><td colspan="2" class="note">values on a ${h.cols} x ${h.rows} grid; the live viewer reads every post</td></tr>`;
