@@ -19,9 +19,10 @@ from orthomvp.view.tiles import Pyramid, tile_png
 
 MAX_TILES = 400
 """Most tiles of one layer at the deepest exported zoom."""
-HOVER = 128
+HOVER = 64
 """Cells on the longer side of the value grid an export holds per layer for its hover readout
-(each layer's distinct values as text, and an index into them a cell)."""
+(each layer's distinct values as text, and an index into them a cell: 170 kB in the page for
+a DEM, a height layer and four visibility layers)."""
 STATIC = ("view.js", "view.css", "vendor/README.txt")
 """The page's own files an export copies (and Leaflet's folder)."""
 
