@@ -32,6 +32,7 @@ def _serve(dem: Path, pairs: list[tuple[Path, Path]], layers: list[tuple[str, li
     import uvicorn
 
     from orthomvp.camera import load_view
+    from orthomvp.engine.grid import scan_dem, with_world
     from orthomvp.geometry.terrain import Terrain
     from orthomvp.geometry.world import detect_world
     from orthomvp.view import LayerSet, Posts, create_app
@@ -44,9 +45,9 @@ def _serve(dem: Path, pairs: list[tuple[Path, Path]], layers: list[tuple[str, li
     views = [load_view(i, c) for i, c in pairs]
     raw = Terrain.read(dem, vertical_datum="ignore")
     world = detect_world(raw, np.array([v[1].center for v in views]))
-    terrain = Terrain.read(dem, world=world)
+    source = with_world(scan_dem(dem), world)
     names = [i.name for i, _ in pairs]
-    posts = Posts(layer_set, terrain, [v[0] for v in views], [v[1] for v in views], names)
+    posts = Posts(layer_set, source, [v[0] for v in views], [v[1] for v in views], names)
     posts.warm()
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))

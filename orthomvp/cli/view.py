@@ -201,11 +201,37 @@ def _posts(dem: DemInput, pairs: list[tuple[Path, Path]], layers, eps, levels): 
     if not quiet():
         print("orthomvp: loading the images...", flush=True)
     views = [load_view(image, camera) for image, camera in pairs]
-    terrain = dem.read([v[1] for v in views])
+    source = _dem_source(dem, [v[1] for v in views])
     names = [image.name for image, _ in pairs]
     return Posts(
-        layers, terrain, [v[0] for v in views], [v[1] for v in views], names, eps=eps, levels=levels
+        layers, source, [v[0] for v in views], [v[1] for v in views], names, eps=eps, levels=levels
     )
+
+
+def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
+    """The DEM as :meth:`DemInput.read` takes it (the world frame its cameras fit, every camera
+    above it, map-frame heights checked), scanned once in blocks and then read in windows
+    (:class:`~orthomvp.engine.grid.DemSource`): a click reads its block, not the DEM."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from orthomvp.camera import sensor_positions
+    from orthomvp.camera.rpc import check_map_frame_heights
+    from orthomvp.codes import WorldFrame
+    from orthomvp.engine.grid import scan_dem, with_world
+    from orthomvp.geometry.datum import HeightOptions
+    from orthomvp.geometry.world import check_cameras_above, detect_world
+
+    heights = HeightOptions(dem.vertical_datum, dem.height_offset)
+    source = scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights)
+    centres = np.concatenate([sensor_positions(camera) for camera in cameras])
+    world = detect_world(source.preview, centres) if dem.world == "auto" else WorldFrame(dem.world)
+    check_cameras_above(replace(source.preview, world=world), centres)  # heights as the file holds
+    if dem.height_offset is None and dem.vertical_datum == "auto":
+        named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
+        check_map_frame_heights(named, world, dem.crs or source.file_crs, as_read=True)
+    return with_world(source, world)
 
 
 def _serve(layers, posts, sock: socket.socket, host: str, no_browser: bool) -> None:  # noqa: ANN001

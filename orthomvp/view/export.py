@@ -2,8 +2,9 @@
 
 The export opens from ``file://`` with no server and no network: the page, its scripts and
 style sheets, and every tile of every layer from zoom 0 to the deepest zoom whose tiles number
-at most :data:`MAX_TILES` per layer, as PNG files under ``tiles/ID/Z/X/Y.png``. Hover values,
-clicks and the 3D view need the live viewer.
+at most :data:`MAX_TILES` per layer, as PNG files under ``tiles/ID/Z/X/Y.png``, and for the
+hover readout each layer's values on a grid of at most :data:`HOVER` cells a side (in the page's
+configuration). Clicks and the 3D view need the live viewer.
 """
 
 from __future__ import annotations
@@ -18,6 +19,10 @@ from orthomvp.view.tiles import Pyramid, tile_png
 
 MAX_TILES = 400
 """Most tiles of one layer at the deepest exported zoom."""
+HOVER = 64
+"""Cells on the longer side of the value grid an export holds per layer for its hover readout
+(each layer's distinct values as text, and an index into them a cell: 170 kB in the page for
+a DEM, a height layer and four visibility layers)."""
 STATIC = ("view.js", "view.css", "vendor/README.txt")
 """The page's own files an export copies (and Leaflet's folder)."""
 
@@ -36,6 +41,29 @@ def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
     return z
 
 
+def hover_grid(layers: LayerSet, cells: int = HOVER) -> dict:
+    """Each layer's values over the DEM's bounds on a grid of at most ``cells`` a side, worded
+    as the live readout words them, read as the layer's tiles are (from the files' overviews,
+    nearest posts for codes): ``cols``, ``rows``, ``bounds`` (left, bottom, right, top) and by
+    layer id its distinct ``words`` and each cell's index into them (row by row from the top;
+    -1 where the layer's files all miss the DEM)."""
+    left, bottom, right, top = layers.bounds
+    scale = cells / max(right - left, top - bottom)
+    cols, rows = max(1, round((right - left) * scale)), max(1, round((top - bottom) * scale))
+    values: dict[str, dict] = {}
+    for layer in layers.layers.values():
+        data = layer.read(layers.bounds, (cols, rows))
+        if data is None:
+            values[layer.id] = {"words": [], "cells": [-1] * (cols * rows)}
+            continue
+        flat = data.reshape(len(data), -1)
+        said = [layer.kind.describe(flat[:, k]) for k in range(flat.shape[1])]
+        words = sorted(set(said))
+        index = {w: k for k, w in enumerate(words)}
+        values[layer.id] = {"words": words, "cells": [index[w] for w in said]}
+    return {"cols": cols, "rows": rows, "bounds": [left, bottom, right, top], "values": values}
+
+
 def write_export(layers: LayerSet, outdir: str | Path, **page: str) -> int:
     """Write the static page of ``layers`` into the folder ``outdir`` (atomically); returns the
     number of tiles written. ``page``: see :func:`export_into`."""
@@ -50,7 +78,7 @@ def export_into(layers: LayerSet, folder: Path, *, title: str = "", report: str 
     pyramid = Pyramid.of(layers)
     deepest = export_zooms(layers, pyramid)
     static = Pyramid(pyramid.left, pyramid.top, pyramid.span, deepest)
-    config = page_config(layers, static, False, [])
+    config = page_config(layers, static, False, []) | {"hover": hover_grid(layers)}
     count = 0
     left, bottom, right, top = layers.bounds
     text = index_html(config, live=False, title=title, report=report)

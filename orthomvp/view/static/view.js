@@ -114,10 +114,7 @@
     if (!pending) return;
     const ll = pending;
     pending = null;
-    if (!cfg.live) {
-      readout.textContent = `x ${ll.lng.toFixed(2)}, y ${ll.lat.toFixed(2)} (values need the live viewer)`;
-      return;
-    }
+    if (!cfg.live) { staticHover(ll); return; }
     fetch(`api/point?x=${ll.lng}&y=${ll.lat}`).then((r) => r.json()).then((d) => {
       if (d.error) { readout.textContent = d.error; return; }
       let html = `<table><tr><td>lon, lat</td><td id="lonlat">${d.lon.toFixed(6)}, ${d.lat.toFixed(6)}</td></tr>`;
@@ -128,6 +125,25 @@
       readout.innerHTML = html + "</table>";
       readout.dataset.x = ll.lng; readout.dataset.y = ll.lat;
     });
+  }
+
+  // a static export: the values of the grid cell under the pointer (cfg.hover, see export.py)
+  function staticHover(ll) {
+    const h = cfg.hover;
+    let html = `<table><tr><td>x, y</td><td>${ll.lng.toFixed(2)}, ${ll.lat.toFixed(2)}</td></tr>`;
+    if (h) {
+      const [l, b, r, t] = h.bounds;
+      const i = Math.floor((ll.lng - l) / (r - l) * h.cols), j = Math.floor((t - ll.lat) / (t - b) * h.rows);
+      const inside = i >= 0 && i < h.cols && j >= 0 && j < h.rows;
+      cfg.layers.forEach((lay) => {
+        const g = h.values[lay.id], k = inside ? g.cells[j * h.cols + i] : -1;
+        const v = k < 0 ? null : g.words[k];
+        html += `<tr><td>${lay.title}</td><td data-layer="${lay.id}">${v === null ? "outside" : v}</td></tr>`;
+      });
+      html += `<tr><td colspan="2" class="note">values on a ${h.cols} x ${h.rows} grid; the live viewer reads every post</td></tr>`;
+    }
+    readout.innerHTML = html + "</table>";
+    readout.dataset.x = ll.lng; readout.dataset.y = ll.lat;
   }
 
   // ------------------------------------------------------------------ clicks
@@ -178,6 +194,9 @@
     if (d.rplot) {
       html += `<div>rplot minimum h = <span id="hmin">${d.rplot.h_min.toFixed(3)}</span> m` +
         ` (${d.rplot.local_minima} local minima); live fit ${d.fit.h.toFixed(2)} m in ${d.fit.steps} steps</div>`;
+      if (d.fitted_file !== null)
+        html += "<div class=\"note\">the live fit is this post's plane; orthomvp fit's DEM holds its plane" +
+          " deconvolved with its neighbours' (--deconvolve), metres apart on steep or curved ground</div>";
     }
     html += "<table><tr><th>view</th><th>code</th><th>emission</th><th>used</th><th>corr</th></tr>";
     d.views.forEach((v) => {
