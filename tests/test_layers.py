@@ -38,6 +38,8 @@ LAYERS = [
     ("orthomvp.occlusion.raycast", "orthomvp.occlusion.post_geometry"),
     (
         "orthomvp.occlusion.post_geometry_kernel",
+        "orthomvp.occlusion.post_lattice",
+        "orthomvp.occlusion.post_lattice_kernel",
         "orthomvp.occlusion.occluders",
         "orthomvp.occlusion.carry",
     ),

@@ -16,6 +16,7 @@ Conventions (see ARCHITECTURE.md):
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -38,6 +39,30 @@ from orthomvp.io.raster import corrupt_data, open_raster, read_values, write_geo
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
+
+
+@functools.lru_cache(maxsize=32)
+def _lonlat_transformer(crs: CRS | FileCRS) -> Transformer:
+    """Map coordinates of ``crs`` to (lon, lat) degrees on its body: made once a process
+    for every Terrain on it (the engine makes several a tile; pyproj's transformers are
+    thread-safe)."""
+    from pyproj import Transformer
+
+    pyproj_crs = as_pyproj(crs)
+    return Transformer.from_crs(pyproj_crs, pyproj_crs.geodetic_crs, always_xy=True)
+
+
+@functools.lru_cache(maxsize=32)
+def _geocentric_transformer(crs: CRS | FileCRS, radii: tuple[float, float]) -> Transformer:
+    """(lon, lat) degrees and height on the body of ``crs`` (whose ellipsoid has ``radii``,
+    metres) to body-fixed metres, made once a process (as :func:`_lonlat_transformer`)."""
+    from pyproj import CRS, Transformer
+
+    a, b = radii
+    geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
+    pyproj_crs = as_pyproj(crs)
+    geodetic = pyproj_crs if pyproj_crs.is_geographic else pyproj_crs.geodetic_crs
+    return Transformer.from_crs(geodetic.to_3d(), geocent, always_xy=True)
 
 
 def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
@@ -269,19 +294,13 @@ class Terrain:
 
     @cached_property
     def _to_lonlat(self) -> Transformer | None:
-        from pyproj import Transformer
-
         if self.crs.is_geographic:
             return None
-        return Transformer.from_crs(as_pyproj(self.crs), self.geodetic_crs, always_xy=True)
+        return _lonlat_transformer(self.crs)
 
     @cached_property
     def _to_geocentric(self) -> Transformer:
-        from pyproj import CRS, Transformer
-
-        a, b = self.radii
-        geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
-        return Transformer.from_crs(self.geodetic_crs.to_3d(), geocent, always_xy=True)
+        return _geocentric_transformer(self.crs, self.radii)
 
     @cached_property
     def centre_lon(self) -> float:

@@ -1,0 +1,240 @@
+"""Per-post geometry of a tile for cameras whose ground-to-image is costly (RPC cameras, CSM
+line scanners: each post needs iterations through the model), from an error-bounded lattice:
+:func:`lattice` gives :func:`~orthomvp.occlusion.post_geometry.general`'s
+:class:`~orthomvp.occlusion.post_geometry.PostGeometry` within :data:`LATTICE_ERROR` pixels.
+
+A post's pixel, depth, ray (origin and direction) and GSD are smooth functions of its grid
+column, row and height. They are evaluated exactly (the camera's own ``project``, ``ray`` and
+``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them) at the nodes of a
+lattice and interpolated in between (bilinear across the grid, linear in height). The lattice
+belongs to the grid, not to the tile, so that every tiling gives the same values: nodes at the
+grid's columns and rows that are multiples of ``step`` (counted from the CRS's origin in posts)
+and at heights that are multiples of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of
+the lattice between two levels of height. A unit's interpolation is checked against the exact
+values at its 27 midpoints and corners (the cell's centre, edge midpoints and corners, at its
+two levels and halfway between them); it fails where any check misses by more than ``error``
+pixels (the pixel's offset, or the ray's offset at the point in pixels of the point's GSD), by
+more than :data:`GSD_RELATIVE` of the GSD, changes the sign of the depth, or is not imaged
+(NaN). The posts of failed units go to the lattice of half the step (:data:`LATTICE_STEPS`),
+and past the finest to the exact path. A unit none of whose checks is imaged (beyond an RPC's
+domain, a line scanner's lines), or all of whose checks' pixels have a bounding box more than a
+pixel off the image, is taken as not imaged, its values NaN: an image would have to fit between
+checks half a cell apart to be missed. The exact path (``Geometry.GENERAL``) stays the test
+oracle. World points, normals and everything else built from the DEM alone are computed as in
+:func:`~orthomvp.occlusion.post_geometry.general`.
+
+The interpolation runs in a numba kernel (:mod:`orthomvp.occlusion.post_lattice_kernel`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from orthomvp.camera import Camera, PinholeCamera
+from orthomvp.geometry.normals import grid_normals
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import finite_rows
+from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
+
+LATTICE_STEPS = (32, 16, 8, 4)
+"""Posts between lattice nodes along rows and columns: the first lattice, and the finer ones
+that the posts of failed units go to in turn."""
+LEVEL_SPACING = 256.0
+"""Height between the lattice's levels, in the grid's height units (metres)."""
+LATTICE_ERROR = 0.01
+"""The largest interpolation error allowed at a check, pixels."""
+GSD_RELATIVE = 1e-3
+"""The largest relative error of an interpolated GSD allowed at a check."""
+_U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
+_CHANNELS = 10
+# a unit's checks: (row, column, level) in half steps from its first node
+_CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range(3)])
+
+
+def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
+    """Whether :func:`lattice` serves ``camera``: one without a single centre or closed-form
+    projection (not a :class:`~orthomvp.camera.PinholeCamera`), on a grid of 2 x 2 posts or
+    more."""
+    return not isinstance(camera, PinholeCamera) and min(terrain.shape) >= 2
+
+
+def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
+    """The camera's values (..., 10) at world points ``xyz`` (..., 3): pixel (u, v), depth,
+    the ray's origin and unit direction through that pixel, GSD (metres); NaN where not
+    imaged."""
+    out = np.full((*xyz.shape[:-1], _CHANNELS), np.nan)
+    if not xyz.size:
+        return out
+    uv, depth = camera.project(xyz)
+    out[..., :2], out[..., _DEPTH] = uv, depth
+    good = finite_rows(uv)
+    if good.any():
+        origin, direction = camera.ray(uv[good])
+        out[good, _O], out[good, _D] = origin, direction
+    out[..., _GSD] = camera.gsd(xyz)
+    return out
+
+
+def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Per unit, whether its checks' pixels ``uv`` (units, checks, 2) show that none of its
+    posts is imaged: none is imaged, or all are and their bounding box lies more than a pixel
+    off the image."""
+    finite = np.isfinite(uv).all(axis=-1)
+    low = np.where(finite[..., None], uv, np.inf).min(axis=1)
+    high = np.where(finite[..., None], uv, -np.inf).max(axis=1)
+    w, h = camera.width, camera.height
+    off = (high[:, 0] < -1.5) | (high[:, 1] < -1.5) | (low[:, 0] > w + 0.5) | (low[:, 1] > h + 0.5)
+    return ~finite.any(axis=1) | (finite.all(axis=1) & off)
+
+
+def _misses(estimate: np.ndarray, exact: np.ndarray, xyz: np.ndarray, error: float) -> np.ndarray:
+    """Where the ``estimate`` (..., 10) misses the ``exact`` values at world points ``xyz``
+    (..., 3) beyond ``error`` pixels or the GSD's bound (module docstring), or either is not
+    finite."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gsd = exact[..., _GSD]
+        uv = np.hypot(*(estimate[..., k] - exact[..., k] for k in (_U, _V)))
+        rng = np.linalg.norm(xyz - exact[..., _O], axis=-1)
+        d = estimate[..., _D] / np.linalg.norm(estimate[..., _D], axis=-1, keepdims=True)
+        ray = np.linalg.norm(estimate[..., _O] - exact[..., _O], axis=-1)
+        ray = (ray + rng * np.linalg.norm(d - exact[..., _D], axis=-1)) / gsd
+        good = (
+            (uv <= error)
+            & (ray <= error)
+            & (np.abs(estimate[..., _GSD] - gsd) <= GSD_RELATIVE * gsd)
+            & (np.sign(estimate[..., _DEPTH]) == np.sign(exact[..., _DEPTH]))
+        )
+    return ~(good & np.isfinite(estimate).all(axis=-1) & np.isfinite(exact).all(axis=-1))
+
+
+def tile_values(
+    terrain: Terrain,
+    camera: Camera,
+    rs: slice,
+    cs: slice,
+    p: np.ndarray,
+    ok: np.ndarray,
+    *,
+    steps: tuple[int, ...] = LATTICE_STEPS,
+    error: float = LATTICE_ERROR,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The values (rows, cols, 10) of :func:`exact_values` at the posts ``p`` (rows, cols, 3)
+    of tile (``rs``, ``cs``) of ``terrain`` where ``ok``, interpolated within ``error`` pixels
+    from the grid's lattices of ``steps`` posts in turn, or else exact (module docstring);
+    and where they are exact (bool (rows, cols))."""
+    rows, cols = ok.shape
+    out = np.full((rows, cols, _CHANNELS), np.nan)
+    todo = ok.copy()
+    T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
+    offset = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
+    z = terrain.values[rs, cs].astype(np.float64)
+    for step in steps:
+        r, c = np.nonzero(todo)
+        if not r.size:
+            break
+        done = _level(terrain, camera, (r, c), z[r, c], offset, (rs, cs), step, error, out)
+        todo[r[done], c[done]] = False
+    if todo.any():
+        out[todo] = exact_values(camera, p[todo])
+    return out, todo
+
+
+def _level(
+    terrain: Terrain,
+    camera: Camera,
+    posts: tuple[np.ndarray, np.ndarray],
+    z: np.ndarray,
+    offset: tuple[float, float],
+    tile: tuple[slice, slice],
+    step: int,
+    error: float,
+    out: np.ndarray,
+) -> np.ndarray:
+    """The posts (``posts``: rows and columns in the tile, heights ``z``) whose units in the
+    lattice of ``step`` posts pass their checks, their values written into ``out`` (NaN in
+    dead units); returns where they passed (bool). ``offset``: the global (row, column) index
+    of the tile's first post."""
+    from orthomvp.occlusion.post_lattice_kernel import interpolate
+
+    gr, gc = posts[0] + offset[0], posts[1] + offset[1]  # global, in posts
+    fr, fc, fl = gr / step, gc / step, z / LEVEL_SPACING  # in nodes and levels
+    cell = np.stack([np.floor(fr), np.floor(fc), np.floor(fl)], axis=-1).astype(np.int64)
+    units, which = _unique_rows(cell)
+    # every unit's 27 checks in half steps, evaluated once each
+    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)
+    base = half.min(axis=0)  # (even: a node)
+    points, at = _unique_rows(half - base)
+    at = at.reshape(len(units), len(_CHECKS))
+    gpos = (points + base) / 2.0  # (global node row, node column, level)
+    rows = gpos[:, 0] * step - offset[0] + tile[0].start  # tile rows and columns of the checks
+    cols = gpos[:, 1] * step - offset[1] + tile[1].start
+    xyz = terrain.to_world(cols, rows, gpos[:, 2] * LEVEL_SPACING)
+    exact = exact_values(camera, xyz)
+    even = ~(points % 2).any(axis=1)
+    nodes = np.full((*(points.max(axis=0) // 2 + 1), _CHANNELS), np.nan)
+    nodes[tuple((points[even] // 2).T)] = exact[even]
+    first = units - base // 2  # each unit's first node in the nodes' array
+    est = np.empty((len(_CHECKS), len(units), _CHANNELS))
+    for k, check in enumerate(_CHECKS):
+        interpolate(nodes, first, np.tile(check / 2.0, (len(units), 1)), est[k])
+    est = est.transpose(1, 0, 2)
+    miss = _misses(est, exact[at], xyz[at], error).any(axis=1)
+    dead = _outside(camera, exact[at][..., :2])
+    passed = ~miss | dead
+    fractions = np.stack([fr, fc, fl], axis=-1) - cell
+    values = np.empty((len(z), _CHANNELS))
+    interpolate(nodes, first[which], fractions, values)
+    d = values[:, _D]
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    values[dead[which]] = np.nan
+    done = passed[which]
+    out[posts[0][done], posts[1][done]] = values[done]
+    return done
+
+
+def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``a`` (n, 3) of integers and where each row of ``a`` is among
+    them (as ``np.unique(axis=0, return_inverse=True)``, through one integer key)."""
+    low = a.min(axis=0)
+    a = a - low
+    span = a.max(axis=0) + 1
+    key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
+    keys, inverse = np.unique(key, return_inverse=True)
+    rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
+    return rows + low, inverse.ravel()
+
+
+def lattice(
+    terrain: Terrain,
+    camera: Camera,
+    rs: slice,
+    cs: slice,
+    *,
+    steps: tuple[int, ...] = LATTICE_STEPS,
+    error: float = LATTICE_ERROR,
+) -> PostGeometry:
+    """:func:`~orthomvp.occlusion.post_geometry.general` for a case :func:`lattice_applies`
+    to, the camera's values interpolated on the grid's lattices of ``steps`` posts within
+    ``error`` pixels (module docstring); the rays' unit directions come with it
+    (:attr:`PostGeometry.directions`)."""
+    r0, r1, c0, c1 = tile_block(terrain, rs, cs)
+    r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
+    n = grid_normals(block, terrain.up_vectors(block))
+    inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
+    p, n = block[inner], n[inner]
+    ok = finite_rows(p) & finite_rows(n)
+    values, _ = tile_values(terrain, camera, rs, cs, p, ok, steps=steps, error=error)
+    uv, depth = values[..., :2], values[..., _DEPTH]
+    with np.errstate(invalid="ignore"):
+        inside = ok & (depth > 0) & camera.in_image(uv)
+    origins = np.where(inside[..., None], values[..., _O], np.nan)
+    directions = np.where(inside[..., None], values[..., _D], np.nan)
+    to_cam = origins - p
+    x, y, zc = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
+    with np.errstate(invalid="ignore"):
+        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * zc) / np.sqrt(x * x + y * y + zc * zc)
+    return PostGeometry(
+        p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, values[..., _GSD], origins,
+        directions,
+    )  # fmt: skip
