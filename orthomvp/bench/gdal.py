@@ -6,8 +6,9 @@ whole processes on the same grid, from files to a float32 GeoTIFF.
 Both tools read one DEM: the ngi-aerial heights plus the geoid undulation there
 (:data:`UNDULATION`, as the README's recipe gives it), under the horizontal part of its CRS,
 so that the heights are ellipsoidal as RPCs want them and neither tool needs a geoid grid.
-GDAL's downsampling filter is off (``-wo XSCALE=1 -wo YSCALE=1``: one bilinear sample a post,
-as orthomvp takes), GDAL runs on one thread (its default), orthomvp on one per core. Each
+GDAL's downsampling filter is off (``-wo XSCALE=1 -wo YSCALE=1``) and it reads the image
+itself, not an overview (``-ovr NONE``): one bilinear sample of the image a post, as orthomvp
+takes. GDAL keeps its default approximate transformer (0.125 px). GDAL runs on one thread (its default), orthomvp on one per core. Each
 tool writes its own default: GDAL a plain tiled-by-strip GeoTIFF, orthomvp a Cloud-Optimized
 GeoTIFF with overviews."""
 
@@ -121,11 +122,13 @@ def _warp_args(
     dem: Path, image: Path, out: Path, res: float, bounds: tuple[float, ...] | None
 ) -> list[str]:
     """``gdalwarp -rpc`` of ``image`` onto ``dem``'s CRS at ``res`` m (``bounds``: its
-    extent, else GDAL's default), bilinear, downsampling filter off, float32, NaN nodata."""
+    extent, else GDAL's default), bilinear, downsampling filter off and the image's own
+    pixels (no overview), float32, NaN nodata."""
     with open_raster(dem) as ds:
         wkt = ds.crs.to_wkt()
     args = [gdalwarp(), "-q", "-overwrite", "-rpc", "-to", f"RPC_DEM={dem}", "-t_srs", wkt]
     args += ["-tr", str(res), str(res), "-r", "bilinear", "-wo", "XSCALE=1", "-wo", "YSCALE=1"]
+    args += ["-ovr", "NONE"]
     args += ["-ot", "Float32", "-dstnodata", "nan"]
     if bounds is not None:
         args += ["-te", *(repr(float(b)) for b in bounds)]
