@@ -8,9 +8,9 @@ Both tools read one DEM: the ngi-aerial heights plus the geoid undulation there
 so that the heights are ellipsoidal as RPCs want them and neither tool needs a geoid grid.
 GDAL's downsampling filter is off (``-wo XSCALE=1 -wo YSCALE=1``) and it reads the image
 itself, not an overview (``-ovr NONE``): one bilinear sample of the image a post, as orthomvp
-takes. GDAL keeps its default approximate transformer (0.125 px). GDAL runs on one thread (its default), orthomvp on one per core. Each
-tool writes its own default: GDAL a plain tiled-by-strip GeoTIFF, orthomvp a Cloud-Optimized
-GeoTIFF with overviews."""
+takes. GDAL keeps its default approximate transformer (0.125 px) and runs on one thread (its
+default), orthomvp on one per core. Each tool writes its own default: GDAL a plain striped
+GeoTIFF, orthomvp a Cloud-Optimized GeoTIFF with overviews."""
 
 from __future__ import annotations
 
