@@ -36,7 +36,7 @@ from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
 
-LATTICE_STEPS = (32, 16, 8, 4)
+LATTICE_STEPS = (64, 32, 16, 8, 4)
 """Posts between lattice nodes along rows and columns: the first lattice, and the finer ones
 that the posts of failed units go to in turn."""
 LEVEL_SPACING = 256.0
@@ -181,27 +181,32 @@ def _level(
     miss = _misses(est, exact[at], xyz[at], error).any(axis=1)
     dead = _outside(camera, exact[at][..., :2])
     passed = ~miss | dead
-    fractions = np.stack([fr, fc, fl], axis=-1) - cell
-    values = np.empty((len(z), _CHANNELS))
-    interpolate(nodes, first[which], fractions, values)
+    done = passed[which]
+    unit = which[done]
+    fractions = np.stack([fr[done], fc[done], fl[done]], axis=-1) - cell[done]
+    values = np.empty((len(unit), _CHANNELS))
+    interpolate(nodes, first[unit], fractions, values)
     d = values[:, _D]
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    values[dead[which]] = np.nan
-    done = passed[which]
-    out[posts[0][done], posts[1][done]] = values[done]
+    values[dead[unit]] = np.nan
+    out[posts[0][done], posts[1][done]] = values
     return done
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rows of ``a`` (n, 3) of integers and where each row of ``a`` is among
-    them (as ``np.unique(axis=0, return_inverse=True)``, through one integer key)."""
+    """The distinct rows of ``a`` (n, 3) of integers, in order, and where each row of ``a``
+    is among them (as ``np.unique(axis=0, return_inverse=True)``), through a table over their
+    span (small: cells and levels of a tile) instead of a sort."""
     low = a.min(axis=0)
     a = a - low
     span = a.max(axis=0) + 1
     key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
-    keys, inverse = np.unique(key, return_inverse=True)
+    table = np.zeros(int(np.prod(span)), np.int64)
+    table[key] = 1
+    keys = np.flatnonzero(table)
+    table[keys] = np.arange(len(keys))
     rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
-    return rows + low, inverse.ravel()
+    return rows + low, table[key]
 
 
 def lattice(
