@@ -120,77 +120,96 @@ def tile_values(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The values (rows, cols, 10) of :func:`exact_values` at the posts ``p`` (rows, cols, 3)
     of tile (``rs``, ``cs``) of ``terrain`` where ``ok``, interpolated within ``error`` pixels
-    from the grid's lattices of ``steps`` posts in turn, or else exact (module docstring);
-    and where they are exact (bool (rows, cols))."""
-    rows, cols = ok.shape
-    out = np.full((rows, cols, _CHANNELS), np.nan)
-    todo = ok.copy()
-    T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
-    offset = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
-    z = terrain.values[rs, cs].astype(np.float64)
-    for step in steps:
-        r, c = np.nonzero(todo)
-        if not r.size:
-            break
-        done = _level(terrain, camera, (r, c), z[r, c], offset, (rs, cs), step, error, out)
-        todo[r[done], c[done]] = False
-    if todo.any():
-        out[todo] = exact_values(camera, p[todo])
-    return out, todo
-
-
-def _level(
-    terrain: Terrain,
-    camera: Camera,
-    posts: tuple[np.ndarray, np.ndarray],
-    z: np.ndarray,
-    offset: tuple[float, float],
-    tile: tuple[slice, slice],
-    step: int,
-    error: float,
-    out: np.ndarray,
-) -> np.ndarray:
-    """The posts (``posts``: rows and columns in the tile, heights ``z``) whose units in the
-    lattice of ``step`` posts pass their checks, their values written into ``out`` (NaN in
-    dead units); returns where they passed (bool). ``offset``: the global (row, column) index
-    of the tile's first post."""
+    from the grid's lattices of ``steps`` posts in turn (each a multiple of the last), or else
+    exact (module docstring); and where they are exact (bool (rows, cols)). The posts are
+    sorted once into the finest lattice's units; a coarser unit serves all of its own."""
     from orthomvp.occlusion.post_lattice_kernel import interpolate
 
-    gr, gc = posts[0] + offset[0], posts[1] + offset[1]  # global, in posts
-    fr, fc, fl = gr / step, gc / step, z / LEVEL_SPACING  # in nodes and levels
-    cell = np.stack([np.floor(fr), np.floor(fc), np.floor(fl)], axis=-1).astype(np.int64)
-    units, which = _unique_rows(cell)
-    # every unit's 27 checks in half steps, evaluated once each
-    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)
-    base = half.min(axis=0)  # (even: a node)
-    points, at = _unique_rows(half - base)
+    rows, cols = ok.shape
+    out = np.full((rows, cols, _CHANNELS), np.nan)
+    exact = np.zeros((rows, cols), bool)
+    r, c = np.nonzero(ok)
+    if not r.size:
+        return out, exact
+    T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
+    origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
+    gr, gc = r + origin[0], c + origin[1]
+    fl = terrain.values[rs, cs][r, c].astype(np.float64) / LEVEL_SPACING
+    fine = steps[-1]
+    cell = np.stack([np.floor(gr / fine), np.floor(gc / fine), np.floor(fl)], -1).astype(np.int64)
+    units, which = _unique_rows(cell)  # the finest units holding posts
+    served = np.full(len(units), -1)  # which lattice serves each
+    parent = np.zeros_like(units)  # its unit in that lattice
+    dead = np.zeros(len(units), bool)
+    lattices = []
+    todo = np.arange(len(units))
+    for k, step in enumerate(steps):
+        if not todo.size:
+            break
+        up = units[todo].copy()
+        up[:, :2] //= step // fine
+        coarse, where = _unique_rows(up)
+        nodes, first, passed, gone = _check(terrain, camera, coarse, step, origin, rs, cs, error)
+        lattices.append((step, nodes, first))
+        good = passed[where]
+        served[todo[good]], parent[todo[good]] = k, coarse[where[good]]
+        dead[todo[good]] = gone[where[good]]
+        todo = todo[~good]
+    post_served = served[which]
+    for k, (step, nodes, first) in enumerate(lattices):
+        pick = np.flatnonzero(post_served == k)
+        if not pick.size:
+            continue
+        unit = parent[which[pick]]
+        frac = np.stack([gr[pick] / step, gc[pick] / step, fl[pick]], -1) - unit
+        values = np.empty((len(pick), _CHANNELS))
+        interpolate(nodes, unit - first, frac, values)
+        d = values[:, _D]
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        values[dead[which[pick]]] = np.nan
+        out[r[pick], c[pick]] = values
+    rest = post_served < 0
+    exact[r[rest], c[rest]] = True
+    if rest.any():
+        out[exact] = exact_values(camera, p[exact])
+    return out, exact
+
+
+def _check(
+    terrain: Terrain,
+    camera: Camera,
+    units: np.ndarray,
+    step: int,
+    origin: tuple[float, float],
+    rs: slice,
+    cs: slice,
+    error: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The units ``units`` (n, 3: global cell row, column, level) of the lattice of ``step``
+    posts, checked: the nodes (node rows, node columns, levels, 10) around them and the
+    global index of the first, whether each unit passes its checks, and whether it is dead
+    (module docstring). ``origin``: the global (row, column) index of post (0, 0) of tile
+    (``rs``, ``cs``)."""
+    from orthomvp.occlusion.post_lattice_kernel import interpolate
+
+    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)  # each unit's 27 checks
+    points, at = _unique_rows(half)  # in half steps, each evaluated once
     at = at.reshape(len(units), len(_CHECKS))
-    gpos = (points + base) / 2.0  # (global node row, node column, level)
-    rows = gpos[:, 0] * step - offset[0] + tile[0].start  # tile rows and columns of the checks
-    cols = gpos[:, 1] * step - offset[1] + tile[1].start
-    xyz = terrain.to_world(cols, rows, gpos[:, 2] * LEVEL_SPACING)
+    rows = points[:, 0] / 2.0 * step - origin[0] + rs.start  # the terrain's rows and columns
+    cols = points[:, 1] / 2.0 * step - origin[1] + cs.start
+    xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
     exact = exact_values(camera, xyz)
+    first = points.min(axis=0) // 2  # (units start at even half steps: a node)
     even = ~(points % 2).any(axis=1)
-    nodes = np.full((*(points.max(axis=0) // 2 + 1), _CHANNELS), np.nan)
-    nodes[tuple((points[even] // 2).T)] = exact[even]
-    first = units - base // 2  # each unit's first node in the nodes' array
+    nodes = np.full((*(points.max(axis=0) // 2 - first + 1), _CHANNELS), np.nan)
+    nodes[tuple((points[even] // 2 - first).T)] = exact[even]
     est = np.empty((len(_CHECKS), len(units), _CHANNELS))
     for k, check in enumerate(_CHECKS):
-        interpolate(nodes, first, np.tile(check / 2.0, (len(units), 1)), est[k])
+        interpolate(nodes, units - first, np.tile(check / 2.0, (len(units), 1)), est[k])
     est = est.transpose(1, 0, 2)
     miss = _misses(est, exact[at], xyz[at], error).any(axis=1)
     dead = _outside(camera, exact[at][..., :2])
-    passed = ~miss | dead
-    done = passed[which]
-    unit = which[done]
-    fractions = np.stack([fr[done], fc[done], fl[done]], axis=-1) - cell[done]
-    values = np.empty((len(unit), _CHANNELS))
-    interpolate(nodes, first[unit], fractions, values)
-    d = values[:, _D]
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    values[dead[unit]] = np.nan
-    out[posts[0][done], posts[1][done]] = values
-    return done
+    return nodes, first, ~miss | dead, dead
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
