@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from orthomvp.camera import Camera, PinholeCamera
+from orthomvp.camera import Camera, RpcCamera
+from orthomvp.camera.csm import LineScanCamera
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
@@ -52,10 +53,11 @@ _CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range
 
 
 def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
-    """Whether :func:`lattice` serves ``camera``: one without a single centre or closed-form
-    projection (not a :class:`~orthomvp.camera.PinholeCamera`), on a grid of 2 x 2 posts or
-    more."""
-    return not isinstance(camera, PinholeCamera) and min(terrain.shape) >= 2
+    """Whether :func:`lattice` serves ``camera``: a model whose ground to image iterates (an
+    :class:`~orthomvp.camera.RpcCamera`, a CSM
+    :class:`~orthomvp.camera.csm.LineScanCamera`; other cameras, those of users' own
+    classes among them, keep the exact path), on a grid of 2 x 2 posts or more."""
+    return isinstance(camera, (RpcCamera, LineScanCamera)) and min(terrain.shape) >= 2
 
 
 def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
