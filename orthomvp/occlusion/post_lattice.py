@@ -48,6 +48,7 @@ GSD_RELATIVE = 1e-3
 """The largest relative error of an interpolated GSD allowed at a check."""
 _U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
 _CHANNELS = 10
+_TABLE_MOST = 1 << 24  # entries of _unique_rows's table at most (128 MiB)
 # a unit's checks: (row, column, level) in half steps from its first node
 _CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range(3)])
 
@@ -217,17 +218,21 @@ def _check(
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of ``a`` (n, 3) of integers, in order, and where each row of ``a``
     is among them (as ``np.unique(axis=0, return_inverse=True)``), through a table over their
-    span (small: cells and levels of a tile) instead of a sort."""
+    span (small: cells and levels of a tile; a sort where it is not)."""
     low = a.min(axis=0)
     a = a - low
     span = a.max(axis=0) + 1
     key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
-    table = np.zeros(int(np.prod(span)), np.int64)
-    table[key] = 1
-    keys = np.flatnonzero(table)
-    table[keys] = np.arange(len(keys))
+    if np.prod(span.astype(np.float64)) > _TABLE_MOST:  # (a tile of extreme relief): a sort
+        keys, inverse = np.unique(key, return_inverse=True)
+    else:
+        table = np.zeros(int(np.prod(span)), np.int64)
+        table[key] = 1
+        keys = np.flatnonzero(table)
+        table[keys] = np.arange(len(keys))
+        inverse = table[key]
     rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
-    return rows + low, table[key]
+    return rows + low, inverse.ravel()
 
 
 def lattice(
