@@ -126,7 +126,7 @@ def tile_values(
     from the grid's lattices of ``steps`` posts in turn (each a multiple of the last), or else
     exact (module docstring); and where they are exact (bool (rows, cols)). The posts are
     sorted once into the finest lattice's units; a coarser unit serves all of its own."""
-    from orthomvp.occlusion.post_lattice_kernel import interpolate
+    from orthomvp.occlusion.post_lattice_kernel import fill
 
     rows, cols = ok.shape
     out = np.full((rows, cols, _CHANNELS), np.nan)
@@ -158,20 +158,26 @@ def tile_values(
         served[todo[good]], parent[todo[good]] = k, coarse[where[good]]
         dead[todo[good]] = gone[where[good]]
         todo = todo[~good]
-    post_served = served[which]
-    for k, (step, nodes, first) in enumerate(lattices):
-        pick = np.flatnonzero(post_served == k)
-        if not pick.size:
-            continue
-        unit = parent[which[pick]]
-        frac = np.stack([gr[pick] / step, gc[pick] / step, fl[pick]], -1) - unit
-        values = np.empty((len(pick), _CHANNELS))
-        interpolate(nodes, unit - first, frac, values)
-        d = values[:, _D]
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        values[dead[which[pick]]] = np.nan
-        out[r[pick], c[pick]] = values
-    rest = post_served < 0
+    unit_table = np.full((len(units), 8), -1, np.int64)
+    unit_table[:, 7] = 0
+    buffers, meta = [], []
+    offset = 0
+    for k, (_, nodes, first) in enumerate(lattices):
+        mine = served == k
+        unit_table[mine, 0] = k
+        unit_table[mine, 1:4] = parent[mine]
+        unit_table[mine, 4:7] = parent[mine] - first
+        buffers.append(nodes.ravel())
+        meta.append((offset, nodes.shape[1], nodes.shape[2]))
+        offset += nodes.size
+    unit_table[:, 7] = dead
+    if lattices:
+        fill(
+            np.concatenate(buffers), np.array(meta, np.int64),
+            np.array([step for step, _, _ in lattices], np.float64), unit_table, which,
+            np.stack([r, c], -1), np.stack([gr, gc, fl], -1), out,
+        )  # fmt: skip
+    rest = served[which] < 0
     exact[r[rest], c[rest]] = True
     if rest.any():
         out[exact] = exact_values(camera, p[exact])
