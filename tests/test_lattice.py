@@ -11,6 +11,7 @@ import pytest
 from affine import Affine
 from pyproj import CRS
 
+from orthomvp.bench.peer import SYNTHETIC_PEER_CRS
 from orthomvp.bench.workload import bench_line_scanner, bench_terrain
 from orthomvp.camera import Camera, read_camera
 from orthomvp.geometry.terrain import Terrain
@@ -19,8 +20,10 @@ from orthomvp.occlusion.paths import Geometry, VisibilityPath
 from orthomvp.occlusion.post_lattice import (
     GSD_RELATIVE,
     LATTICE_ERROR,
+    WORLD_TOLERANCE,
     exact_values,
     tile_values,
+    world_block,
 )
 from orthomvp.occlusion.visibility import compute_visibility
 from orthomvp.synthetic import MOON_CRS
@@ -151,3 +154,20 @@ def test_every_tiling_gives_the_same_values() -> None:
     window = terrain.crop(37, 101, 13, 58)  # a Terrain of its own, as the engine's tiles are
     alone, _ = tile_values(window, camera, slice(0, 64), slice(0, 45), p[rs, cs], ok[rs, cs])
     np.testing.assert_allclose(alone, whole[rs, cs], rtol=1e-12, atol=1e-9, equal_nan=True)
+
+
+@pytest.mark.parametrize("res", [2.0, 6.0, 24.0])
+def test_world_points_within_their_tolerance_whatever_the_tiling(res: float) -> None:
+    """Body-fixed points of a transverse Mercator grid on the WGS84 ellipsoid: the lattice's
+    within WORLD_TOLERANCE of Terrain.to_world (PROJ) at every post, NaN heights NaN, and a
+    window's points those of the whole grid."""
+    z = np.random.default_rng(0).uniform(150, 780, (300, 260))
+    z[5, 7] = np.nan
+    transform = Affine(res, 0, -59326.0, 0, -res, -3724892.0)
+    terrain = Terrain(z, transform, CRS.from_proj4(SYNTHETIC_PEER_CRS), world="body")
+    r, c = np.mgrid[0:300, 0:260].astype(np.float64)
+    truth = terrain.to_world(c, r, z)
+    whole = world_block(terrain, 0, 300, 0, 260)
+    np.testing.assert_array_equal(np.isnan(whole), np.isnan(truth))
+    assert np.nanmax(np.abs(whole - truth)) <= WORLD_TOLERANCE
+    np.testing.assert_array_equal(world_block(terrain, 37, 211, 13, 158), whole[37:211, 13:158])

@@ -32,6 +32,7 @@ import numpy as np
 
 from orthomvp.camera import Camera, RpcCamera
 from orthomvp.camera.csm import LineScanCamera
+from orthomvp.codes import WorldFrame
 from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
@@ -44,6 +45,8 @@ LEVEL_SPACING = 256.0
 """Height between the lattice's levels, in the grid's height units (metres)."""
 LATTICE_ERROR = 0.01
 """The largest interpolation error allowed at a check, pixels."""
+WORLD_TOLERANCE = 1e-4
+"""The largest offset (metres) of a world point from the lattice of :func:`world_block`."""
 GSD_RELATIVE = 1e-3
 """The largest relative error of an interpolated GSD allowed at a check."""
 _U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
@@ -241,6 +244,45 @@ def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rows + low, inverse.ravel()
 
 
+def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """World points (rows, cols, 3) of the posts [r0:r1, c0:c1] of ``terrain``: in the body
+    frame on an ellipsoid, where every post would go through PROJ twice (map to geodetic, and
+    geodetic to body-fixed), from the grid's own lattice of every k-th post (counted from the
+    CRS's origin): a point is P + h U, affine in its height h along the geodetic normal, and P
+    and U are bilinear between the nodes within :data:`WORLD_TOLERANCE` (the ellipsoid's
+    curvature over k posts: (k d)^2 / 8a, k at most 16); elsewhere
+    :meth:`~orthomvp.geometry.terrain.Terrain.to_world` itself."""
+    values = terrain.values[r0:r1, c0:c1]
+    r, c = np.arange(r0, r1, dtype=np.float64), np.arange(c0, c1, dtype=np.float64)
+    T = terrain.transform
+    a = terrain.radii[0]
+    d = max(abs(T.a), abs(T.e))
+    d = np.radians(d) * a if terrain.crs.is_geographic else d
+    k = 1
+    while k < 16 and (2 * k * d) ** 2 / (8 * a) <= WORLD_TOLERANCE:
+        k *= 2
+    body = terrain.world != WorldFrame.MAP and not (terrain.radius_values or terrain.is_sphere)
+    if not body or k == 1:
+        return terrain.to_world(c[None, :], r[:, None], values)
+    gr, gc = T.f / T.e + 0.5, T.c / T.a + 0.5  # the global index of post (0, 0)
+    nr = np.arange(np.floor((gr + r0) / k), np.ceil((gr + r1 - 1) / k) + 1) * k - gr
+    nc = np.arange(np.floor((gc + c0) / k), np.ceil((gc + c1 - 1) / k) + 1) * k - gc
+    nr = nr if len(nr) > 1 else np.append(nr, nr[0] + k)
+    nc = nc if len(nc) > 1 else np.append(nc, nc[0] + k)
+    base = terrain.to_world(nc[None, :], nr[:, None], np.zeros((len(nr), len(nc))))
+    up = terrain.to_world(nc[None, :], nr[:, None], np.ones((len(nr), len(nc)))) - base
+
+    def between(v: np.ndarray) -> np.ndarray:  # bilinear, rows then columns
+        i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
+        t = ((r - nr[i]) / (nr[i + 1] - nr[i]))[:, None, None]
+        v = v[i] + t * (v[i + 1] - v[i])
+        j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
+        t = ((c - nc[j]) / (nc[j + 1] - nc[j]))[None, :, None]
+        return v[:, j] + t * (v[:, j + 1] - v[:, j])
+
+    return between(base) + values[..., None].astype(np.float64) * between(up)
+
+
 def lattice(
     terrain: Terrain,
     camera: Camera,
@@ -255,8 +297,7 @@ def lattice(
     ``error`` pixels (module docstring); the rays' unit directions come with it
     (:attr:`PostGeometry.directions`)."""
     r0, r1, c0, c1 = tile_block(terrain, rs, cs)
-    r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
-    block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
+    block = world_block(terrain, r0, r1, c0, c1)
     n = grid_normals(block, terrain.up_vectors(block))
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     p, n = block[inner], n[inner]
