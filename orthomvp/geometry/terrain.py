@@ -16,7 +16,6 @@ Conventions (see ARCHITECTURE.md):
 
 from __future__ import annotations
 
-import functools
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -29,7 +28,15 @@ from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference, file_radii, is_pyproj
+from orthomvp.geometry.crs import (
+    as_crs,
+    as_pyproj,
+    dem_georeference,
+    file_radii,
+    geocentric_transformer,
+    is_pyproj,
+    lonlat_transformer,
+)
 from orthomvp.geometry.datum import HeightOptions, height_shift
 from orthomvp.geometry.heights import check_relief, count_unusable, unusable, warn_infinite
 from orthomvp.geometry.normals import grid_normals
@@ -39,30 +46,6 @@ from orthomvp.io.raster import corrupt_data, open_raster, read_values, write_geo
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
-
-
-@functools.lru_cache(maxsize=32)
-def _lonlat_transformer(crs: CRS | FileCRS) -> Transformer:
-    """Map coordinates of ``crs`` to (lon, lat) degrees on its body: made once a process
-    for every Terrain on it (the engine makes several a tile; pyproj's transformers are
-    thread-safe)."""
-    from pyproj import Transformer
-
-    pyproj_crs = as_pyproj(crs)
-    return Transformer.from_crs(pyproj_crs, pyproj_crs.geodetic_crs, always_xy=True)
-
-
-@functools.lru_cache(maxsize=32)
-def _geocentric_transformer(crs: CRS | FileCRS, radii: tuple[float, float]) -> Transformer:
-    """(lon, lat) degrees and height on the body of ``crs`` (whose ellipsoid has ``radii``,
-    metres) to body-fixed metres, made once a process (as :func:`_lonlat_transformer`)."""
-    from pyproj import CRS, Transformer
-
-    a, b = radii
-    geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
-    pyproj_crs = as_pyproj(crs)
-    geodetic = pyproj_crs if pyproj_crs.is_geographic else pyproj_crs.geodetic_crs
-    return Transformer.from_crs(geodetic.to_3d(), geocent, always_xy=True)
 
 
 def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
@@ -296,11 +279,11 @@ class Terrain:
     def _to_lonlat(self) -> Transformer | None:
         if self.crs.is_geographic:
             return None
-        return _lonlat_transformer(self.crs)
+        return lonlat_transformer(self.crs)
 
     @cached_property
     def _to_geocentric(self) -> Transformer:
-        return _geocentric_transformer(self.crs, self.radii)
+        return geocentric_transformer(self.crs, self.radii)
 
     @cached_property
     def centre_lon(self) -> float:
