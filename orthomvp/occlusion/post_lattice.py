@@ -12,16 +12,17 @@ grid's columns and rows that are multiples of ``step`` (counted from the CRS's o
 and at heights that are multiples of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of
 the lattice between two levels of height. A unit's interpolation is checked against the exact
 values at its 27 midpoints and corners (the cell's centre, edge midpoints and corners, at its
-two levels and halfway between them); it fails where any check misses by more than ``error``
-pixels (the pixel's offset, or the ray's offset at the point in pixels of the point's GSD), by
-more than :data:`GSD_RELATIVE` of the GSD, changes the sign of the depth, or is not imaged
-(NaN). The posts of failed units go to the lattice of half the step (:data:`LATTICE_STEPS`),
-and past the finest to the exact path. A unit none of whose checks is imaged (beyond an RPC's
-domain, a line scanner's lines), or all of whose checks' pixels have a bounding box more than a
-pixel off the image, is taken as not imaged, its values NaN: an image would have to fit between
-checks half a cell apart to be missed. The exact path (``Geometry.GENERAL``) stays the test
-oracle. World points, normals and everything else built from the DEM alone are computed as in
-:func:`~orthomvp.occlusion.post_geometry.general`.
+two levels and halfway between them); it fails where any check misses by more than half of
+``error`` pixels (:data:`CHECK_SHARE`; the pixel's offset, or the ray's offset at the point in
+pixels of the point's GSD), by more than :data:`GSD_RELATIVE` of the GSD, changes the sign of
+the depth, or is not imaged (NaN). The posts of failed units go to the lattice of half the step
+(:data:`LATTICE_STEPS`), and past the finest to the exact path. A unit none of whose checks is
+imaged (beyond an RPC's domain, a line scanner's lines), or all of whose checks' pixels have a
+bounding box more than a pixel off the image, is taken as not imaged, its values NaN: an image
+would have to fit between checks half a cell apart to be missed. The exact path
+(``Geometry.GENERAL``) stays the test oracle. Normals and everything else built from the DEM
+alone are computed as in :func:`~orthomvp.occlusion.post_geometry.general`, from world points
+that on an ellipsoid come from a lattice too (:func:`world_block`).
 
 The interpolation runs in a numba kernel (:mod:`orthomvp.occlusion.post_lattice_kernel`).
 """
@@ -41,10 +42,13 @@ from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
 LATTICE_STEPS = (64, 32, 16, 8, 4)
 """Posts between lattice nodes along rows and columns: the first lattice, and the finer ones
 that the posts of failed units go to in turn."""
-LEVEL_SPACING = 256.0
+LEVEL_SPACING = 16.0
 """Height between the lattice's levels, in the grid's height units (metres)."""
-LATTICE_ERROR = 0.01
-"""The largest interpolation error allowed at a check, pixels."""
+LATTICE_ERROR = 0.004
+"""The interpolation error allowed, pixels: a unit's checks must be within half of it
+(:data:`CHECK_SHARE`), a margin for the posts between the checks."""
+CHECK_SHARE = 0.5
+"""The share of the allowed error that a unit's checks may miss by."""
 WORLD_TOLERANCE = 1e-4
 """The largest offset (metres) of a world point from the lattice of :func:`world_block`."""
 GSD_RELATIVE = 1e-3
@@ -219,7 +223,7 @@ def _check(
     for k, check in enumerate(_CHECKS):
         interpolate(nodes, units - first, np.tile(check / 2.0, (len(units), 1)), est[k])
     est = est.transpose(1, 0, 2)
-    miss = _misses(est, exact[at], xyz[at], error).any(axis=1)
+    miss = _misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
     dead = _outside(camera, exact[at][..., :2])
     return nodes, first, ~miss | dead, dead
 
