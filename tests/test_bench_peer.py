@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import shared
 
 from orthomvp import bench
 from orthomvp.camera import read_camera
@@ -87,3 +89,41 @@ def test_bench_orthority_figures_are_consistent(
     assert row["posts"] == np.prod(row["grid"]) > 10_000
     assert row["max_abs_diff"] == 0.0  # same grid and positions: the same bilinear samples
     assert main([*args, "--peer-res", "0"]) == 2
+
+
+def test_without_gdalwarp_one_line_and_exit_2(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path))  # no gdalwarp on it
+    assert main(["bench", "--peer", "gdal", "--json", str(tmp_path / "b.json")]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and not (tmp_path / "b.json").exists()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("orthomvp: error:")
+    assert "gdalwarp is not on PATH" in lines[0] and "gdal-bin" in lines[0]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_bench_gdal_figures_are_consistent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``bench --peer gdal`` on its coarsest grid (24 m): both tools' times, ratios, peak
+    memory, and the two orthophotos agree as the goal says (r >= 0.9999, shift <= 0.01 px;
+    coarser, GDAL's approximate transformer's 0.125 px tell on the 6.4 m image)."""
+    if shutil.which("gdalwarp") is None:
+        pytest.skip("the peer tool gdalwarp is absent (Debian: gdal-bin)")
+    shared("rpc-quickbird", "qb2_basic1b.tif")
+    out = tmp_path / "bench.json"
+    args = ["bench", "--peer", "gdal", "--peer-data", str(shared("ngi-aerial"))]
+    assert main([*args, "--peer-res", "24", "--peer-repeat", "1", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "gdalwarp" in text and "ratio" in text
+    (row,) = json.loads(out.read_text())["gdal"]
+    assert row["res_m"] == 24.0 and row["grid"] == [396, 236]
+    for name in ("gdal", "orthomvp", "orthomvp_naive"):
+        assert row[f"{name}_s"] > 0 and row[f"{name}_rss_mb"] > 10
+    assert row["ratio"] == pytest.approx(row["orthomvp_s"] / row["gdal_s"])
+    assert row["naive_ratio"] == pytest.approx(row["orthomvp_naive_s"] / row["gdal_s"])
+    assert row["common_posts"] > 0.9 * 396 * 236
+    assert row["r"] > 0.9999 and row["shift"] < 0.01

@@ -35,9 +35,14 @@ LAYERS = [
     ("orthomvp.geometry.terrain",),
     ("orthomvp.geometry.world", "orthomvp.camera"),
     ("orthomvp.occlusion", "orthomvp.occlusion.mesh", "orthomvp.occlusion.embree"),
-    ("orthomvp.occlusion.raycast", "orthomvp.occlusion.post_geometry"),
+    (
+        "orthomvp.occlusion.raycast",
+        "orthomvp.occlusion.post_geometry",
+        "orthomvp.occlusion.post_lattice_kernel",
+    ),
     (
         "orthomvp.occlusion.post_geometry_kernel",
+        "orthomvp.occlusion.post_lattice",
         "orthomvp.occlusion.occluders",
         "orthomvp.occlusion.carry",
     ),

@@ -244,13 +244,20 @@ class RpcCamera:
         origin (the point at height ``top`` imaged at the same pixel), positive below ``top``;
         NaN where ``uv`` is."""
         xyz = _points(xyz, "project", 3)
-        lon, lat, height = self.to_geodetic(xyz)
-        uv = self.rpc.project(lon, lat, height)
-        uv[~self._in_domain(lon, lat, height)] = np.nan
+        lon, lat, height, uv = self._pixels_of(xyz)
         _, origin = self._ray_point(uv, self.top, start=(lon, lat))
         depth = np.linalg.norm(xyz - origin, axis=-1)
         depth = np.where(height <= self.top, depth, -depth)
         return uv, depth
+
+    def _pixels_of(self, xyz: np.ndarray) -> tuple[np.ndarray, ...]:
+        """WGS84 (lon, lat) degrees and ellipsoidal height of world points ``xyz`` (..., 3),
+        and their pixels (..., 2), NaN beyond the domain: :meth:`project` without the depth
+        (which costs an inversion of the RPC)."""
+        lon, lat, height = self.to_geodetic(xyz)
+        uv = self.rpc.project(lon, lat, height)
+        uv[~self._in_domain(lon, lat, height)] = np.nan
+        return lon, lat, height, uv
 
     def ray(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rays through pixels ``uv`` (..., 2): ``origins`` (..., 3), the world points imaged at
@@ -271,14 +278,13 @@ class RpcCamera:
         the ray: 1 / sqrt(|det J|) with J (pixels per metre) by central differences of 1 m
         along two axes of that plane; NaN where the point is not imaged."""
         xyz = _points(xyz, "gsd", 3)
-        _, d = self.ray(self.project(xyz)[0])
+        _, d = self.ray(self._pixels_of(xyz)[3])  # (the pixels alone: no depths needed)
         helper = np.where(np.abs(d[..., :1]) < 0.9, np.eye(3)[0], np.eye(3)[1])
         e1 = np.cross(d, helper)
         e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
         e2 = np.cross(d, e1)
         step = _GSD_STEP * np.stack([e1, e2])  # (2, ..., 3)
-        ahead, _ = self.project(xyz + step)
-        behind, _ = self.project(xyz - step)
+        ahead, behind = self._pixels_of(xyz + step)[3], self._pixels_of(xyz - step)[3]
         jac = (ahead - behind) / (2 * _GSD_STEP)  # (2 axes, ..., 2 pixel coordinates)
         det = jac[0, ..., 0] * jac[1, ..., 1] - jac[0, ..., 1] * jac[1, ..., 0]
         return 1.0 / np.sqrt(np.abs(det))

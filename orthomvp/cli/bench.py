@@ -18,6 +18,7 @@ from orthomvp.cli.options import (
     check_outputs,
     overwrite_option,
 )
+from orthomvp.errors import InputError
 
 PEER_DATA_ENV = "ORTHOMVP_DATA"
 """The environment variable naming the data folder that holds ``ngi-aerial/``."""
@@ -73,8 +74,9 @@ def peer_data_default() -> Path | None:
 )
 @click.option(
     "--peer",
-    type=click.Choice(("orthority",)),
-    help="only compare orthomvp (occlusion on and off) with this tool on the same grid",
+    type=click.Choice(("orthority", "gdal")),
+    help="only compare orthomvp (occlusion on and off) with this tool on the same grid: "
+    "orthority (a frame camera), gdal (gdalwarp -rpc on the QuickBird RPC image)",
 )
 @click.option(
     "--peer-data",
@@ -83,13 +85,14 @@ def peer_data_default() -> Path | None:
     metavar="DIR",
     show_default=f"${PEER_DATA_ENV}/ngi-aerial when {PEER_DATA_ENV} is set, else a synthetic "
     "aerial scene",
-    help="the ngi-aerial data for --peer (a synthetic scene when it holds no dem.tif)",
+    help="the ngi-aerial data for --peer (a synthetic scene when it holds no dem.tif); "
+    "--peer gdal reads rpc-quickbird/ beside it",
 )
 @click.option(
     "--peer-res",
     type=POSITIVE,
     metavar="M",
-    show_default="the DEM's, 24 m for ngi-aerial",
+    show_default="the DEM's, 24 m for ngi-aerial; for gdal 24, 6 and 2 m",
     help="output post spacing for --peer in metres",
 )
 @click.option(
@@ -193,9 +196,11 @@ def bench(
     side-by-side comparison with Orthority (when installed): one ngi-aerial frame (or, without
     the data, a synthetic aerial scene) onto the same grid with both tools, end to end from
     files to GeoTIFF, best of --peer-repeat alternating runs; ratio = orthomvp time /
-    Orthority time. --scale runs instead the engine's scale benchmark (threads = cores).
-    --mosaic-scale runs instead the mosaic benchmark (threads = cores). --view runs instead
-    the viewer benchmark."""
+    Orthority time. --peer gdal: the QuickBird RPC image onto the ngi-aerial DEM by gdalwarp
+    -rpc -to RPC_DEM (when on PATH) and by orthomvp at 24, 6 and 2 m, whole processes, with
+    peak memory and the agreement of the two orthophotos. --scale runs instead the engine's
+    scale benchmark (threads = cores). --mosaic-scale runs instead the mosaic benchmark
+    (threads = cores). --view runs instead the viewer benchmark."""
     from orthomvp import bench as b
     from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
     from orthomvp.io.outputs import atomic_path
@@ -212,6 +217,8 @@ def bench(
             check_scene_memory(mvp_size, 0.8, "choose a smaller --mvp-size (0 skips)")
     if view:
         results = {"view": bench_view(peer_data)}
+    elif peer == "gdal":
+        results = {"gdal": bench_gdal_peer(peer_data, peer_res, peer_repeat)}
     elif peer:
         results = {"orthority": bench_peer(peer_data, peer_res, peer_repeat)}
     elif scale_sizes:
@@ -321,3 +328,22 @@ def bench_peer(data: Path | None, res: float | None, repeat: int) -> dict:
         row = b.bench_orthority(case, res=res, repeat=repeat)
     print(b.format_orthority(row))
     return row
+
+
+def bench_gdal_peer(data: Path | None, res: float | None, repeat: int) -> list[dict]:
+    """``bench --peer gdal``: gdalwarp against orthomvp on the QuickBird RPC image, from the
+    data folder above the ngi-aerial folder ``data`` (InputError without it or without
+    gdalwarp), at ``res`` m or each of :data:`~orthomvp.bench.gdal.GDAL_RES`; printed."""
+    from orthomvp.bench import gdal
+
+    gdal.gdalwarp()
+    if data is None:
+        raise InputError(
+            f"--peer gdal needs the shared data folder: give --peer-data DIR/ngi-aerial or set "
+            f"${PEER_DATA_ENV}"
+        )
+    with tempfile.TemporaryDirectory(prefix="orthomvp-gdal-") as tmp:
+        case = gdal.gdal_case(Path(data).parent, Path(tmp))
+        rows = gdal.bench_gdal(case, (res,) if res else gdal.GDAL_RES, repeat)
+    print(gdal.format_gdal(rows))
+    return rows

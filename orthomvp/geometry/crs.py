@@ -7,6 +7,7 @@ user gives needs it.
 
 from __future__ import annotations
 
+import functools
 import re
 import sys
 from pathlib import Path
@@ -18,7 +19,7 @@ from rasterio.crs import CRS as FileCRS
 from orthomvp.errors import InputError
 
 if TYPE_CHECKING:
-    from pyproj import CRS
+    from pyproj import CRS, Transformer
 
 
 def horizontal_crs(crs: CRS | FileCRS, source: str = "CRS") -> CRS | FileCRS:
@@ -109,3 +110,27 @@ def dem_georeference(
                 "is its georeferencing (or its CRS's axis order) right?"
             )
     return the_crs
+
+
+@functools.lru_cache(maxsize=32)
+def lonlat_transformer(crs: CRS | FileCRS) -> Transformer:
+    """Map coordinates of ``crs`` to (lon, lat) degrees on its body: made once a process
+    for every Terrain on it (the engine makes several a tile; pyproj's transformers are
+    thread-safe)."""
+    from pyproj import Transformer
+
+    pyproj_crs = as_pyproj(crs)
+    return Transformer.from_crs(pyproj_crs, pyproj_crs.geodetic_crs, always_xy=True)
+
+
+@functools.lru_cache(maxsize=32)
+def geocentric_transformer(crs: CRS | FileCRS, radii: tuple[float, float]) -> Transformer:
+    """(lon, lat) degrees and height on the body of ``crs`` (whose ellipsoid has ``radii``,
+    metres) to body-fixed metres, made once a process (as :func:`lonlat_transformer`)."""
+    from pyproj import CRS, Transformer
+
+    a, b = radii
+    geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
+    pyproj_crs = as_pyproj(crs)
+    geodetic = pyproj_crs if pyproj_crs.is_geographic else pyproj_crs.geodetic_crs
+    return Transformer.from_crs(geodetic.to_3d(), geocent, always_xy=True)

@@ -28,7 +28,15 @@ from rasterio.crs import CRS as FileCRS
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference, file_radii, is_pyproj
+from orthomvp.geometry.crs import (
+    as_crs,
+    as_pyproj,
+    dem_georeference,
+    file_radii,
+    geocentric_transformer,
+    is_pyproj,
+    lonlat_transformer,
+)
 from orthomvp.geometry.datum import HeightOptions, height_shift
 from orthomvp.geometry.heights import check_relief, count_unusable, unusable, warn_infinite
 from orthomvp.geometry.normals import grid_normals
@@ -269,19 +277,13 @@ class Terrain:
 
     @cached_property
     def _to_lonlat(self) -> Transformer | None:
-        from pyproj import Transformer
-
         if self.crs.is_geographic:
             return None
-        return Transformer.from_crs(as_pyproj(self.crs), self.geodetic_crs, always_xy=True)
+        return lonlat_transformer(self.crs)
 
     @cached_property
     def _to_geocentric(self) -> Transformer:
-        from pyproj import CRS, Transformer
-
-        a, b = self.radii
-        geocent = CRS.from_proj4(f"+proj=geocent +a={a!r} +b={b!r} +units=m +no_defs")
-        return Transformer.from_crs(self.geodetic_crs.to_3d(), geocent, always_xy=True)
+        return geocentric_transformer(self.crs, self.radii)
 
     @cached_property
     def centre_lon(self) -> float:

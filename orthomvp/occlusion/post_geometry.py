@@ -32,7 +32,10 @@ class PostGeometry:
     tile), whether point and normal are finite (``ok``), the pixels ``uv`` (rows, cols, 2)
     (NaN where not imaged), whether the post is ``inside`` the image, the cosine ``cos_e`` of
     its emission angle, its GSD on a surface facing the camera (``facing_gsd``, metres), and
-    the ray ``origins`` (rows, cols, 3) where the camera has no single centre (else None)."""
+    the ray ``origins`` (rows, cols, 3) where the camera has no single centre (else None),
+    with the rays' unit ``directions`` (rows, cols, 3) where they come with the geometry
+    (:func:`orthomvp.occlusion.post_lattice.lattice`; else None: the camera's ``ray`` of the
+    post's pixel)."""
 
     x: np.ndarray
     y: np.ndarray
@@ -43,6 +46,7 @@ class PostGeometry:
     cos_e: np.ndarray
     facing_gsd: np.ndarray
     origins: np.ndarray | None
+    directions: np.ndarray | None = None
 
     def points(self, mask: np.ndarray) -> np.ndarray:
         """The world points (n, 3) of the posts where ``mask`` (rows, cols)."""

@@ -296,7 +296,7 @@ def compute_visibility(
             gsd[rs, cs] = np.where(g.inside & (g.cos_e > 0), t_gsd, np.nan)
 
     # posts outside the image keep NODATA and NaN: only the window that can hold the image
-    separable = resolver.geometry is not Geometry.GENERAL
+    separable = resolver.geometry in (Geometry.SEPARABLE, Geometry.SEPARABLE_KERNEL)
     r0, r1, c0, c1 = image_window(terrain, camera) if separable else (0, rows, 0, cols)
     if resolver.geometry is Geometry.SEPARABLE_KERNEL:  # it writes every pixel in the window:
         uv = np.empty((rows, cols, 2))  # NaN only around it

@@ -1,0 +1,321 @@
+"""Per-post geometry of a tile for cameras whose ground-to-image is costly (RPC cameras, CSM
+line scanners: each post needs iterations through the model), from an error-bounded lattice:
+:func:`lattice` gives :func:`~orthomvp.occlusion.post_geometry.general`'s
+:class:`~orthomvp.occlusion.post_geometry.PostGeometry` within :data:`LATTICE_ERROR` pixels.
+
+A post's pixel, depth, ray (origin and direction) and GSD are smooth functions of its grid
+column, row and height. They are evaluated exactly (the camera's own ``project``, ``ray`` and
+``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them) at the nodes of a
+lattice and interpolated in between (bilinear across the grid, linear in height). The lattice
+belongs to the grid, not to the tile, so that every tiling gives the same values: nodes at the
+grid's columns and rows that are multiples of ``step`` (counted from the CRS's origin in posts)
+and at heights that are multiples of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of
+the lattice between two levels of height. A unit's interpolation is checked against the exact
+values at its 27 midpoints and corners (the cell's centre, edge midpoints and corners, at its
+two levels and halfway between them); it fails where any check misses by more than half of
+``error`` pixels (:data:`CHECK_SHARE`; the pixel's offset, or the ray's offset at the point in
+pixels of the point's GSD), by more than :data:`GSD_RELATIVE` of the GSD, changes the sign of
+the depth, or is not imaged (NaN). The posts of failed units go to the lattice of half the step
+(:data:`LATTICE_STEPS`), and past the finest to the exact path. A unit none of whose checks is
+imaged (beyond an RPC's domain, a line scanner's lines), or all of whose checks' pixels have a
+bounding box more than a pixel off the image, is taken as not imaged, its values NaN: an image
+would have to fit between checks half a cell apart to be missed. The exact path
+(``Geometry.GENERAL``) stays the test oracle. Normals and everything else built from the DEM
+alone are computed as in :func:`~orthomvp.occlusion.post_geometry.general`, from world points
+that on an ellipsoid come from a lattice too (:func:`world_block`).
+
+The interpolation runs in a numba kernel (:mod:`orthomvp.occlusion.post_lattice_kernel`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from orthomvp.camera import Camera, RpcCamera
+from orthomvp.codes import WorldFrame
+from orthomvp.geometry.normals import grid_normals
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import finite_rows
+from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
+
+LATTICE_STEPS = (64, 32, 16, 8, 4)
+"""Posts between lattice nodes along rows and columns: the first lattice, and the finer ones
+that the posts of failed units go to in turn."""
+LEVEL_SPACING = 16.0
+"""Height between the lattice's levels, in the grid's height units (metres)."""
+LATTICE_ERROR = 0.004
+"""The interpolation error allowed, pixels: a unit's checks must be within half of it
+(:data:`CHECK_SHARE`), a margin for the posts between the checks."""
+CHECK_SHARE = 0.5
+"""The share of the allowed error that a unit's checks may miss by."""
+WORLD_TOLERANCE = 1e-4
+"""The largest offset (metres) of a world point from the lattice of :func:`world_block`."""
+GSD_RELATIVE = 1e-3
+"""The largest relative error of an interpolated GSD allowed at a check."""
+_U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
+_CHANNELS = 10
+_TABLE_MOST = 1 << 24  # entries of _unique_rows's table at most (128 MiB)
+# a unit's checks: (row, column, level) in half steps from its first node
+_CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range(3)])
+
+
+def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
+    """Whether :func:`lattice` serves ``camera``: an :class:`~orthomvp.camera.RpcCamera`
+    (whose ground to image iterates), on a grid of 2 x 2 posts or more. CSM line scanners keep
+    the exact path: at the bound that keeps the RPC's two world frames together, their checks
+    cost more than their own model (5.9x the frame camera's orthophoto against 1.5x)."""
+    return isinstance(camera, RpcCamera) and min(terrain.shape) >= 2
+
+
+def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
+    """The camera's values (..., 10) at world points ``xyz`` (..., 3): pixel (u, v), depth,
+    the ray's origin and unit direction through that pixel, GSD (metres); NaN where not
+    imaged."""
+    out = np.full((*xyz.shape[:-1], _CHANNELS), np.nan)
+    if not xyz.size:
+        return out
+    uv, depth = camera.project(xyz)
+    out[..., :2], out[..., _DEPTH] = uv, depth
+    good = finite_rows(uv)
+    if good.any():
+        origin, direction = camera.ray(uv[good])
+        out[good, _O], out[good, _D] = origin, direction
+    out[..., _GSD] = camera.gsd(xyz)
+    return out
+
+
+def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Per unit, whether its checks' pixels ``uv`` (units, checks, 2) show that none of its
+    posts is imaged: none is imaged, or all are and their bounding box lies more than a pixel
+    off the image."""
+    finite = np.isfinite(uv).all(axis=-1)
+    low = np.where(finite[..., None], uv, np.inf).min(axis=1)
+    high = np.where(finite[..., None], uv, -np.inf).max(axis=1)
+    w, h = camera.width, camera.height
+    off = (high[:, 0] < -1.5) | (high[:, 1] < -1.5) | (low[:, 0] > w + 0.5) | (low[:, 1] > h + 0.5)
+    return ~finite.any(axis=1) | (finite.all(axis=1) & off)
+
+
+def _misses(estimate: np.ndarray, exact: np.ndarray, xyz: np.ndarray, error: float) -> np.ndarray:
+    """Where the ``estimate`` (..., 10) misses the ``exact`` values at world points ``xyz``
+    (..., 3) beyond ``error`` pixels or the GSD's bound (module docstring), or either is not
+    finite."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        gsd = exact[..., _GSD]
+        uv = np.hypot(*(estimate[..., k] - exact[..., k] for k in (_U, _V)))
+        rng = np.linalg.norm(xyz - exact[..., _O], axis=-1)
+        d = estimate[..., _D] / np.linalg.norm(estimate[..., _D], axis=-1, keepdims=True)
+        ray = np.linalg.norm(estimate[..., _O] - exact[..., _O], axis=-1)
+        ray = (ray + rng * np.linalg.norm(d - exact[..., _D], axis=-1)) / gsd
+        good = (
+            (uv <= error)
+            & (ray <= error)
+            & (np.abs(estimate[..., _GSD] - gsd) <= GSD_RELATIVE * gsd)
+            & (np.sign(estimate[..., _DEPTH]) == np.sign(exact[..., _DEPTH]))
+        )
+    return ~(good & np.isfinite(estimate).all(axis=-1) & np.isfinite(exact).all(axis=-1))
+
+
+def tile_values(
+    terrain: Terrain,
+    camera: Camera,
+    rs: slice,
+    cs: slice,
+    p: np.ndarray,
+    ok: np.ndarray,
+    *,
+    steps: tuple[int, ...] = LATTICE_STEPS,
+    error: float = LATTICE_ERROR,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The values (rows, cols, 10) of :func:`exact_values` at the posts ``p`` (rows, cols, 3)
+    of tile (``rs``, ``cs``) of ``terrain`` where ``ok``, interpolated within ``error`` pixels
+    from the grid's lattices of ``steps`` posts in turn (each a multiple of the last), or else
+    exact (module docstring); and where they are exact (bool (rows, cols)). The posts are
+    sorted once into the finest lattice's units; a coarser unit serves all of its own."""
+    from orthomvp.occlusion.post_lattice_kernel import fill
+
+    rows, cols = ok.shape
+    out = np.full((rows, cols, _CHANNELS), np.nan)
+    exact = np.zeros((rows, cols), bool)
+    r, c = np.nonzero(ok)
+    if not r.size:
+        return out, exact
+    T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
+    origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
+    gr, gc = r + origin[0], c + origin[1]
+    fl = terrain.values[rs, cs][r, c].astype(np.float64) / LEVEL_SPACING
+    fine = steps[-1]
+    cell = np.stack([np.floor(gr / fine), np.floor(gc / fine), np.floor(fl)], -1).astype(np.int64)
+    units, which = _unique_rows(cell)  # the finest units holding posts
+    served = np.full(len(units), -1)  # which lattice serves each
+    parent = np.zeros_like(units)  # its unit in that lattice
+    dead = np.zeros(len(units), bool)
+    lattices = []
+    todo = np.arange(len(units))
+    for k, step in enumerate(steps):
+        if not todo.size:
+            break
+        up = units[todo].copy()
+        up[:, :2] //= step // fine
+        coarse, where = _unique_rows(up)
+        nodes, first, passed, gone = _check(terrain, camera, coarse, step, origin, rs, cs, error)
+        lattices.append((step, nodes, first))
+        good = passed[where]
+        served[todo[good]], parent[todo[good]] = k, coarse[where[good]]
+        dead[todo[good]] = gone[where[good]]
+        todo = todo[~good]
+    unit_table = np.full((len(units), 8), -1, np.int64)
+    unit_table[:, 7] = 0
+    buffers, meta = [], []
+    offset = 0
+    for k, (_, nodes, first) in enumerate(lattices):
+        mine = served == k
+        unit_table[mine, 0] = k
+        unit_table[mine, 1:4] = parent[mine]
+        unit_table[mine, 4:7] = parent[mine] - first
+        buffers.append(nodes.ravel())
+        meta.append((offset, nodes.shape[1], nodes.shape[2]))
+        offset += nodes.size
+    unit_table[:, 7] = dead
+    if lattices:
+        fill(
+            np.concatenate(buffers), np.array(meta, np.int64),
+            np.array([step for step, _, _ in lattices], np.float64), unit_table, which,
+            np.stack([r, c], -1), np.stack([gr, gc, fl], -1), out,
+        )  # fmt: skip
+    rest = served[which] < 0
+    exact[r[rest], c[rest]] = True
+    if rest.any():
+        out[exact] = exact_values(camera, p[exact])
+    return out, exact
+
+
+def _check(
+    terrain: Terrain,
+    camera: Camera,
+    units: np.ndarray,
+    step: int,
+    origin: tuple[float, float],
+    rs: slice,
+    cs: slice,
+    error: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The units ``units`` (n, 3: global cell row, column, level) of the lattice of ``step``
+    posts, checked: the nodes (node rows, node columns, levels, 10) around them and the
+    global index of the first, whether each unit passes its checks, and whether it is dead
+    (module docstring). ``origin``: the global (row, column) index of post (0, 0) of tile
+    (``rs``, ``cs``)."""
+    from orthomvp.occlusion.post_lattice_kernel import interpolate
+
+    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)  # each unit's 27 checks
+    points, at = _unique_rows(half)  # in half steps, each evaluated once
+    at = at.reshape(len(units), len(_CHECKS))
+    rows = points[:, 0] / 2.0 * step - origin[0] + rs.start  # the terrain's rows and columns
+    cols = points[:, 1] / 2.0 * step - origin[1] + cs.start
+    xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
+    exact = exact_values(camera, xyz)
+    first = points.min(axis=0) // 2  # (units start at even half steps: a node)
+    even = ~(points % 2).any(axis=1)
+    nodes = np.full((*(points.max(axis=0) // 2 - first + 1), _CHANNELS), np.nan)
+    nodes[tuple((points[even] // 2 - first).T)] = exact[even]
+    est = np.empty((len(_CHECKS), len(units), _CHANNELS))
+    for k, check in enumerate(_CHECKS):
+        interpolate(nodes, units - first, np.tile(check / 2.0, (len(units), 1)), est[k])
+    est = est.transpose(1, 0, 2)
+    miss = _misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
+    dead = _outside(camera, exact[at][..., :2])
+    return nodes, first, ~miss | dead, dead
+
+
+def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``a`` (n, 3) of integers, in order, and where each row of ``a``
+    is among them (as ``np.unique(axis=0, return_inverse=True)``), through a table over their
+    span (small: cells and levels of a tile; a sort where it is not)."""
+    low = a.min(axis=0)
+    a = a - low
+    span = a.max(axis=0) + 1
+    key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
+    if np.prod(span.astype(np.float64)) > _TABLE_MOST:  # (a tile of extreme relief): a sort
+        keys, inverse = np.unique(key, return_inverse=True)
+    else:
+        table = np.zeros(int(np.prod(span)), np.int64)
+        table[key] = 1
+        keys = np.flatnonzero(table)
+        table[keys] = np.arange(len(keys))
+        inverse = table[key]
+    rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
+    return rows + low, inverse.ravel()
+
+
+def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+    """World points (rows, cols, 3) of the posts [r0:r1, c0:c1] of ``terrain``: in the body
+    frame on an ellipsoid, where every post would go through PROJ twice (map to geodetic, and
+    geodetic to body-fixed), from the grid's own lattice of every k-th post (counted from the
+    CRS's origin): a point is P + h U, affine in its height h along the geodetic normal, and P
+    and U are bilinear between the nodes within :data:`WORLD_TOLERANCE` (the ellipsoid's
+    curvature over k posts: (k d)^2 / 8a, k at most 16); elsewhere
+    :meth:`~orthomvp.geometry.terrain.Terrain.to_world` itself."""
+    values = terrain.values[r0:r1, c0:c1]
+    r, c = np.arange(r0, r1, dtype=np.float64), np.arange(c0, c1, dtype=np.float64)
+    T = terrain.transform
+    a = terrain.radii[0]
+    d = max(abs(T.a), abs(T.e))
+    d = np.radians(d) * a if terrain.crs.is_geographic else d
+    k = 1
+    while k < 16 and (2 * k * d) ** 2 / (8 * a) <= WORLD_TOLERANCE:
+        k *= 2
+    body = terrain.world != WorldFrame.MAP and not (terrain.radius_values or terrain.is_sphere)
+    if not body or k == 1:
+        return terrain.to_world(c[None, :], r[:, None], values)
+    gr, gc = T.f / T.e + 0.5, T.c / T.a + 0.5  # the global index of post (0, 0)
+    nr = np.arange(np.floor((gr + r0) / k), np.ceil((gr + r1 - 1) / k) + 1) * k - gr
+    nc = np.arange(np.floor((gc + c0) / k), np.ceil((gc + c1 - 1) / k) + 1) * k - gc
+    nr = nr if len(nr) > 1 else np.append(nr, nr[0] + k)
+    nc = nc if len(nc) > 1 else np.append(nc, nc[0] + k)
+    base = terrain.to_world(nc[None, :], nr[:, None], np.zeros((len(nr), len(nc))))
+    up = terrain.to_world(nc[None, :], nr[:, None], np.ones((len(nr), len(nc)))) - base
+
+    def between(v: np.ndarray) -> np.ndarray:  # bilinear, rows then columns
+        i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
+        t = ((r - nr[i]) / (nr[i + 1] - nr[i]))[:, None, None]
+        v = v[i] + t * (v[i + 1] - v[i])
+        j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
+        t = ((c - nc[j]) / (nc[j + 1] - nc[j]))[None, :, None]
+        return v[:, j] + t * (v[:, j + 1] - v[:, j])
+
+    return between(base) + values[..., None].astype(np.float64) * between(up)
+
+
+def lattice(
+    terrain: Terrain,
+    camera: Camera,
+    rs: slice,
+    cs: slice,
+    *,
+    steps: tuple[int, ...] = LATTICE_STEPS,
+    error: float = LATTICE_ERROR,
+) -> PostGeometry:
+    """:func:`~orthomvp.occlusion.post_geometry.general` for a case :func:`lattice_applies`
+    to, the camera's values interpolated on the grid's lattices of ``steps`` posts within
+    ``error`` pixels (module docstring); the rays' unit directions come with it
+    (:attr:`PostGeometry.directions`)."""
+    r0, r1, c0, c1 = tile_block(terrain, rs, cs)
+    block = world_block(terrain, r0, r1, c0, c1)
+    n = grid_normals(block, terrain.up_vectors(block))
+    inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
+    p, n = block[inner], n[inner]
+    ok = finite_rows(p) & finite_rows(n)
+    values, _ = tile_values(terrain, camera, rs, cs, p, ok, steps=steps, error=error)
+    uv, depth = values[..., :2], values[..., _DEPTH]
+    with np.errstate(invalid="ignore"):
+        inside = ok & (depth > 0) & camera.in_image(uv)
+    origins = np.where(inside[..., None], values[..., _O], np.nan)
+    directions = np.where(inside[..., None], values[..., _D], np.nan)
+    to_cam = origins - p
+    x, y, zc = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
+    with np.errstate(invalid="ignore"):
+        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * zc) / np.sqrt(x * x + y * y + zc * zc)
+    return PostGeometry(
+        p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, values[..., _GSD], origins,
+        directions,
+    )  # fmt: skip
