@@ -441,17 +441,25 @@ def _mosaic_tile(
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
     blocked = np.zeros((m, *shape), bool)
-    if caster is not None and m > 1:
+    tests = candidates((codes == Code.VISIBLE) & ~doubt)
+
+    def support(posts: np.ndarray) -> np.ndarray:
+        """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
+        out = np.zeros(posts.shape, bool)
+        for i, k in enumerate(views):
+            camera = plan.views[k].camera
+            out[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], posts[i], caster)
+        return out
+
+    testing = caster is not None and m > 1
+    if testing:
         with _timed(seconds, "visibility"):
-            tests = candidates((codes == Code.VISIBLE) & ~doubt)
-            for i, k in enumerate(views):
-                test = tests[i]
-                camera = plan.views[k].camera
-                blocked[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], test, caster)
+            blocked = support(tests)
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
             slack=slack, blocked=blocked, fused=plan.fused,
+            support=(lambda posts: support(posts & ~tests)) if testing else None,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)

@@ -23,6 +23,7 @@ so no post is lost. Measured against the city's exact geometry in docs/mosaics.m
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import cv2
@@ -133,6 +134,40 @@ def _far_hits(
         with np.errstate(invalid="ignore"):
             far[cast] = front & (np.linalg.norm(hits.points - points[cast], axis=1) > reach[cast])
     return far
+
+
+def shun(
+    weights: np.ndarray,
+    data: np.ndarray,
+    values: np.ndarray,
+    blocked: np.ndarray | None,
+    support: Callable[[np.ndarray], np.ndarray],
+) -> None:
+    """After labelling and blending, in place on ``weights`` (views, rows, cols) and ``data``
+    (bands, rows, cols): where a post takes weight from more than one
+    view, ``support`` (called once with those posts, views x rows x cols, and returning where
+    the views' samples reach an occluder in the image, :mod:`orthomvp.ortho.support`) says
+    which are blocked, on top of ``blocked``; where some views with weight are blocked and
+    others are not, the blocked ones' weight goes to the others in proportion to theirs and
+    the post's value is blended anew from ``values`` (views, bands, rows, cols, balanced).
+    The labels (seamlines, the source) stay as they were: only the feather avoids
+    occluders."""
+    given = weights > 0
+    shared = given & (given.sum(axis=0) > 1)
+    if not shared.any():
+        return
+    bad = given & support(shared)
+    if blocked is not None:
+        bad |= given & blocked
+    keep = given & ~bad
+    fix = bad.any(axis=0) & keep.any(axis=0)
+    if not fix.any():
+        return
+    w = np.where(keep[:, fix], weights[:, fix], np.float32(0))
+    w /= w.sum(axis=0)
+    weights[:, fix] = w
+    taken = np.where(w[:, None] > 0, values[:, :, fix], np.float32(0))
+    data[:, fix] = np.einsum("kn,kbn->bn", w, taken).astype(np.float32)
 
 
 def facing_gsd(gsd: np.ndarray, emission: np.ndarray) -> np.ndarray:
