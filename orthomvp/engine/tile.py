@@ -33,7 +33,7 @@ from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd
+from orthomvp.ortho.support import candidates, facing_gsd, feather
 
 
 @dataclass
@@ -441,7 +441,8 @@ def _mosaic_tile(
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
     blocked = np.zeros((m, *shape), bool)
-    tests = candidates((codes == Code.VISIBLE) & ~doubt)
+    sure = (codes == Code.VISIBLE) & ~doubt
+    tests = candidates(sure)
 
     def support(posts: np.ndarray) -> np.ndarray:
         """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
@@ -459,7 +460,7 @@ def _mosaic_tile(
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
             slack=slack, blocked=blocked, fused=plan.fused,
-            support=(lambda posts: support(posts & ~tests)) if testing else None,
+            support=(lambda posts: support(posts & feather(sure) & ~tests)) if testing else None,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)

@@ -46,8 +46,8 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.ortho.balance import BALANCES, Correction
 from orthomvp.ortho.holes import FILL_ALIASES, HOLES, INPAINT_HALO, Flag, fill_holes
+from orthomvp.ortho.support import FEATHER_RADIUS, shun
 from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
-from orthomvp.ortho.support import shun
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
 """Which view a post prefers: smallest emission angle (surface normal to camera), finest
@@ -143,10 +143,13 @@ class MosaicOptions:
         """Posts around a post that its result depends on: the trust test
         (:data:`TRUST_RADIUS`, :data:`~orthomvp.ortho.support.RADIUS`), the label's cost
         average and its costs' neighbourhoods (2 :data:`SEAM_RADIUS`), the blend box
-        (``blend // 2``) and inpainting's (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
+        (``blend // 2``), the feather's support test
+        (:data:`~orthomvp.ortho.support.FEATHER_RADIUS`) and inpainting's
+        (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
         seams = 2 * SEAM_RADIUS if self.seamlines else 0
         halo = INPAINT_HALO if self.holes == "inpaint" else 0
-        return max(TRUST_RADIUS, SUPPORT_RADIUS) + seams + self.blend // 2 + halo
+        labels = max(TRUST_RADIUS, SUPPORT_RADIUS) + seams + self.blend // 2
+        return max(labels, FEATHER_RADIUS) + halo
 
 
 @dataclass

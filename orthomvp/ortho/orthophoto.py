@@ -47,7 +47,7 @@ from orthomvp.ortho.composite import (
     overlap_width,
 )
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd
+from orthomvp.ortho.support import candidates, facing_gsd, feather
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -288,7 +288,8 @@ def mosaic(
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
     blocked = np.zeros(shape, bool)
-    tests = candidates((codes == Code.VISIBLE) & ~doubt)
+    sure = (codes == Code.VISIBLE) & ~doubt
+    tests = candidates(sure)
     facings = [facing_gsd(v.gsd, v.emission) for v in visibilities]
 
     def support(posts: np.ndarray) -> np.ndarray:
@@ -303,7 +304,8 @@ def mosaic(
         blocked = support(tests)
     comp = compose(
         values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, support=(lambda posts: support(posts & ~tests)) if n > 1 else None,
+        blocked=blocked, support=(lambda posts: support(posts & feather(sure) & ~tests))
+        if n > 1 else None,
         fused=fused,
     )  # fmt: skip
     return Mosaic(
