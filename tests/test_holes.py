@@ -172,7 +172,7 @@ def test_blocked_samples_hold_the_occluders(city: Path) -> None:
     three times as often as those it clears."""
     from orthomvp.occlusion.visibility import occluder_caster
     from orthomvp.ortho.composite import doubtful
-    from orthomvp.ortho.support import blocked, candidates, facing_gsd
+    from orthomvp.ortho.support import blocked, candidates
     from orthomvp.synthetic.ghosts import occluder_share
 
     scene = make_scene("city", size=96)
@@ -186,8 +186,8 @@ def test_blocked_samples_hold_the_occluders(city: Path) -> None:
     caster, whole = occluder_caster(scene.terrain), (slice(None), slice(None))
     shares = {True: [], False: []}
     for k, (v, name) in enumerate(zip(vis, NAMES, strict=True)):
-        gsd = facing_gsd(v.gsd, v.emission)
-        hit = blocked(scene.terrain, whole, scene.cameras[name], v.uv, gsd, tests[k], caster)
+        camera = scene.cameras[name]
+        hit = blocked(scene.terrain, whole, camera, v.uv, v.gsd, v.emission, tests[k], caster)
         assert not (hit & ~tests[k]).any()
         for flag in (True, False):
             at = tests[k] & (hit == flag)

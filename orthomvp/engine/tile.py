@@ -33,7 +33,7 @@ from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd, feather
+from orthomvp.ortho.support import candidates, feather
 
 
 @dataclass
@@ -397,14 +397,14 @@ def _mosaic_tile(
     doubt = np.zeros((m, *shape), bool)
     slack = np.zeros((m, *shape))
     uvs = []
-    sizes = []
+    sizes = []  # each view's GSDs and emission angles (the support test's)
     fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
         uvs.append(uv)
-        sizes.append(facing_gsd(vis.gsd[inner], vis.emission[inner]))
+        sizes.append((vis.gsd[inner], vis.emission[inner]))
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
@@ -449,7 +449,7 @@ def _mosaic_tile(
         out = np.zeros(posts.shape, bool)
         for i, k in enumerate(views):
             camera = plan.views[k].camera
-            out[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], posts[i], caster)
+            out[i] = support_blocked(grid, inner, camera, uvs[i], *sizes[i], posts[i], caster)
         return out
 
     testing = caster is not None and m > 1

@@ -47,7 +47,7 @@ from orthomvp.ortho.composite import (
     overlap_width,
 )
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd, feather
+from orthomvp.ortho.support import candidates, feather
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -290,14 +290,15 @@ def mosaic(
     blocked = np.zeros(shape, bool)
     sure = (codes == Code.VISIBLE) & ~doubt
     tests = candidates(sure)
-    facings = [facing_gsd(v.gsd, v.emission) for v in visibilities]
 
     def support(posts: np.ndarray) -> np.ndarray:
         """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
         out = np.zeros(posts.shape, bool)
         for k, (_, camera) in enumerate(views):
             vis = visibilities[k]
-            out[k] = support_blocked(terrain, whole, camera, vis.uv, facings[k], posts[k], caster)
+            out[k] = support_blocked(
+                terrain, whole, camera, vis.uv, vis.gsd, vis.emission, posts[k], caster
+            )
         return out
 
     if n > 1:  # (only where a post has another view to prefer)

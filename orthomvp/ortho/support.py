@@ -74,15 +74,17 @@ def blocked(
     inner: tuple[slice, slice],
     camera: Camera,
     uv: np.ndarray,
-    facing: np.ndarray,
+    gsd: np.ndarray,
+    emission: np.ndarray,
     test: np.ndarray,
     caster: RayCaster | Occluders,
 ) -> np.ndarray:
     """Where (rows, cols) the sample of ``camera`` at the posts ``inner`` of ``grid`` (image
-    positions ``uv`` (rows, cols, 2), GSDs ``facing`` (rows, cols) metres on a surface facing
-    the camera, :func:`facing_gsd`) reaches an occluder (module docstring), tested at the
-    posts ``test`` (rows, cols) only (False elsewhere); ``caster`` casts on the occluder
-    surface (world frame, metres)."""
+    positions ``uv`` (rows, cols, 2), ground sample distances ``gsd`` (rows, cols) metres
+    and emission angles ``emission`` (rows, cols) degrees of
+    :class:`~orthomvp.occlusion.visibility.Visibility`) reaches an occluder (module
+    docstring), tested at the posts ``test`` (rows, cols) only (False elsewhere); ``caster``
+    casts on the occluder surface (world frame, metres)."""
     out = np.zeros(test.shape, bool)
     if not test.any():
         return out
@@ -91,7 +93,7 @@ def blocked(
     height = grid.values[inner][rows, cols]
     points = grid.to_world((cols + c0).astype(np.float64), (rows + r0).astype(np.float64), height)
     at = uv[rows, cols]
-    size = REACH * OFFSET * facing[rows, cols]
+    size = REACH * OFFSET * facing_gsd(gsd[rows, cols], emission[rows, cols])
     up = grid.up_vectors(points)
     shifts = OFFSET * np.array(DIRECTIONS, np.float64)  # all four rays of a post in one cast
     o, d = camera.ray((at[None] + shifts[:, None]).reshape(-1, 2))
