@@ -229,8 +229,7 @@ def test_the_feather_avoids_partial_ghosts(city: Path, monkeypatch: pytest.Monke
     """Against the city's exact geometry: with the feather's support test (shun), fewer of
     the posts each view gives weight to have an occluder in their sample (as rendered, one
     ray a pixel) than without it, in two views at least and more in none, with the same
-    posts filled and no more weight from views
-    whose truth occludes the post."""
+    posts filled and no more weight from views whose truth occludes the post."""
     from orthomvp.ortho import composite
     from orthomvp.synthetic.ghosts import occluder_share
 
