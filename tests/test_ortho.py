@@ -14,7 +14,7 @@ from orthomvp.occlusion.visibility import compute_visibility, default_eps, occlu
 from orthomvp.ortho.composite import MosaicOptions, doubtful, trusted
 from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd
+from orthomvp.ortho.support import candidates
 from orthomvp.quality.eps_study import eps_study, reclassify
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
 
@@ -73,8 +73,10 @@ def test_mosaic_fills_hidden_posts(scene) -> None:
     caster, whole = occluder_caster(scene.terrain), (slice(None), slice(None))
     blocked = np.zeros(seen.shape, bool)
     for k, (v, (_, cam)) in enumerate(zip(vis, views, strict=True)):
-        gsd = facing_gsd(v.gsd, v.emission)
-        blocked[k] = support_blocked(scene.terrain, whole, cam, v.uv, gsd, tests[k], caster)
+        test = tests[k]
+        blocked[k] = support_blocked(
+            scene.terrain, whole, cam, v.uv, v.gsd, v.emission, test, caster
+        )
     assert blocked.any()
     trust = trusted(seen, doubt, blocked)
     both = trust[0] & trust[1]

@@ -33,7 +33,7 @@ from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd
+from orthomvp.ortho.support import candidates, feather
 
 
 @dataclass
@@ -397,14 +397,14 @@ def _mosaic_tile(
     doubt = np.zeros((m, *shape), bool)
     slack = np.zeros((m, *shape))
     uvs = []
-    sizes = []
+    sizes = []  # each view's GSDs and emission angles (the support test's)
     fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
         uvs.append(uv)
-        sizes.append(facing_gsd(vis.gsd[inner], vis.emission[inner]))
+        sizes.append((vis.gsd[inner], vis.emission[inner]))
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
@@ -441,17 +441,26 @@ def _mosaic_tile(
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
     blocked = np.zeros((m, *shape), bool)
-    if caster is not None and m > 1:
+    sure = (codes == Code.VISIBLE) & ~doubt
+    tests = candidates(sure)
+
+    def support(posts: np.ndarray) -> np.ndarray:
+        """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
+        out = np.zeros(posts.shape, bool)
+        for i, k in enumerate(views):
+            camera = plan.views[k].camera
+            out[i] = support_blocked(grid, inner, camera, uvs[i], *sizes[i], posts[i], caster)
+        return out
+
+    testing = caster is not None and m > 1
+    if testing:
         with _timed(seconds, "visibility"):
-            tests = candidates((codes == Code.VISIBLE) & ~doubt)
-            for i, k in enumerate(views):
-                test = tests[i]
-                camera = plan.views[k].camera
-                blocked[i] = support_blocked(grid, inner, camera, uvs[i], sizes[i], test, caster)
+            blocked = support(tests)
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
             slack=slack, blocked=blocked, fused=plan.fused,
+            support=(lambda posts: support(posts & feather(sure) & ~tests)) if testing else None,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)

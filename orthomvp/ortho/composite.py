@@ -34,6 +34,7 @@ flags every post with how it was filled or why it is empty (:class:`Flag`).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -45,6 +46,7 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.ortho.balance import BALANCES, Correction
 from orthomvp.ortho.holes import FILL_ALIASES, HOLES, INPAINT_HALO, Flag, fill_holes
+from orthomvp.ortho.support import FEATHER_RADIUS, shun
 from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
@@ -141,10 +143,13 @@ class MosaicOptions:
         """Posts around a post that its result depends on: the trust test
         (:data:`TRUST_RADIUS`, :data:`~orthomvp.ortho.support.RADIUS`), the label's cost
         average and its costs' neighbourhoods (2 :data:`SEAM_RADIUS`), the blend box
-        (``blend // 2``) and inpainting's (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
+        (``blend // 2``), the feather's support test
+        (:data:`~orthomvp.ortho.support.FEATHER_RADIUS`) and inpainting's
+        (:data:`~orthomvp.ortho.holes.INPAINT_HALO`)."""
         seams = 2 * SEAM_RADIUS if self.seamlines else 0
         halo = INPAINT_HALO if self.holes == "inpaint" else 0
-        return max(TRUST_RADIUS, SUPPORT_RADIUS) + seams + self.blend // 2 + halo
+        labels = max(TRUST_RADIUS, SUPPORT_RADIUS) + seams + self.blend // 2
+        return max(labels, FEATHER_RADIUS) + halo
 
 
 @dataclass
@@ -339,6 +344,7 @@ def compose(
     *,
     slack: np.ndarray | None = None,
     blocked: np.ndarray | None = None,
+    support: Callable[[np.ndarray], np.ndarray] | None = None,
     fused: bool = False,
 ) -> Composite:
     """Compose a mosaic window from per-view ``values`` (views, bands, rows, cols) float32
@@ -348,7 +354,8 @@ def compose(
     marks the visible posts a view is doubtful at (:func:`doubtful`; None: none) and
     ``slack`` (views, rows, cols) its epsilon minus its miss there (posts), the margin by
     which :func:`orthomvp.ortho.holes.fill_holes` picks a doubtful view; ``blocked`` (views,
-    rows, cols) where a view's sample reaches an occluder (:func:`trusted`). ``fused``:
+    rows, cols) where a view's sample reaches an occluder (:func:`trusted`), and ``support``
+    tells it at the posts that blend several views (:func:`shun`; None: not done). ``fused``:
     labels and blend with the numba kernels of :mod:`orthomvp.ortho.composite_kernel` (the same
     result, bit for bit; about 3.5x faster, after a load of about 0.3 s a process)."""
     values = np.ascontiguousarray(values if correction is None else correction.apply(values))
@@ -375,6 +382,8 @@ def compose(
         data = np.einsum("krc,kbrc->brc", weights, np.where(visible[:, None], values, 0))
         data = data.astype(np.float32)
         data[:, label < 0] = np.nan
+    if support is not None:
+        shun(weights, data, values, blocked, support)
     seen = label >= 0
     flags = fill_holes(
         data,

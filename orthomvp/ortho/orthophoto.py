@@ -47,7 +47,7 @@ from orthomvp.ortho.composite import (
     overlap_width,
 )
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, facing_gsd
+from orthomvp.ortho.support import candidates, feather
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -288,16 +288,26 @@ def mosaic(
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
     blocked = np.zeros(shape, bool)
-    if n > 1:  # (only where a post has another view to prefer)
-        tests = candidates((codes == Code.VISIBLE) & ~doubt)
+    sure = (codes == Code.VISIBLE) & ~doubt
+    tests = candidates(sure)
+
+    def support(posts: np.ndarray) -> np.ndarray:
+        """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
+        out = np.zeros(posts.shape, bool)
         for k, (_, camera) in enumerate(views):
-            test = tests[k]
-            uv = visibilities[k].uv
-            facing = facing_gsd(visibilities[k].gsd, visibilities[k].emission)
-            blocked[k] = support_blocked(terrain, whole, camera, uv, facing, test, caster)
+            vis = visibilities[k]
+            out[k] = support_blocked(
+                terrain, whole, camera, vis.uv, vis.gsd, vis.emission, posts[k], caster
+            )
+        return out
+
+    if n > 1:  # (only where a post has another view to prefer)
+        blocked = support(tests)
     comp = compose(
         values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, fused=fused,
+        blocked=blocked, support=(lambda posts: support(posts & feather(sure) & ~tests))
+        if n > 1 else None,
+        fused=fused,
     )  # fmt: skip
     return Mosaic(
         comp.data,
