@@ -14,7 +14,7 @@ from pathlib import Path
 
 from orthomvp.io.outputs import atomic_dir
 from orthomvp.view.layers import LayerSet
-from orthomvp.view.server import index_html, page_config, static_files
+from orthomvp.view.page import index_html, page_config, static_files
 from orthomvp.view.tiles import Pyramid, tile_png
 
 MAX_TILES = 400
