@@ -122,6 +122,24 @@ def chromium(width: int = 1000, height: int = 900, *, offline: bool = False):  #
     return webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
 
 
+def hover_map(driver, x: float, y: float):  # noqa: ANN001, ANN201
+    """Move the pointer of the viewer page in ``driver`` over map point (x, y); returns the
+    ActionChains at that point (``.click().perform()`` clicks there)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    mapel = driver.find_element("id", "map")
+    px, py = driver.execute_script(
+        "const p = orthomvpView.map.latLngToContainerPoint([arguments[1], arguments[0]]);"
+        "return [p.x, p.y];",
+        x,
+        y,
+    )
+    w, h = mapel.size["width"], mapel.size["height"]
+    offset = (int(round(px - w / 2)), int(round(py - h / 2)))
+    ActionChains(driver).move_to_element_with_offset(mapel, *offset).perform()
+    return ActionChains(driver).move_to_element_with_offset(mapel, *offset)
+
+
 VIEW_NAMES = ("oblique", "nadir", "fore", "aft")
 """The crater scene's views, in the order the viewer tests give them."""
 VIEW_START_OFFSET = 25.0

@@ -16,7 +16,7 @@ import pytest
 import rasterio
 from conftest import VIEW_NAMES as NAMES
 from conftest import VIEW_SIGMA as SIGMA
-from conftest import chromium, needs_chromium
+from conftest import chromium, hover_map, needs_chromium
 from PIL import Image
 
 from orthomvp.codes import CODE_RGB, Code
@@ -392,19 +392,8 @@ def test_page_in_a_browser(live: str, app: tuple, view_scene: dict) -> None:
         legend = driver.find_element("id", "legend").text
         assert "occluded" in legend and "facing away" in legend
         # hover: the pointer over a post's centre reads the files' values there
-        mapel = driver.find_element("id", "map")
         c, r = _flat_post(view_scene)
-        x, y = _centre(view_scene, c, r)
-        px, py = driver.execute_script(
-            "const p = orthomvpView.map.latLngToContainerPoint([arguments[1], arguments[0]]);"
-            "return [p.x, p.y];",
-            x,
-            y,
-        )
-        w, h = mapel.size["width"], mapel.size["height"]
-        ActionChains(driver).move_to_element_with_offset(
-            mapel, int(round(px - w / 2)), int(round(py - h / 2))
-        ).perform()
+        at_post = hover_map(driver, *_centre(view_scene, c, r))
         with rasterio.open(view_scene["start"]) as src:
             start = float(src.read(1)[r, c])
         cell = "td[data-layer='L0']"
@@ -416,9 +405,7 @@ def test_page_in_a_browser(live: str, app: tuple, view_scene: dict) -> None:
             box = driver.find_element("id", field)
             box.clear()
             box.send_keys(value)
-        ActionChains(driver).move_to_element_with_offset(
-            mapel, int(round(px - w / 2)), int(round(py - h / 2))
-        ).click().perform()
+        at_post.click().perform()
         shown = _wait_for(driver, "const e = document.getElementById('hmin');"
                                   "return e && e.textContent")  # fmt: skip
         assert float(shown) == pytest.approx(_explorers_own(view_scene, c, r)[0], abs=5e-4)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from affine import Affine
-from conftest import chromium, needs_chromium
+from conftest import chromium, hover_map, needs_chromium
 from test_view import TestClient, _centre, _flat_post, _map_pixels, _severe, _wait_for, _wait_tiles
 
 from orthomvp.cli import main
@@ -108,8 +108,6 @@ def test_export_opens_from_file_with_no_server_and_no_network(
     view_scene: dict, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
 
-    from selenium.webdriver.common.action_chains import ActionChains
-
     out = tmp_path / "page"
     args = ["view", str(view_scene["start"]), "--export", str(out)]
     assert main([*args, "--visibility", str(view_scene["dir"] / "oblique.visibility.tif")]) == 0
@@ -124,18 +122,7 @@ def test_export_opens_from_file_with_no_server_and_no_network(
         assert (before != _map_pixels(driver)).any(axis=-1).mean() > 0.3
         # hover: the export's value grid under the pointer, on a post of flat ground
         c, r = _flat_post(view_scene)
-        x, y = _centre(view_scene, c, r)
-        mapel = driver.find_element("id", "map")
-        px, py = driver.execute_script(
-            "const p = orthomvpView.map.latLngToContainerPoint([arguments[1], arguments[0]]);"
-            "return [p.x, p.y];",
-            x,
-            y,
-        )
-        w, h = mapel.size["width"], mapel.size["height"]
-        ActionChains(driver).move_to_element_with_offset(
-            mapel, int(round(px - w / 2)), int(round(py - h / 2))
-        ).perform()
+        hover_map(driver, *_centre(view_scene, c, r))
         cell = "td[data-layer='L1']"
         _wait_for(driver, f'const e = document.querySelector("{cell}"); return e && e.textContent')
         assert driver.find_element("css selector", cell).text == Code.VISIBLE.label
