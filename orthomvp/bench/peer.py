@@ -174,7 +174,7 @@ def run_orthomvp(
         progress=False,
     )
     t1 = time.perf_counter()
-    run_plan(plan, Outputs(ortho=out), progress=False)
+    run_plan(plan, Outputs(ortho=out, overwrite=True), progress=False)  # repeated runs
     return {"plan": t1 - t0, "run": time.perf_counter() - t1}
 
 
@@ -206,8 +206,11 @@ def command_lines(
             *_orthority_args(case, res),
             *("-od", str(folder), "-o", str(case.image)),
         ],
-        "orthomvp_cli_s": [*ours, "-o", str(folder / "ours-cli.tif")],
-        "orthomvp_naive_cli_s": [*ours, "--no-occlusion", "-o", str(folder / "naive-cli.tif")],
+        "orthomvp_cli_s": [*ours, "-o", str(folder / "ours-cli.tif"), "--overwrite"],
+        "orthomvp_naive_cli_s": [
+            *ours,
+            *("--no-occlusion", "-o", str(folder / "naive-cli.tif"), "--overwrite"),
+        ],
     }
 
 
@@ -229,7 +232,7 @@ def mosaic_command_lines(case: PeerCase, folder: Path, res: float) -> dict[str, 
     for frame in case.frames:
         ours += [str(frame), str(case.exterior)]
     ours += ["--res", str(res), str(res), "--bounds", *(f"{b:.6f}" for b in union)]
-    lines["orthomvp_mosaic_cli_s"] = [*ours, "-o", str(folder / "mosaic.tif")]
+    lines["orthomvp_mosaic_cli_s"] = [*ours, "-o", str(folder / "mosaic.tif"), "--overwrite"]
     return lines
 
 
