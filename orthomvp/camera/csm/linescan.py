@@ -39,6 +39,11 @@ _MAX_SECANT = 15  # usgscsm's iteration limit
 _CONVERGED = 1e-3  # lines: a larger final correction means the iteration failed (NaN)
 _MAX_POLISH = 4  # exact Newton steps after the table's iteration (one suffices on orbits)
 _POLISH_MARGIN = 0.5  # lines beyond the image where a table solution is still polished
+KERNEL_POINTS = 4096
+"""Fewest points for which the sensor-state table is evaluated by the numba kernel of
+:mod:`orthomvp.camera.csm.table_kernel` (the same values as numpy, bit for bit), which pays
+for its load (numba's import and the cached kernel, about 0.3 s once a process) on the
+blocks of an orthophoto."""
 GSD_LINES = 1e-3
 """Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
 Newton step; the range moves by far less than 1e-6 of itself over them)."""
@@ -60,7 +65,14 @@ class LineScanCamera(CsmImage):
     ``center_time``: the ISD's ``center_ephemeris_time`` (ephemeris seconds).
     """
 
-    _WINDOW_FREE = ("look_sign", "_table", "table_error", "_use_table", "_first_guess")
+    _WINDOW_FREE = (
+        "look_sign",
+        "_table",
+        "_table_rows",
+        "table_error",
+        "_use_table",
+        "_first_guess",
+    )
 
     focal_plane: FocalPlane
     ellipsoid: Ellipsoid
@@ -139,11 +151,18 @@ class LineScanCamera(CsmImage):
         (M, 3) appears when seen at the time of CSM ``line`` (M,), and the distorted
         focal-plane x, y and camera-frame depth (M, 3); the sensor states from
         :meth:`_states` (``table``: from :attr:`_table` whatever :attr:`_use_table` says)."""
-        pos, rot = self._states(line, table=table or None)
-        rel = (xyz - pos).T
-        cam = [
-            rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2] for i in range(3)
-        ]
+        if (table or self._use_table) and len(line) >= KERNEL_POINTS:
+            from orthomvp.camera.csm.table_kernel import camera_coordinates
+
+            cam = camera_coordinates(*self._table_rows, line, xyz)  # the same values
+            cam = [cam[:, 0], cam[:, 1], cam[:, 2]]
+        else:
+            pos, rot = self._states(line, table=table or None)
+            rel = (xyz - pos).T
+            cam = [
+                rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2]
+                for i in range(3)
+            ]
         dx, dy = self.focal_plane.view(np.stack(cam, -1))
         view = np.stack([dx, dy, self.look_sign * self.focal_plane.axis_sign * cam[2]], -1)
         return self.focal_plane.detector_line(dx, dy), view
@@ -161,6 +180,14 @@ class LineScanCamera(CsmImage):
             [self.trajectory.position(t).T, self.trajectory.rotation(t).reshape(-1, 9).T]
         )
         return float(knots[1] - knots[0]), states, np.diff(states, axis=1)
+
+    @cached_property
+    def _table_rows(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """:attr:`_table`'s knots and differences one row per knot, (knots, 12) and
+        (knots - 1, 12), C-contiguous, and the knot spacing: as the kernel
+        (:mod:`orthomvp.camera.csm.table_kernel`) takes them."""
+        step, states, diffs = self._table
+        return np.ascontiguousarray(states.T), np.ascontiguousarray(diffs.T), step
 
     def _states(
         self, line: np.ndarray, *, table: bool | None = None, columns: int = 12
@@ -319,6 +346,32 @@ class LineScanCamera(CsmImage):
         line, _ = self._to_csm(as_points(uv, "origins", 2))
         pos = self._states(line.ravel(), columns=3)[0].reshape(line.shape + (3,))
         return np.where(self._valid_line(line)[..., None], pos, np.nan)
+
+    def imaging(self, xyz: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Everything the visibility test needs of world points ``xyz`` (..., 3), metres, from
+        one ground to image: the pixels ``uv`` (..., 2) and depths of :meth:`project`, the
+        sensor positions (..., 3) at the times of those lines (:meth:`origins`), the unit ray
+        directions (..., 3) from there to the points, and the GSD (metres per pixel across
+        the line of sight: the range from there over the focal length in pixels); NaN where
+        not imaged. The ray from the sensor position through the point's pixel passes
+        through the point to the precision of ground to image (:data:`PRECISION` lines), so
+        the direction to the point is the model's ray (:meth:`ray`) without a second
+        evaluation, and the range is :meth:`gsd`'s at the exact line rather than at
+        :data:`GSD_LINES`."""
+        xyz = as_points(xyz, "imaging", 3)
+        line, sample, depth = self.csm_ground_to_image(xyz)
+        flat = line.ravel()
+        origin = self._states(np.nan_to_num(flat), columns=3)[0].reshape(xyz.shape)
+        origin[~np.isfinite(line)] = np.nan
+        to_point = xyz - origin
+        rng = np.sqrt(np.einsum("...i,...i->...", to_point, to_point))
+        return (
+            self._to_uv(line, sample),
+            depth,
+            origin,
+            to_point / rng[..., None],
+            rng / self.focal_plane.focal_pixels,
+        )
 
     def image_to_ground(self, uv: np.ndarray, height: np.ndarray | float = 0.0) -> np.ndarray:
         """World points (..., 3) seen at pixels ``uv`` (..., 2) on the ellipsoid inflated by
