@@ -72,6 +72,7 @@ class LineScanCamera(CsmImage):
         "table_error",
         "_use_table",
         "_first_guess",
+        "_kernel_args",
     )
 
     focal_plane: FocalPlane
@@ -259,6 +260,34 @@ class LineScanCamera(CsmImage):
             return None
         return np.concatenate([coef, ground0]), slope
 
+    def _kernel_applies(self, points: int) -> bool:
+        """Whether ground to image of ``points`` points runs in the numba kernel of
+        :mod:`orthomvp.camera.csm.table_kernel` (the same values as the numpy iteration, bit
+        for bit): the table stands in for the ephemeris, the lens has no distortion, and
+        there are at least :data:`KERNEL_POINTS` points."""
+        return (
+            points >= KERNEL_POINTS and self._use_table and self.focal_plane.distortion.is_identity
+        )
+
+    @cached_property
+    def _kernel_args(self) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray, np.ndarray]:
+        """The table, focal plane and search as the kernel's ``ground_to_image`` takes them."""
+        fp = self.focal_plane
+        plane = np.array(
+            [fp.focal_length, float(self.look_sign * fp.axis_sign), *fp.i_trans_l,
+             fp.line_origin, fp.starting_line, fp.line_summing, *fp.i_trans_s,
+             fp.sample_origin, fp.starting_sample, fp.sample_summing],
+            dtype=np.float64,
+        )  # fmt: skip
+        guess = self._first_guess
+        first = np.full(8, np.nan) if guess is None else np.append(guess[0], guess[1])
+        search = np.array(
+            [*first, PRECISION, _CONVERGED, float(self.lines), EDGE, _MAX_SECANT,
+             fp.focal_pixels],
+            dtype=np.float64,
+        )  # fmt: skip
+        return self._table_rows, plane, search
+
     def _table_line(
         self, xyz: np.ndarray, precision: float = PRECISION
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -304,6 +333,10 @@ class LineScanCamera(CsmImage):
         on the exact :meth:`_line_error` (with the table's slope) until its offset is within
         :data:`PRECISION`, as usgscsm's iteration ends. The line is usgscsm's: the line of
         that exposure plus the point's detector line offset."""
+        if self._kernel_applies(len(xyz)):
+            from orthomvp.camera.csm.table_kernel import ground_to_image
+
+            return ground_to_image(*self._kernel_args, xyz)[0]
         line, update, view, slope = self._table_line(xyz)
         if self._use_table:
             last = update
@@ -359,18 +392,29 @@ class LineScanCamera(CsmImage):
         evaluation, and the range is :meth:`gsd`'s at the exact line rather than at
         :data:`GSD_LINES`."""
         xyz = as_points(xyz, "imaging", 3)
-        line, sample, depth = self.csm_ground_to_image(xyz)
-        flat = line.ravel()
-        origin = self._states(np.nan_to_num(flat), columns=3)[0].reshape(xyz.shape)
-        origin[~np.isfinite(line)] = np.nan
-        to_point = xyz - origin
-        rng = np.sqrt(np.einsum("...i,...i->...", to_point, to_point))
+        flat = xyz.reshape(-1, 3)
+        if self._kernel_applies(len(flat)):
+            from orthomvp.camera.csm.table_kernel import ground_to_image
+
+            out, rays = ground_to_image(*self._kernel_args, flat, rays=True)
+            line, sample, depth = out[:, 0], out[:, 1], out[:, 2]
+            origin, direction, gsd = rays[:, :3], rays[:, 3:6], rays[:, 6]
+        else:
+            line, sample, depth = self.csm_ground_to_image(flat)
+            origin = self._states(np.nan_to_num(line), columns=3)[0]
+            origin[~np.isfinite(line)] = np.nan
+            to_point = flat - origin
+            x, y, z = to_point[:, 0], to_point[:, 1], to_point[:, 2]
+            rng = np.sqrt(x * x + y * y + z * z)
+            direction = to_point / rng[:, None]
+            gsd = rng / self.focal_plane.focal_pixels
+        shape = xyz.shape[:-1]
         return (
-            self._to_uv(line, sample),
-            depth,
-            origin,
-            to_point / rng[..., None],
-            rng / self.focal_plane.focal_pixels,
+            self._to_uv(line.reshape(shape), sample.reshape(shape)),
+            depth.reshape(shape),
+            origin.reshape(xyz.shape),
+            direction.reshape(xyz.shape),
+            gsd.reshape(shape),
         )
 
     def image_to_ground(self, uv: np.ndarray, height: np.ndarray | float = 0.0) -> np.ndarray:

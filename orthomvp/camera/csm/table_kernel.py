@@ -62,6 +62,158 @@ def _camera_coordinates(
 _camera_coordinates = cached_jit(_camera_coordinates, fastmath=False, error_model="numpy")
 
 
+def _table_point(
+    states: np.ndarray, diffs: np.ndarray, step: float, line: float, columns: int, out: np.ndarray
+) -> float:
+    """Into ``out`` (columns,): the first ``columns`` table values at CSM ``line``, as
+    ``LineScanCamera._states``; returns the knot fraction (unused by callers but numba's)."""
+    last = diffs.shape[0] - 1
+    big = np.finfo(np.float64).max
+    x = line / step
+    f = x
+    if np.isnan(f):
+        f = 0.0
+    elif f > big:
+        f = big
+    elif f < -big:
+        f = -big
+    kf = np.floor(f)
+    if kf < 0:
+        kf = 0.0
+    elif kf > last:
+        kf = np.float64(last)
+    k = np.int64(kf)
+    frac = x - np.float64(k)
+    for j in range(columns):
+        out[j] = diffs[k, j] * frac + states[k, j]
+    return frac
+
+
+_table_point = cached_jit(_table_point, fastmath=False, error_model="numpy", inline="always")
+
+
+def _line_offset(
+    states: np.ndarray,
+    diffs: np.ndarray,
+    step: float,
+    line: float,
+    p: np.ndarray,
+    plane: np.ndarray,
+    s: np.ndarray,
+    view: np.ndarray,
+) -> float:
+    """``LineScanCamera._line_error`` of one point ``p`` (3,) at CSM ``line`` on the table,
+    for a focal plane without distortion: the detector line offset, and into ``view`` (3,)
+    the focal-plane x, y (mm) and the depth; ``plane`` as :func:`ground_to_image` takes it,
+    ``s`` (12,) scratch."""
+    _table_point(states, diffs, step, line, 12, s)
+    r0, r1, r2 = p[0] - s[0], p[1] - s[1], p[2] - s[2]
+    c0 = s[3] * r0 + s[6] * r1 + s[9] * r2
+    c1 = s[4] * r0 + s[7] * r1 + s[10] * r2
+    c2 = s[5] * r0 + s[8] * r1 + s[11] * r2
+    scale = plane[0] / c2
+    dx, dy = c0 * scale, c1 * scale
+    view[0], view[1], view[2] = dx, dy, plane[1] * c2
+    return (plane[2] + plane[3] * dx + plane[4] * dy + plane[5] - plane[6]) / plane[7]
+
+
+_line_offset = cached_jit(_line_offset, fastmath=False, error_model="numpy", inline="always")
+
+
+def _ground_to_image(
+    states: np.ndarray,
+    diffs: np.ndarray,
+    step: float,
+    plane: np.ndarray,
+    search: np.ndarray,
+    xyz: np.ndarray,
+    out: np.ndarray,
+    rays: np.ndarray,
+) -> None:
+    """Into ``out`` (M, 3): CSM line, sample and depth of ground points ``xyz`` (M, 3) (NaN
+    where not imaged), and where ``rays`` has M rows, into it (M, 7) the sensor position at
+    that line, the unit direction from there to the point and the GSD: ``LineScanCamera``'s
+    table iteration point by point (module docstring). ``search``: the first guess (its four
+    affine coefficients and ground0 (3,), then its slope; all NaN: from the first and last
+    lines), the precision, the largest final offset, the image's lines, the edge slack, the
+    iteration limit, the focal length in pixels."""
+    guess = not np.isnan(search[7])
+    precision, converged, lines, edge = search[8], search[9], search[10], search[11]
+    limit, focal_pixels = int(search[12]), search[13]
+    s, view, pos = np.empty(12), np.empty(3), np.empty(3)
+    for m in range(len(xyz)):
+        p = xyz[m]
+        if guess:
+            rel0, rel1, rel2 = p[0] - search[4], p[1] - search[5], p[2] - search[6]
+            t0 = rel0 * search[0] + rel1 * search[1] + rel2 * search[2] + search[3]
+            e0 = _line_offset(states, diffs, step, t0, p, plane, s, view)
+            t1 = t0 - e0 / search[7]
+        else:
+            t0, t1 = 0.0, lines
+            e0 = _line_offset(states, diffs, step, t0, p, plane, s, view)
+        e1 = _line_offset(states, diffs, step, t1, p, plane, s, view)
+        active = np.abs(e1) > precision
+        for _ in range(limit):
+            if not (active and e1 != e0 and np.isfinite(e1)):
+                break
+            t2 = t1 - e1 * (t1 - t0) / (e1 - e0)
+            e2 = _line_offset(states, diffs, step, t2, p, plane, s, view)
+            t0, e0 = t1, e1
+            t1, e1 = t2, e2
+            active = np.abs(e2) > precision
+        line = t1 + e1 if np.abs(e1) <= precision else np.nan
+        sample = plane[8] + plane[9] * view[0] + plane[10] * view[1] + plane[11] - plane[12]
+        sample = sample / plane[13]
+        depth = view[2]
+        ok = (
+            line >= -edge
+            and line <= lines + edge
+            and np.abs(e1) <= converged
+            and depth > 0
+            and np.isfinite(sample)
+        )
+        if not ok:
+            line = sample = depth = np.nan
+        out[m, 0], out[m, 1], out[m, 2] = line, sample, depth
+        if rays.shape[0] == len(xyz):
+            if ok:
+                _table_point(states, diffs, step, line, 3, pos)
+            else:
+                pos[0] = pos[1] = pos[2] = np.nan
+            d0, d1, d2 = p[0] - pos[0], p[1] - pos[1], p[2] - pos[2]
+            rng = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            rays[m, 0], rays[m, 1], rays[m, 2] = pos[0], pos[1], pos[2]
+            rays[m, 3], rays[m, 4], rays[m, 5] = d0 / rng, d1 / rng, d2 / rng
+            rays[m, 6] = rng / focal_pixels
+
+
+_ground_to_image = cached_jit(_ground_to_image, fastmath=False, error_model="numpy")
+
+
+def ground_to_image(
+    table: tuple[np.ndarray, np.ndarray, float],
+    plane: np.ndarray,
+    search: np.ndarray,
+    xyz: np.ndarray,
+    *,
+    rays: bool = False,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """CSM (line, sample, depth) (M, 3) of ground points ``xyz`` (M, 3) by the table's
+    iteration, NaN where not imaged, and with ``rays`` the sensor positions, unit directions
+    to the points and GSDs (M, 7) (else None). ``table``: ``LineScanCamera._table_rows``;
+    ``plane``: the focal length (mm), the depth sign, the detector line's transform
+    (i_trans_l, line origin, starting line, summing) and the sample's (i_trans_s, sample
+    origin, starting sample, summing); ``search``: as :func:`_ground_to_image`."""
+    out = np.empty((len(xyz), 3))
+    extra = np.empty((len(xyz) if rays else 0, 7))
+    states, diffs, step = table
+    _ground_to_image(
+        states, diffs, float(step), plane, search, np.ascontiguousarray(xyz, np.float64), out,
+        extra,
+    )  # fmt: skip
+    return out, extra if rays else None
+
+
 def camera_coordinates(
     states: np.ndarray, diffs: np.ndarray, step: float, line: np.ndarray, xyz: np.ndarray
 ) -> np.ndarray:
