@@ -115,23 +115,44 @@ def test_kernel_equals_numpy_with_several_line_rates(
         np.testing.assert_allclose(a, b, rtol=0, atol=max(camera.table_error, PRECISION))
 
 
-def test_distorted_lens_keeps_the_numpy_iteration(
-    scanner: LineScanCamera, monkeypatch: pytest.MonkeyPatch
+def _transverse() -> np.ndarray:
+    c = np.zeros(20)
+    c[1], c[12], c[3], c[15] = 1.0, 1.0, 1e-5, -2e-5  # x' = x + 1e-5 x^2, y' = y - 2e-5 x^2
+    return c
+
+
+@pytest.mark.parametrize(
+    ("model", "coefficients", "kernel"),
+    [
+        ("radial", np.array([0.0, 1e-5, 0.0]), True),
+        ("lrolrocnac", np.array([1.8e-5]), True),
+        ("transverse", _transverse(), False),
+    ],
+)
+def test_distorted_lenses(
+    scanner: LineScanCamera,
+    model: str,
+    coefficients: np.ndarray,
+    kernel: bool,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """With radial distortion the full kernel does not apply; the table's camera-frame
-    coordinates from the kernel leave the numpy iteration's values unchanged, to the bit,
-    and the pixels are the exact model's within the table's error."""
-    plane = dataclasses.replace(
-        scanner.focal_plane, distortion=CsmDistortion("radial", np.array([0.0, 1e-5, 0.0]))
-    )
+    """A distorted lens: the kernel applies usgscsm's radial and LRO NAC models point by point
+    (other models keep the numpy iteration, its table evaluated by the kernel); either way the
+    numpy iteration's values to the bit, and the pixels of image to ground found again within
+    usgscsm's precision."""
+    plane = dataclasses.replace(scanner.focal_plane, distortion=CsmDistortion(model, coefficients))
     camera = _fresh(scanner, focal_plane=plane)
-    assert not camera._kernel_applies(1 << 20)
+    assert camera._kernel_applies(1 << 20) is kernel
     ground = _ground(camera, 5000, 2)
     fast, slow = _both(camera, monkeypatch, lambda c: c.csm_ground_to_image(ground))
     _assert_same(fast, slow)
+    _assert_same(*_both(camera, monkeypatch, lambda c: c.imaging(ground)))
     rng = np.random.default_rng(3)
-    uv = rng.uniform([-0.5, -0.5], [camera.samples - 0.5, camera.lines - 0.5], (2000, 2))
-    np.testing.assert_allclose(camera.project(camera.image_to_ground(uv))[0], uv, rtol=0, atol=1e-5)
+    uv = rng.uniform([-0.5, -0.5], [camera.samples - 0.5, camera.lines - 0.5], (5000, 2))
+    with monkeypatch.context() as m:
+        m.setattr(linescan, "KERNEL_POINTS", 1)
+        found = camera.project(camera.image_to_ground(uv))[0]
+    np.testing.assert_allclose(found, uv, rtol=0, atol=PRECISION)
 
 
 @pytest.mark.realdata

@@ -44,6 +44,10 @@ KERNEL_POINTS = 4096
 :mod:`orthomvp.camera.csm.table_kernel` (the same values as numpy, bit for bit), which pays
 for its load (numba's import and the cached kernel, about 0.3 s once a process) on the
 blocks of an orthophoto."""
+KERNEL_DISTORTIONS = {"radial": 1, "lrolrocnac": 2}
+"""The lens distortion models that the kernel applies, with their codes there (no distortion
+is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL` and ``LRONAC``); with another, ground to
+image runs the numpy iteration (its table evaluated by the kernel all the same)."""
 GSD_LINES = 1e-3
 """Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
 Newton step; the range moves by far less than 1e-6 of itself over them)."""
@@ -263,20 +267,25 @@ class LineScanCamera(CsmImage):
     def _kernel_applies(self, points: int) -> bool:
         """Whether ground to image of ``points`` points runs in the numba kernel of
         :mod:`orthomvp.camera.csm.table_kernel` (the same values as the numpy iteration, bit
-        for bit): the table stands in for the ephemeris, the lens has no distortion, and
-        there are at least :data:`KERNEL_POINTS` points."""
+        for bit): the table stands in for the ephemeris, the lens has no distortion or one of
+        :data:`KERNEL_DISTORTIONS`, and there are at least :data:`KERNEL_POINTS` points."""
+        lens = self.focal_plane.distortion
         return (
-            points >= KERNEL_POINTS and self._use_table and self.focal_plane.distortion.is_identity
+            points >= KERNEL_POINTS
+            and self._use_table
+            and (lens.is_identity or lens.model in KERNEL_DISTORTIONS)
         )
 
     @cached_property
     def _kernel_args(self) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray, np.ndarray]:
         """The table, focal plane and search as the kernel's ``ground_to_image`` takes them."""
         fp = self.focal_plane
+        lens = 0 if fp.distortion.is_identity else KERNEL_DISTORTIONS.get(fp.distortion.model, -1)
         plane = np.array(
             [fp.focal_length, float(self.look_sign * fp.axis_sign), *fp.i_trans_l,
              fp.line_origin, fp.starting_line, fp.line_summing, *fp.i_trans_s,
-             fp.sample_origin, fp.starting_sample, fp.sample_summing],
+             fp.sample_origin, fp.starting_sample, fp.sample_summing, lens,
+             *np.pad(fp.distortion.coefficients, (0, 3))[:3]],
             dtype=np.float64,
         )  # fmt: skip
         guess = self._first_guess

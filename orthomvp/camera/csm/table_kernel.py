@@ -92,6 +92,55 @@ def _table_point(
 _table_point = cached_jit(_table_point, fastmath=False, error_model="numpy", inline="always")
 
 
+IDENTITY, RADIAL, LRONAC = 0, 1, 2
+"""The lens distortions the kernel applies (``plane[14]``, coefficients in ``plane[15:18]``;
+``orthomvp.camera.csm.linescan.KERNEL_DISTORTIONS`` names them): none, usgscsm's radial
+model and its LRO NAC model, each as :mod:`orthomvp.camera.csm.distortion` applies it, point
+by point."""
+_TOLERANCE = 1e-6  # as orthomvp.camera.csm.distortion's
+
+
+def _distort(x: float, y: float, plane: np.ndarray) -> tuple[float, float]:
+    """The distorted focal-plane (x, y), mm, of undistorted ``x``, ``y``: ``distortion``'s
+    ``_apply_radial`` or ``_apply_lronac`` for one point (the same operations and stopping
+    rules), or the point itself."""
+    model = plane[14]
+    if model == RADIAL:
+        c0, c1, c2 = plane[15], plane[16], plane[17]
+        rp2 = x * x + y * y
+        rp = np.sqrt(rp2)
+        dr = c0 + rp2 * (c1 + rp2 * c2)
+        r = rp + dr * rp
+        active = True
+        for _ in range(20):
+            if r > 1e9:
+                dr, active = 0.0, False
+                break
+            r_prev = r
+            dr = c0 + r_prev * r_prev * (c1 + r_prev * r_prev * c2)
+            r = rp + dr * r_prev
+            active = np.abs(r - r_prev) > _TOLERANCE
+            if not active:
+                break
+        if active:  # not converged in 20 iterations: left undistorted
+            dr = 0.0
+        return x / (1.0 - dr), y / (1.0 - dr)
+    if model == LRONAC:
+        dk1 = plane[15]
+        yt, prev, done = y, 1e6, False
+        for _ in range(50):
+            new = y * (1.0 + dk1 * yt * yt)
+            done = np.abs(new - prev) <= 1e-10
+            prev, yt = new, new
+            if done:
+                break
+        return x, yt if done and not np.abs(y) > 40 else y
+    return x, y
+
+
+_distort = cached_jit(_distort, fastmath=False, error_model="numpy", inline="always")
+
+
 def _line_offset(
     states: np.ndarray,
     diffs: np.ndarray,
@@ -103,7 +152,7 @@ def _line_offset(
     view: np.ndarray,
 ) -> float:
     """``LineScanCamera._line_error`` of one point ``p`` (3,) at CSM ``line`` on the table,
-    for a focal plane without distortion: the detector line offset, and into ``view`` (3,)
+    the detector line offset, and into ``view`` (3,)
     the focal-plane x, y (mm) and the depth; ``plane`` as :func:`ground_to_image` takes it,
     ``s`` (12,) scratch."""
     _table_point(states, diffs, step, line, 12, s)
@@ -112,7 +161,7 @@ def _line_offset(
     c1 = s[4] * r0 + s[7] * r1 + s[10] * r2
     c2 = s[5] * r0 + s[8] * r1 + s[11] * r2
     scale = plane[0] / c2
-    dx, dy = c0 * scale, c1 * scale
+    dx, dy = _distort(c0 * scale, c1 * scale, plane)
     view[0], view[1], view[2] = dx, dy, plane[1] * c2
     return (plane[2] + plane[3] * dx + plane[4] * dy + plane[5] - plane[6]) / plane[7]
 
