@@ -10,7 +10,12 @@ Speed: the iteration runs on a table of sensor states sampled once per line (fin
 images), interpolated linearly, from a first line given by an affine fit of a pixel lattice.
 Where the table reproduces the ephemeris within :data:`TABLE_PIXELS` (orbital images) it
 serves rays and origins too; otherwise ground to image ends with Newton steps on the exact
-model and rays use the exact ephemeris.
+model and rays use the exact ephemeris. On blocks of :data:`KERNEL_POINTS` points or more the
+table is evaluated by numba kernels (:mod:`orthomvp.camera.csm.table_kernel`), and where the
+table serves and the lens is undistorted or one of :data:`KERNEL_DISTORTIONS` the whole
+iteration runs point by point there: the numpy iteration's values bit for bit, which stays
+their test oracle. :meth:`LineScanCamera.imaging` gives the visibility test a point's pixel,
+ray origin and direction and GSD from that one search.
 """
 
 from __future__ import annotations

@@ -192,24 +192,21 @@ def _ground_to_image(
     s, view, pos = np.empty(12), np.empty(3), np.empty(3)
     for m in range(len(xyz)):
         p = xyz[m]
-        if guess:
+        if guess:  # the affine line, then a Newton step with the centre's slope
             rel0, rel1, rel2 = p[0] - search[4], p[1] - search[5], p[2] - search[6]
             t0 = rel0 * search[0] + rel1 * search[1] + rel2 * search[2] + search[3]
-            e0 = _line_offset(states, diffs, step, t0, p, plane, s, view)
-            t1 = t0 - e0 / search[7]
-        else:
-            t0, t1 = 0.0, lines
-            e0 = _line_offset(states, diffs, step, t0, p, plane, s, view)
-        e1 = _line_offset(states, diffs, step, t1, p, plane, s, view)
-        active = np.abs(e1) > precision
-        for _ in range(limit):
-            if not (active and e1 != e0 and np.isfinite(e1)):
+        else:  # the first and last lines
+            t0 = 0.0
+        e0 = _line_offset(states, diffs, step, t0, p, plane, s, view)
+        t1 = t0 - e0 / search[7] if guess else lines
+        for n in range(limit + 1):  # the offset at t1, then up to ``limit`` secant steps
+            e1 = _line_offset(states, diffs, step, t1, p, plane, s, view)
+            active = np.abs(e1) > precision
+            if n == limit or not (active and e1 != e0 and np.isfinite(e1)):
                 break
             t2 = t1 - e1 * (t1 - t0) / (e1 - e0)
-            e2 = _line_offset(states, diffs, step, t2, p, plane, s, view)
             t0, e0 = t1, e1
-            t1, e1 = t2, e2
-            active = np.abs(e2) > precision
+            t1 = t2
         line = t1 + e1 if np.abs(e1) <= precision else np.nan
         sample = plane[8] + plane[9] * view[0] + plane[10] * view[1] + plane[11] - plane[12]
         sample = sample / plane[13]
