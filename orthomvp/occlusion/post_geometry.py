@@ -118,7 +118,9 @@ def block_axes(terrain: Terrain, block: tuple[int, int, int, int]) -> tuple[np.n
 
 def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeometry:
     """The posts of tile (``rs``, ``cs``) of ``terrain`` seen by ``camera``, any camera and
-    world frame; normals are central differences over the tile with one post around it."""
+    world frame; normals are central differences over the tile with one post around it. A
+    line scanner's pixels, ray origins and directions and GSDs come from one search
+    (:func:`_line_scan`); other cameras' from ``project``, ``origins`` and ``gsd``."""
     r0, r1, c0, c1 = tile_block(terrain, rs, cs)
     r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
