@@ -252,3 +252,27 @@ def test_real_lro_nac_through_the_kernel(monkeypatch: pytest.MonkeyPatch) -> Non
         m.setattr(linescan, "KERNEL_POINTS", 1)
         found = camera.project(camera.image_to_ground(uv, rng.uniform(-50, 50, len(uv))))[0]
     np.testing.assert_allclose(found, uv, rtol=0, atol=PRECISION)
+
+
+def test_visibility_codes_unchanged() -> None:
+    """The visibility test of a line scanner over a crater through the one-evaluation geometry
+    and through the model's separate calls (its own ray through each post's pixel): the same
+    codes, the distances to occluders within 1e-6 posts, GSDs within 1e-12 of themselves."""
+    from orthomvp.occlusion.visibility import compute_visibility
+
+    scene = make_scene("crater", size=96, spacing=40.0)
+    camera = orbital_line_scanner(scene.terrain, ViewSpec("t", 40.0, 120.0), scene.gsd)
+    fast = compute_visibility(scene.terrain, camera)
+    slow = compute_visibility(scene.terrain, _PlainScanner(camera))
+    codes, counts = np.unique(fast.codes, return_counts=True)
+    assert len(codes) == 3 and counts.min() > 100  # visible, occluded, facing away
+    np.testing.assert_array_equal(fast.codes, slow.codes)
+    # a ray that grazes its own post's surface meets it within float32's rounding (1e-4
+    # posts or less) or not at all, as either rounds: no occluder, either way
+    clear_fast, clear_slow = ((m < 0.01) | np.isinf(m) for m in (fast.miss, slow.miss))
+    np.testing.assert_array_equal(clear_fast, clear_slow)
+    np.testing.assert_array_equal(np.isnan(fast.miss), np.isnan(slow.miss))
+    hit = np.isfinite(slow.miss) & ~clear_slow
+    assert hit.sum() > 100
+    np.testing.assert_allclose(fast.miss[hit], slow.miss[hit], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(fast.gsd, slow.gsd, rtol=1e-12)
