@@ -49,10 +49,17 @@ KERNEL_POINTS = 4096
 :mod:`orthomvp.camera.csm.table_kernel` (the same values as numpy, bit for bit), which pays
 for its load (numba's import and the cached kernel, about 0.3 s once a process) on the
 blocks of an orthophoto."""
-KERNEL_DISTORTIONS = {"radial": 1, "lrolrocnac": 2}
+KERNEL_DISTORTIONS = {
+    "radial": 1,
+    "lrolrocnac": 2,
+    "transverse": 3,
+    "kaguyalism": 4,
+    "dawnfc": 5,
+    "radtan": 6,
+}
 """The lens distortion models that the kernel applies, with their codes there (no distortion
-is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL` and ``LRONAC``); with another, ground to
-image runs the numpy iteration (its table evaluated by the kernel all the same)."""
+is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL` and the others); with another, ground
+to image would run the numpy iteration (its table evaluated by the kernel all the same)."""
 GSD_LINES = 1e-3
 """Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
 Newton step; the range moves by far less than 1e-6 of itself over them)."""
@@ -290,7 +297,7 @@ class LineScanCamera(CsmImage):
             [fp.focal_length, float(self.look_sign * fp.axis_sign), *fp.i_trans_l,
              fp.line_origin, fp.starting_line, fp.line_summing, *fp.i_trans_s,
              fp.sample_origin, fp.starting_sample, fp.sample_summing, lens,
-             *np.pad(fp.distortion.coefficients, (0, 3))[:3]],
+             *np.pad(fp.distortion.coefficients, (0, 20))[:20]],
             dtype=np.float64,
         )  # fmt: skip
         guess = self._first_guess

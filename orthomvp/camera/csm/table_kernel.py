@@ -92,50 +92,116 @@ def _table_point(
 _table_point = cached_jit(_table_point, fastmath=False, error_model="numpy", inline="always")
 
 
-IDENTITY, RADIAL, LRONAC = 0, 1, 2
-"""The lens distortions the kernel applies (``plane[14]``, coefficients in ``plane[15:18]``;
-``orthomvp.camera.csm.linescan.KERNEL_DISTORTIONS`` names them): none, usgscsm's radial
-model and its LRO NAC model, each as :mod:`orthomvp.camera.csm.distortion` applies it, point
-by point."""
+IDENTITY, RADIAL, LRONAC, TRANSVERSE, KAGUYA, DAWN, RADTAN = range(7)
+"""The lens distortions the kernel applies (``plane[14]``, the coefficients in
+``plane[15:35]``; ``orthomvp.camera.csm.linescan.KERNEL_DISTORTIONS`` names them): none, and
+each of usgscsm's models as :mod:`orthomvp.camera.csm.distortion` applies it, point by point
+with the same operations and stopping rules."""
 _TOLERANCE = 1e-6  # as orthomvp.camera.csm.distortion's
 
 
+def _radial(x: float, y: float, c: np.ndarray) -> tuple[float, float]:
+    """``distortion._apply_radial`` of one point."""
+    c0, c1, c2 = c[0], c[1], c[2]
+    rp2 = x * x + y * y
+    rp = np.sqrt(rp2)
+    dr = c0 + rp2 * (c1 + rp2 * c2)
+    r = rp + dr * rp
+    active = True
+    for _ in range(20):
+        if r > 1e9:
+            dr, active = 0.0, False
+            break
+        r_prev = r
+        dr = c0 + r_prev * r_prev * (c1 + r_prev * r_prev * c2)
+        r = rp + dr * r_prev
+        active = np.abs(r - r_prev) > _TOLERANCE
+        if not active:
+            break
+    if active:  # not converged in 20 iterations: left undistorted
+        dr = 0.0
+    return x / (1.0 - dr), y / (1.0 - dr)
+
+
+def _lronac(x: float, y: float, c: np.ndarray) -> tuple[float, float]:
+    """``distortion._apply_lronac`` of one point."""
+    dk1 = c[0]
+    yt, prev, done = y, 1e6, False
+    for _ in range(50):
+        new = y * (1.0 + dk1 * yt * yt)
+        done = np.abs(new - prev) <= 1e-10
+        prev, yt = new, new
+        if done:
+            break
+    return x, yt if done and not np.abs(y) > 40 else y
+
+
+def _transverse(x: float, y: float, c: np.ndarray) -> tuple[float, float]:
+    """``distortion._apply_transverse`` of one point: the two cubic polynomials, their terms
+    summed in order from zero."""
+    xx, xy, yy = x * x, x * y, y * y
+    terms = (1.0, x, y, xx, xy, yy, xx * x, xx * y, xy * y, yy * y)
+    u = v = 0.0
+    for k in range(10):
+        u += terms[k] * c[k]
+    for k in range(10):
+        v += terms[k] * c[10 + k]
+    return u, v
+
+
+def _kaguya(x: float, y: float, c: np.ndarray) -> tuple[float, float]:
+    """``distortion._apply_kaguya`` of one point."""
+    xt, yt = x - c[0], y - c[5]
+    prev_x, prev_y, done = 1e6, 1e6, False
+    for _ in range(50):
+        r2 = xt * xt + yt * yt
+        r = np.sqrt(r2)
+        drx = c[1] + c[2] * r + c[3] * r2 + c[4] * r2 * r
+        dry = c[6] + c[7] * r + c[8] * r2 + c[9] * r2 * r
+        nx, ny = x - drx - c[0], y - dry - c[5]
+        done = np.abs(nx - prev_x) < 1e-6 and np.abs(ny - prev_y) < 1e-6
+        prev_x, prev_y, xt, yt = nx, ny, nx, ny
+        if done:
+            break
+    return (xt, yt) if done else (x, y)
+
+
+def _radtan(x: float, y: float, c: np.ndarray, focal: float) -> tuple[float, float]:
+    """``distortion._apply_radtan`` of one point (on focal-length-normalised coordinates)."""
+    k1, k2, p1, p2, k3 = c[0], c[1], c[2], c[3], c[4]
+    x, y = x / focal, y / focal
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+    dx = x * radial + (2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x))
+    dy = y * radial + (p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+    return dx * focal, dy * focal
+
+
+_radial, _lronac, _transverse, _kaguya, _radtan = (
+    cached_jit(f, fastmath=False, error_model="numpy")
+    for f in (_radial, _lronac, _transverse, _kaguya, _radtan)
+)
+
+
 def _distort(x: float, y: float, plane: np.ndarray) -> tuple[float, float]:
-    """The distorted focal-plane (x, y), mm, of undistorted ``x``, ``y``: ``distortion``'s
-    ``_apply_radial`` or ``_apply_lronac`` for one point (the same operations and stopping
-    rules), or the point itself."""
+    """The distorted focal-plane (x, y), mm, of undistorted ``x``, ``y`` by the lens of
+    ``plane`` (:data:`IDENTITY` and the others)."""
     model = plane[14]
+    if model == IDENTITY:
+        return x, y
+    c = plane[15:35]
     if model == RADIAL:
-        c0, c1, c2 = plane[15], plane[16], plane[17]
-        rp2 = x * x + y * y
-        rp = np.sqrt(rp2)
-        dr = c0 + rp2 * (c1 + rp2 * c2)
-        r = rp + dr * rp
-        active = True
-        for _ in range(20):
-            if r > 1e9:
-                dr, active = 0.0, False
-                break
-            r_prev = r
-            dr = c0 + r_prev * r_prev * (c1 + r_prev * r_prev * c2)
-            r = rp + dr * r_prev
-            active = np.abs(r - r_prev) > _TOLERANCE
-            if not active:
-                break
-        if active:  # not converged in 20 iterations: left undistorted
-            dr = 0.0
-        return x / (1.0 - dr), y / (1.0 - dr)
+        return _radial(x, y, c)
     if model == LRONAC:
-        dk1 = plane[15]
-        yt, prev, done = y, 1e6, False
-        for _ in range(50):
-            new = y * (1.0 + dk1 * yt * yt)
-            done = np.abs(new - prev) <= 1e-10
-            prev, yt = new, new
-            if done:
-                break
-        return x, yt if done and not np.abs(y) > 40 else y
-    return x, y
+        return _lronac(x, y, c)
+    if model == TRANSVERSE:
+        return _transverse(x, y, c)
+    if model == KAGUYA:
+        return _kaguya(x, y, c)
+    if model == DAWN:
+        r2 = x * x + y * y
+        return x * (1.0 + c[0] * r2), y * (1.0 + c[0] * r2)
+    return _radtan(x, y, c, plane[0])
 
 
 _distort = cached_jit(_distort, fastmath=False, error_model="numpy", inline="always")
