@@ -115,6 +115,18 @@ def test_kernel_equals_numpy_with_several_line_rates(
         np.testing.assert_allclose(a, b, rtol=0, atol=max(camera.table_error, PRECISION))
 
 
+def test_kernel_knows_every_lens() -> None:
+    """The line scanner's lens codes are the kernel's, one for each of usgscsm's distortion
+    models."""
+    from orthomvp.camera.csm import table_kernel as k
+    from orthomvp.camera.csm.distortion import MODELS
+
+    names = ("radial", "lrolrocnac", "transverse", "kaguyalism", "dawnfc", "radtan")
+    codes = (k.RADIAL, k.LRONAC, k.TRANSVERSE, k.KAGUYA, k.DAWN, k.RADTAN)
+    assert linescan.KERNEL_DISTORTIONS == dict(zip(names, codes, strict=True))
+    assert set(names) == set(MODELS) and k.IDENTITY not in codes
+
+
 def _transverse() -> np.ndarray:
     c = np.zeros(20)
     c[1], c[12], c[3], c[15] = 1.0, 1.0, 1e-5, -2e-5  # x' = x + 1e-5 x^2, y' = y - 2e-5 x^2

@@ -12,10 +12,10 @@ Where the table reproduces the ephemeris within :data:`TABLE_PIXELS` (orbital im
 serves rays and origins too; otherwise ground to image ends with Newton steps on the exact
 model and rays use the exact ephemeris. On blocks of :data:`KERNEL_POINTS` points or more the
 table is evaluated by numba kernels (:mod:`orthomvp.camera.csm.table_kernel`), and where the
-table serves and the lens is undistorted or one of :data:`KERNEL_DISTORTIONS` the whole
-iteration runs point by point there: the numpy iteration's values bit for bit, which stays
-their test oracle. :meth:`LineScanCamera.imaging` gives the visibility test a point's pixel,
-ray origin and direction and GSD from that one search.
+table serves the whole iteration runs point by point there, lens distortion included: the
+numpy iteration's values bit for bit, which stays their test oracle.
+:meth:`LineScanCamera.imaging` gives the visibility test a point's pixel, ray origin and
+direction and GSD from that one search.
 """
 
 from __future__ import annotations
@@ -57,9 +57,9 @@ KERNEL_DISTORTIONS = {
     "dawnfc": 5,
     "radtan": 6,
 }
-"""The lens distortion models that the kernel applies, with their codes there (no distortion
-is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL` and the others); with another, ground
-to image would run the numpy iteration (its table evaluated by the kernel all the same)."""
+"""Each of usgscsm's lens distortion models (:data:`orthomvp.camera.csm.distortion.MODELS`)
+by its code in the kernel (no distortion is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL`
+and the others)."""
 GSD_LINES = 1e-3
 """Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
 Newton step; the range moves by far less than 1e-6 of itself over them)."""
@@ -279,20 +279,15 @@ class LineScanCamera(CsmImage):
     def _kernel_applies(self, points: int) -> bool:
         """Whether ground to image of ``points`` points runs in the numba kernel of
         :mod:`orthomvp.camera.csm.table_kernel` (the same values as the numpy iteration, bit
-        for bit): the table stands in for the ephemeris, the lens has no distortion or one of
-        :data:`KERNEL_DISTORTIONS`, and there are at least :data:`KERNEL_POINTS` points."""
-        lens = self.focal_plane.distortion
-        return (
-            points >= KERNEL_POINTS
-            and self._use_table
-            and (lens.is_identity or lens.model in KERNEL_DISTORTIONS)
-        )
+        for bit): the table stands in for the ephemeris, and there are at least
+        :data:`KERNEL_POINTS` points."""
+        return points >= KERNEL_POINTS and self._use_table
 
     @cached_property
     def _kernel_args(self) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray, np.ndarray]:
         """The table, focal plane and search as the kernel's ``ground_to_image`` takes them."""
         fp = self.focal_plane
-        lens = 0 if fp.distortion.is_identity else KERNEL_DISTORTIONS.get(fp.distortion.model, -1)
+        lens = 0 if fp.distortion.is_identity else KERNEL_DISTORTIONS[fp.distortion.model]
         plane = np.array(
             [fp.focal_length, float(self.look_sign * fp.axis_sign), *fp.i_trans_l,
              fp.line_origin, fp.starting_line, fp.line_summing, *fp.i_trans_s,
