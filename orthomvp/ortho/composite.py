@@ -46,7 +46,7 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.ortho.balance import BALANCES, Correction
 from orthomvp.ortho.holes import FILL_ALIASES, HOLES, INPAINT_HALO, Flag, fill_holes
-from orthomvp.ortho.support import FEATHER_RADIUS, shun
+from orthomvp.ortho.support import FEATHER_RADIUS, Support, fill_doubtful, sharpen, shun
 from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
@@ -155,13 +155,17 @@ class MosaicOptions:
 @dataclass
 class Composite:
     """A composed window: ``data`` (bands, rows, cols) float32, NaN where empty; ``source``
-    (rows, cols) the 1-based view each post is labelled with (0: none); ``flags`` (rows,
-    cols) :class:`Flag`; ``weights`` (views, rows, cols) float32, each view's share."""
+    (rows, cols) the 1-based view each post is labelled with, or where the feather's test
+    moved the label's weight the view of largest weight (0: none); ``flags`` (rows, cols)
+    :class:`Flag`; ``weights`` (views, rows, cols) float32, each view's share; ``resampled``
+    (views, rows, cols) where a view's value is the blend of its clear pixels
+    (:func:`~orthomvp.ortho.support.sharpen`; None: not tested)."""
 
     data: np.ndarray
     source: np.ndarray
     flags: np.ndarray
     weights: np.ndarray
+    resampled: np.ndarray | None = None
 
 
 def box_sum(a: np.ndarray, radius: int) -> np.ndarray:
@@ -344,7 +348,8 @@ def compose(
     *,
     slack: np.ndarray | None = None,
     blocked: np.ndarray | None = None,
-    support: Callable[[np.ndarray], np.ndarray] | None = None,
+    support: Support | None = None,
+    resample: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
     fused: bool = False,
 ) -> Composite:
     """Compose a mosaic window from per-view ``values`` (views, bands, rows, cols) float32
@@ -355,7 +360,11 @@ def compose(
     ``slack`` (views, rows, cols) its epsilon minus its miss there (posts), the margin by
     which :func:`orthomvp.ortho.holes.fill_holes` picks a doubtful view; ``blocked`` (views,
     rows, cols) where a view's sample reaches an occluder (:func:`trusted`), and ``support``
-    tells it at the posts that blend several views (:func:`shun`; None: not done). ``fused``:
+    tells it at the posts that blend several views (:func:`shun`; None: not done) and at the
+    posts with weight near the view's occlusion boundary, where ``resample`` then gives the
+    samples of the blocked views' clear pixels (:func:`~orthomvp.ortho.support.sharpen`) and
+    of the doubtful views at posts only they see, by every hole policy but ``empty``
+    (:func:`~orthomvp.ortho.support.fill_doubtful`; None: not done). ``fused``:
     labels and blend with the numba kernels of :mod:`orthomvp.ortho.composite_kernel` (the same
     result, bit for bit; about 3.5x faster, after a load of about 0.3 s a process)."""
     values = np.ascontiguousarray(values if correction is None else correction.apply(values))
@@ -382,9 +391,16 @@ def compose(
         data = np.einsum("krc,kbrc->brc", weights, np.where(visible[:, None], values, 0))
         data = data.astype(np.float32)
         data[:, label < 0] = np.nan
+    crisp, moved = None, None
     if support is not None:
-        shun(weights, data, values, blocked, support)
+        moved = shun(weights, data, values, blocked, support)
+        if resample is not None:
+            crisp = sharpen(weights, data, values, support, resample, correction)
     seen = label >= 0
+    cleared = None
+    if resample is not None and doubt is not None and options.holes != "empty":
+        usable = (codes == Code.VISIBLE) & finite & doubt
+        cleared = fill_doubtful(data, label, weights, usable, resample, correction)
     flags = fill_holes(
         data,
         label,
@@ -399,7 +415,21 @@ def compose(
         holes=options.holes,
     )
     flags[seen] = Flag.VISIBLE
-    return Composite(data, (label + 1).astype(np.int64), flags, weights)
+    if cleared is not None:
+        flags[cleared] = Flag.DOUBTFUL
+    source = label if moved is None else heaviest(label, weights, moved)
+    return Composite(data, source.astype(np.int64) + 1, flags, weights, crisp)
+
+
+def heaviest(label: np.ndarray, weights: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """The 0-based view (rows, cols) int64 of each post: its ``label`` (-1: none), but where
+    the feather's test moved the weights (``moved`` (rows, cols),
+    :func:`~orthomvp.ortho.support.shun`, which can take all of a label's weight away) the
+    view of largest weight (``weights`` (views, rows, cols)) unless the label weighs as much."""
+    top = np.argmax(weights, axis=0)
+    own = np.take_along_axis(weights, np.maximum(label, 0)[None], axis=0)[0]
+    keep = (own >= np.take_along_axis(weights, top[None], axis=0)[0]) | ~moved
+    return np.where(label < 0, -1, np.where(keep, label, top)).astype(np.int64)
 
 
 def overlap_width(codes: np.ndarray, step: float = 1.0) -> float:
