@@ -277,7 +277,8 @@ def ortho(
     type=click.Choice(HOLES),
     default=None,
     help="posts no image sees with trust: leave empty [default]; or, after those seen only "
-    "doubtfully (from the image of largest margin): from an image that sees them from behind "
+    "doubtfully (from the clear pixels of a doubtful image, else the image of largest "
+    "margin): from an image that sees them from behind "
     "(never occluded), inpainted from the posts around (holes up to 16 posts), or the most "
     "nadir naive value (ghosts); flagged in --source",
 )

@@ -20,10 +20,13 @@ The mosaic (:func:`orthomvp.ortho.composite.trusted`) then prefers, among the vi
 at a post, those whose sample is not blocked; where every view's is, it takes them as before,
 so no post is lost. After labelling, :func:`shun` also tests the views that share a post's
 blend within :data:`FEATHER_RADIUS` of their occlusion boundary and moves a blocked view's
-weight to the others there (the seamlines stay). Rays that the DEM's heights prove clear are
-not cast, and the others are cast on a mesh of the cells they pass over
-(:meth:`~orthomvp.occlusion.occluders.Occluders.clear`, ``cast_from``). Measured against the
-city's exact geometry in docs/mosaics.md.
+weight to the others there (the seamlines stay). Where a view with weight within
+:data:`RADIUS` of its boundary is still blocked, :func:`sharpen` takes the bilinear blend of
+its clear pixels only (:func:`clear_taps`: the pixels whose centre ray, and the test's ray
+beyond them, reach no occluder). :class:`Support` asks the test once per post and view.
+Rays that the DEM's heights prove clear are not cast, and the others are cast on a mesh of
+the cells they pass over (:meth:`~orthomvp.occlusion.occluders.Occluders.clear`,
+``cast_from``). Measured against the city's exact geometry in docs/mosaics.md.
 """
 
 from __future__ import annotations
@@ -353,10 +356,10 @@ def fill_doubtful(
     gives and that views call visible only doubtfully (``doubtful`` (views, rows, cols)) takes
     the sample of the clear pixels (:func:`clear_taps`) of the doubtful view whose clear
     pixels weigh most (the first on ties), where any is clear; ``resample`` and
-    ``correction`` as :func:`sharpen` takes them. On the cities of 160 posts (seeds 0 and 1)
-    and 96 posts, 3 of the 20 such posts have a doubtful view with a clear pixel, all three
-    truly visible in it; of the 17 without, 9 are hidden. Returns the posts (rows, cols)
-    filled."""
+    ``correction`` as :func:`sharpen` takes them. On the cities of 160 posts (seeds 0, 1 and
+    2) and 96 posts, 3 of the 23 such posts have a doubtful view with a clear pixel, all three
+    truly visible in it (their samples still hold an occluder); of the 20 without, 11 are
+    hidden. Returns the posts (rows, cols) filled."""
     at = doubtful & (label < 0)[None]
     got = np.zeros(label.shape, bool)
     if not at.any():
