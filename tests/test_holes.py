@@ -104,16 +104,21 @@ def engine_run(city: Path, tmp_path: Path, tile: int, holes: str) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("holes", ["empty", "inpaint", "naive"])
+@pytest.mark.parametrize("holes", HOLES)
 def test_any_tiling_gives_the_same_holes(city: Path, tmp_path: Path, holes: str) -> None:
     """Tiles of 16 and 40 posts give the untiled mosaic, inpainted and resampled posts
     (clear pixels at blocked samples, orthomvp.ortho.support.sharpen) included, and the
     in-memory one's flags; the report counts the flags. The source bit for bit, the values
     within one float32 step: the tiles' world points round differently (already so before the
-    resampling, since the RPC lattice's merge, 795933d)."""
+    resampling, since the RPC lattice's merge, 795933d). Every policy."""
     whole = engine_run(city, tmp_path, 128, holes)
     flags = whole["source"][1]
-    fill = {"inpaint": Flag.INPAINTED, "naive": Flag.NAIVE, "empty": Flag.DOUBTFUL_EMPTY}
+    fill = {
+        "empty": Flag.DOUBTFUL_EMPTY,
+        "behind": Flag.BEHIND,
+        "inpaint": Flag.INPAINTED,
+        "naive": Flag.NAIVE,
+    }
     assert (flags == fill[holes]).sum() > 0
     for tile in (16, 40):
         tiled = engine_run(city, tmp_path, tile, holes)
