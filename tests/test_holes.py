@@ -274,10 +274,10 @@ def test_clear_pixels_remove_the_partial_ghosts(city: Path) -> None:
     weight is still blocked after the feather's test, the mosaic takes the blend of its clear
     pixels (orthomvp.ortho.support.sharpen); those posts' samples held an occluder at 24
     posts of the four views, their clear pixels at none (at most a quarter asserted). Only
-    posts with weight are resampled, the fill is unchanged, and the values are those of
-    clear_taps and clear_blend, recomputed here from the image."""
+    posts with weight are resampled, and the values are those of clear_taps and clear_blend,
+    recomputed here from the image; MosaicOptions(clear=False) gives the same fill, labels
+    and weights, with other values exactly at the resampled posts."""
     from orthomvp.occlusion.visibility import occluder_caster
-    from orthomvp.ortho import composite
     from orthomvp.ortho.orthophoto import sample_image
     from orthomvp.ortho.support import clear_blend, clear_taps
     from orthomvp.synthetic.ghosts import occluder_share
@@ -309,11 +309,12 @@ def test_clear_pixels_remove_the_partial_ghosts(city: Path) -> None:
         mine = clear_blend(pixels.swapaxes(0, 1), w)[0][0]
         np.testing.assert_allclose(got.data[0][one], mine[one[at]], rtol=1e-6)
     assert dirty["bilinear"] >= 10 and dirty["clear"] <= dirty["bilinear"] / 4, dirty
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(composite, "sharpen", lambda *args: np.zeros(got.weights.shape, bool))
-        plain = mosaic(scene.terrain, views)
-    np.testing.assert_array_equal(np.isfinite(plain.data), np.isfinite(got.data))
+    plain = mosaic(scene.terrain, views, options=MosaicOptions(clear=False))
+    assert plain.resampled is None or not plain.resampled.any()
     np.testing.assert_array_equal(plain.flags, got.flags)
+    np.testing.assert_array_equal(plain.weights, got.weights)
+    moved = (plain.data != got.data).any(axis=0) & np.isfinite(got.data).all(axis=0)
+    np.testing.assert_array_equal(moved, got.resampled.any(axis=0))
 
 
 def test_clear_blend_and_the_heaviest_view() -> None:
@@ -357,3 +358,22 @@ def test_fill_doubtful_takes_the_clearest_doubtful_view() -> None:
     np.testing.assert_array_equal(data[0, 0], [3.0, np.nan, 9.0])
     np.testing.assert_array_equal(label, [[1, -1, 0]])
     np.testing.assert_array_equal(weights[:, 0, 0], [0.0, 1.0])
+
+
+def test_no_clear_pixels_on_the_command_line(city: Path, tmp_path: Path) -> None:
+    """--no-clear-pixels gives the mosaic of MosaicOptions(clear=False); the default differs
+    from it at a few posts only; a non-boolean clear is an InputError."""
+    pairs = [str(city / f"{n}.{e}") for n in NAMES for e in ("tif", "tsai")]
+    base = ["-q", "mosaic", str(city / "dem.tif"), *pairs, "--grid", "dem"]
+    assert main([*base, "-o", str(tmp_path / "a.tif"), "--no-clear-pixels"]) == 0
+    assert main([*base, "-o", str(tmp_path / "b.tif")]) == 0
+    scene = load_scene(city)
+    views = [(scene.views[n].image, scene.views[n].camera) for n in NAMES]
+    plain = mosaic(scene.terrain, views, options=MosaicOptions(clear=False))
+    with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
+        off, on = a.read(), b.read()
+    np.testing.assert_allclose(off, plain.data, rtol=1e-6, equal_nan=True)
+    moved = (off != on).any(axis=0) & np.isfinite(on).all(axis=0)
+    assert 0 < moved.sum() < 0.05 * np.isfinite(on).all(axis=0).sum()
+    with pytest.raises(InputError, match="clear must be True or False"):
+        MosaicOptions(clear=1)

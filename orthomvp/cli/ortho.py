@@ -283,6 +283,13 @@ def ortho(
     "nadir naive value (ghosts); flagged in --source",
 )
 @click.option(
+    "--clear-pixels/--no-clear-pixels",
+    default=True,
+    show_default=True,
+    help="where an image's sample near an occlusion boundary reaches an occluder, take only "
+    "its clear pixels (fewer partial ghosts at wall feet; off: bilinear samples throughout)",
+)
+@click.option(
     "--fill",
     type=click.Choice(FILLS),
     help="deprecated: --holes (none = empty, any-view = behind, naive = naive)",
@@ -311,6 +318,7 @@ def mosaic(
     balance: str,
     balance_reference: int | None,
     holes: str | None,
+    clear_pixels: bool,
     fill: str | None,
     visibility_out: Path | None,
     interp: Interp,
@@ -360,6 +368,7 @@ def mosaic(
         balance=None if balance == "none" else balance,
         reference=balance_reference,
         holes=holes or "empty",
+        clear=clear_pixels,
     )
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)
