@@ -423,7 +423,7 @@ def compose(
     flags[seen] = Flag.VISIBLE
     if cleared is not None:
         flags[cleared] = Flag.DOUBTFUL
-    source = label if moved is None else heaviest(label, weights, moved)
+    source = label if moved is None or not moved.any() else heaviest(label, weights, moved)
     return Composite(data, source.astype(np.int64) + 1, flags, weights, crisp)
 
 
