@@ -318,8 +318,7 @@ def test_clear_blend_and_the_heaviest_view() -> None:
     """clear_blend renormalises the weights of the pixels that have a value (NaN where none
     is left); where the feather's test moved the weights, the source names the view of
     largest weight (its label where that is as heavy), elsewhere the label."""
-    from orthomvp.ortho.composite import heaviest
-    from orthomvp.ortho.support import clear_blend
+    from orthomvp.ortho.support import clear_blend, heaviest
 
     pixels = np.array([[[1.0, 1.0, 1.0]], [[3.0, np.nan, 3.0]], [[5.0, 5.0, 5.0]], [[7.0] * 3]])
     weights = np.array([[0.5, 0.0, 0.0], [0.25, 0.5, 0.0], [0.0, 0.5, 0.0], [0.25, 0.0, 0.0]])

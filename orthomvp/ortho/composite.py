@@ -46,7 +46,14 @@ from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.ortho.balance import BALANCES, Correction
 from orthomvp.ortho.holes import FILL_ALIASES, HOLES, INPAINT_HALO, Flag, fill_holes
-from orthomvp.ortho.support import FEATHER_RADIUS, Support, fill_doubtful, sharpen, shun
+from orthomvp.ortho.support import (
+    FEATHER_RADIUS,
+    Support,
+    fill_doubtful,
+    heaviest,
+    sharpen,
+    shun,
+)
 from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
 
 PRIORITIES = ("emission", "gsd", "nadir", "order")
@@ -425,17 +432,6 @@ def compose(
         flags[cleared] = Flag.DOUBTFUL
     source = label if moved is None or not moved.any() else heaviest(label, weights, moved)
     return Composite(data, source.astype(np.int64) + 1, flags, weights, crisp)
-
-
-def heaviest(label: np.ndarray, weights: np.ndarray, moved: np.ndarray) -> np.ndarray:
-    """The 0-based view (rows, cols) int64 of each post: its ``label`` (-1: none), but where
-    the feather's test moved the weights (``moved`` (rows, cols),
-    :func:`~orthomvp.ortho.support.shun`, which can take all of a label's weight away) the
-    view of largest weight (``weights`` (views, rows, cols)) unless the label weighs as much."""
-    top = np.argmax(weights, axis=0)
-    own = np.take_along_axis(weights, np.maximum(label, 0)[None], axis=0)[0]
-    keep = (own >= np.take_along_axis(weights, top[None], axis=0)[0]) | ~moved
-    return np.where(label < 0, -1, np.where(keep, label, top)).astype(np.int64)
 
 
 def overlap_width(codes: np.ndarray, step: float = 1.0) -> float:

@@ -388,3 +388,14 @@ def _corrected(samples: np.ndarray, views: np.ndarray, correction: Correction | 
         return samples
     gains, offsets = correction.gains[views].T, correction.offsets[views].T
     return (samples * gains + offsets).astype(np.float32)
+
+
+def heaviest(label: np.ndarray, weights: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """The 0-based view (rows, cols) int64 of each post: its ``label`` (-1: none), but where
+    the feather's test moved the weights (``moved`` (rows, cols), :func:`shun`, which can take
+    all of a label's weight away) the view of largest weight (``weights`` (views, rows, cols))
+    unless the label weighs as much."""
+    top = np.argmax(weights, axis=0)
+    own = np.take_along_axis(weights, np.maximum(label, 0)[None], axis=0)[0]
+    keep = (own >= np.take_along_axis(weights, top[None], axis=0)[0]) | ~moved
+    return np.where(label < 0, -1, np.where(keep, label, top)).astype(np.int64)
