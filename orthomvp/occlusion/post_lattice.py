@@ -84,6 +84,20 @@ def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
     return out
 
 
+def fast_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
+    """:func:`exact_values` through the RPC kernels where they serve the camera (an RPC camera
+    in a geocentric world frame, :func:`orthomvp.camera.rpc_kernel.camera_values`: the same
+    values within about 1e-9 pixels and 1e-8 metres, in one evaluation a point), else
+    :func:`exact_values` itself."""
+    if isinstance(camera, RpcCamera) and xyz.size:
+        from orthomvp.camera.rpc_kernel import camera_values
+
+        out = camera_values(camera, xyz)
+        if out is not None:
+            return out
+    return exact_values(camera, xyz)
+
+
 def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Per unit, whether its checks' pixels ``uv`` (units, checks, 2) show that none of its
     posts is imaged: none is imaged, or all are and their bounding box lies more than a pixel
@@ -186,7 +200,7 @@ def tile_values(
     rest = served[which] < 0
     exact[r[rest], c[rest]] = True
     if rest.any():
-        out[exact] = exact_values(camera, p[exact])
+        out[exact] = fast_values(camera, p[exact])
     return out, exact
 
 
@@ -213,7 +227,7 @@ def _check(
     rows = points[:, 0] / 2.0 * step - origin[0] + rs.start  # the terrain's rows and columns
     cols = points[:, 1] / 2.0 * step - origin[1] + cs.start
     xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
-    exact = exact_values(camera, xyz)
+    exact = fast_values(camera, xyz)
     first = points.min(axis=0) // 2  # (units start at even half steps: a node)
     even = ~(points % 2).any(axis=1)
     nodes = np.full((*(points.max(axis=0) // 2 - first + 1), _CHANNELS), np.nan)
