@@ -112,7 +112,7 @@ def test_rpc_within_the_bound() -> None:
     terrain, camera = quickbird_case()
     part = terrain.crop(100, 300, 60, 260)
     check_bound(part, camera)
-    assert check_bound(part, camera, error=1e-4).any()  # a tighter bound: some posts exact
+    assert check_bound(part, camera, error=1e-6).any()  # a tighter bound: some posts exact
 
 
 @pytest.mark.realdata

@@ -14,13 +14,14 @@ This module imports numba (through :mod:`orthomvp.jit`): import it where a kerne
 
 from __future__ import annotations
 
+import functools
 import math
 import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from orthomvp.camera.rpc_model import Rpc
+from orthomvp.camera.rpc_model import OFFSETS_SCALES, Rpc
 from orthomvp.jit import cached_jit
 
 if TYPE_CHECKING:
@@ -352,42 +353,69 @@ def frame(camera: RpcCamera) -> np.ndarray | None:
     """The ``frame`` of :func:`values` for ``camera`` (a, e2, height_offset, top, bottom,
     1 + margin), or None where its world frame is not plain geocentric metres on an ellipsoid
     whose conversions the kernels reproduce within :data:`FRAME_TOLERANCE` of PROJ's (checked
-    once per camera at the corners and centre of the RPC's domain)."""
-    if camera in _FRAMES:
-        return _FRAMES[camera]
-    found = None
-    crs = camera.crs
-    if crs.is_geocentric and not crs.is_compound:
-        a, b = crs.ellipsoid.semi_major_metre, crs.ellipsoid.semi_minor_metre
-        e2 = 1.0 - (b / a) ** 2
-        rpc = camera.rpc
-        k = np.array([-1.0, 0.0, 1.0])
-        nl, np_, nh = (g.ravel() for g in np.meshgrid(k, k, k, indexing="ij"))
-        geo = np.stack(
-            [
-                rpc.long_off + nl * rpc.long_scale,
-                rpc.lat_off + np_ * rpc.lat_scale,
-                rpc.height_off + nh * rpc.height_scale,
-            ],
-            -1,
+    once per world CRS and RPC domain at the corners and centre of the domain)."""
+    found = _FRAMES.get(camera)
+    if found is None:
+        crs, rpc = camera.crs, camera.rpc
+        domain = tuple(getattr(rpc, key) for key in OFFSETS_SCALES)
+        found = _FRAMES[camera] = _frame(
+            crs.to_wkt() if crs.is_geocentric and not crs.is_compound else "",
+            domain,
+            camera.height_offset,
+            camera.top,
+            camera.bottom,
+            camera.margin,
         )
-        truth = camera.to_world(geo[:, 0], geo[:, 1], geo[:, 2])
-        mine = np.empty_like(truth)
-        to_geocentric(geo, a, e2, camera.height_offset, mine)
-        back = np.empty_like(truth)
-        to_geodetic(truth, a, e2, camera.height_offset, back)
-        again = np.empty_like(truth)
-        to_geocentric(back, a, e2, camera.height_offset, again)
-        if (
-            np.isfinite(truth).all()
-            and np.abs(mine - truth).max() <= FRAME_TOLERANCE
-            and np.abs(again - truth).max() <= FRAME_TOLERANCE
-        ):
-            found = np.array(
-                [a, e2, camera.height_offset, camera.top, camera.bottom, 1.0 + camera.margin]
-            )
-    _FRAMES[camera] = found
-    return found
+    return found if found.size else None
+
+
+@functools.lru_cache(maxsize=64)
+def _frame(
+    wkt: str,
+    domain: tuple[float, ...],
+    height_offset: float,
+    top: float,
+    bottom: float,
+    margin: float,
+) -> np.ndarray:
+    """:func:`frame` of a camera in the geocentric world CRS ``wkt`` ("": another kind) with
+    an RPC of offsets and scales ``domain`` (:data:`OFFSETS_SCALES`); empty where it does not
+    serve."""
+    if not wkt:
+        return np.empty(0)
+    from pyproj import CRS
+
+    from orthomvp.camera.rpc import _to_wgs84
+
+    crs = CRS.from_wkt(wkt)
+    a, b = crs.ellipsoid.semi_major_metre, crs.ellipsoid.semi_minor_metre
+    e2 = 1.0 - (b / a) ** 2
+    offsets = dict(zip(OFFSETS_SCALES, domain, strict=True))
+    k = np.array([-1.0, 0.0, 1.0])
+    nl, np_, nh = (g.ravel() for g in np.meshgrid(k, k, k, indexing="ij"))
+    geo = np.stack(
+        [
+            offsets["long_off"] + nl * offsets["long_scale"],
+            offsets["lat_off"] + np_ * offsets["lat_scale"],
+            offsets["height_off"] + nh * offsets["height_scale"],
+        ],
+        -1,
+    )
+    x, y, z = _to_wgs84(crs).transform(
+        geo[:, 0], geo[:, 1], geo[:, 2] - height_offset, direction="INVERSE"
+    )
+    truth = np.stack([x, y, z], -1)
+    mine, back, again = (np.empty_like(truth) for _ in range(3))
+    to_geocentric(geo, a, e2, height_offset, mine)
+    to_geodetic(truth, a, e2, height_offset, back)
+    to_geocentric(back, a, e2, height_offset, again)
+    if not (
+        np.isfinite(truth).all()
+        and np.abs(mine - truth).max() <= FRAME_TOLERANCE
+        and np.abs(again - truth).max() <= FRAME_TOLERANCE
+    ):
+        return np.empty(0)
+    return np.array([a, e2, height_offset, top, bottom, 1.0 + margin])
 
 
 def camera_values(camera: RpcCamera, xyz: np.ndarray) -> np.ndarray | None:

@@ -55,8 +55,17 @@ GSD_RELATIVE = 1e-3
 _U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
 _CHANNELS = 10
 _TABLE_MOST = 1 << 24  # entries of _unique_rows's table at most (128 MiB)
-# a unit's checks: (row, column, level) in half steps from its first node
-_CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range(3)])
+# a unit's points, in quarter steps across rows and columns and half steps between levels
+# from its first node: its checks (inside it, at a quarter, half and three quarters of the cell
+# at its two levels and halfway between them), its corners and the other nodes around it that
+# its interpolation reads
+_SCALE = np.array([4, 4, 2])
+_CHECKS = np.array([(a, b, t) for a in (1, 2, 3) for b in (1, 2, 3) for t in (0, 1, 2)])
+_CORNERS = np.array([(4 * a, 4 * b, 2 * t) for a in (0, 1) for b in (0, 1) for t in (0, 1)])
+_RING = np.array(
+    [(4 * a, 4 * b, 2 * t) for a in range(-1, 3) for b in range(-1, 3) for t in (0, 1)
+     if not (0 <= a <= 1 and 0 <= b <= 1)]
+)  # fmt: skip
 
 
 def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
@@ -221,23 +230,24 @@ def _check(
     (``rs``, ``cs``)."""
     from orthomvp.occlusion.post_lattice_kernel import interpolate
 
-    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)  # each unit's 27 checks
-    points, at = _unique_rows(half)  # in half steps, each evaluated once
-    at = at.reshape(len(units), len(_CHECKS))
-    rows = points[:, 0] / 2.0 * step - origin[0] + rs.start  # the terrain's rows and columns
-    cols = points[:, 1] / 2.0 * step - origin[1] + cs.start
+    mine = np.concatenate([_CHECKS, _CORNERS, _RING])
+    points, at = _unique_rows((_SCALE * units[:, None, :] + mine[None]).reshape(-1, 3))
+    at = at.reshape(len(units), len(mine))  # (each evaluated once)
+    checks, seen = at[:, : len(_CHECKS)], at[:, : len(_CHECKS) + len(_CORNERS)]
+    rows = points[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
+    cols = points[:, 1] / 4.0 * step - origin[1] + cs.start
     xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
     exact = fast_values(camera, xyz)
-    first = points.min(axis=0) // 2  # (units start at even half steps: a node)
-    even = ~(points % 2).any(axis=1)
-    nodes = np.full((*(points.max(axis=0) // 2 - first + 1), _CHANNELS), np.nan)
-    nodes[tuple((points[even] // 2 - first).T)] = exact[even]
+    node = ~(points % _SCALE).any(axis=1)
+    first = points.min(axis=0) // _SCALE  # (units start at a node)
+    nodes = np.full((*(points.max(axis=0) // _SCALE - first + 1), _CHANNELS), np.nan)
+    nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
     est = np.empty((len(_CHECKS), len(units), _CHANNELS))
     for k, check in enumerate(_CHECKS):
-        interpolate(nodes, units - first, np.tile(check / 2.0, (len(units), 1)), est[k])
+        interpolate(nodes, units - first, np.tile(check / _SCALE, (len(units), 1)), est[k])
     est = est.transpose(1, 0, 2)
-    miss = _misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
-    dead = _outside(camera, exact[at][..., :2])
+    miss = _misses(est, exact[checks], xyz[checks], error * CHECK_SHARE).any(axis=1)
+    dead = _outside(camera, exact[seen][..., :2])
     return nodes, first, ~miss | dead, dead
 
 
