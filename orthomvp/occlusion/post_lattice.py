@@ -48,6 +48,7 @@ LATTICE_ERROR = 0.004
 (:data:`CHECK_SHARE`), a margin for the posts between the checks."""
 CHECK_SHARE = 0.5
 """The share of the allowed error that a unit's checks may miss by."""
+_FAR = 4.0  # bilinear's error beyond the bound this many times: cubics, not a finer lattice
 WORLD_TOLERANCE = 1e-4
 """The largest offset (metres) of a world point from the lattice of :func:`world_block`."""
 GSD_RELATIVE = 1e-3
@@ -56,12 +57,13 @@ _U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels 
 _CHANNELS = 10
 _TABLE_MOST = 1 << 24  # entries of _unique_rows's table at most (128 MiB)
 # a unit's points, in quarter steps across rows and columns and half steps between levels
-# from its first node: its checks (inside it, at a quarter, half and three quarters of the cell
-# at its two levels and halfway between them), its corners and the other nodes around it that
-# its interpolation reads
+# from its first node: the checks of bilinear interpolation (its corners, edge midpoints and
+# centre, at its two levels and halfway between them), those of cubic interpolation (inside it,
+# at a quarter, half and three quarters of the cell, at the same heights), and the other nodes
+# around it that cubic interpolation reads
 _SCALE = np.array([4, 4, 2])
-_CHECKS = np.array([(a, b, t) for a in (1, 2, 3) for b in (1, 2, 3) for t in (0, 1, 2)])
-_CORNERS = np.array([(4 * a, 4 * b, 2 * t) for a in (0, 1) for b in (0, 1) for t in (0, 1)])
+_HALVES = np.array([(2 * a, 2 * b, t) for a in range(3) for b in range(3) for t in range(3)])
+_QUARTERS = np.array([(a, b, t) for a in (1, 2, 3) for b in (1, 2, 3) for t in range(3)])
 _RING = np.array(
     [(4 * a, 4 * b, 2 * t) for a in range(-1, 3) for b in range(-1, 3) for t in (0, 1)
      if not (0 <= a <= 1 and 0 <= b <= 1)]
@@ -173,6 +175,7 @@ def tile_values(
     served = np.full(len(units), -1)  # which lattice serves each
     parent = np.zeros_like(units)  # its unit in that lattice
     dead = np.zeros(len(units), bool)
+    cubic = np.zeros(len(units), bool)
     lattices = []
     todo = np.arange(len(units))
     for k, step in enumerate(steps):
@@ -181,14 +184,16 @@ def tile_values(
         up = units[todo].copy()
         up[:, :2] //= step // fine
         coarse, where = _unique_rows(up)
-        nodes, first, passed, gone = _check(terrain, camera, coarse, step, origin, rs, cs, error)
+        last = k == len(steps) - 1
+        nodes, first, passed, gone, bicubic = _check(
+            terrain, camera, coarse, step, origin, rs, cs, error, last
+        )
         lattices.append((step, nodes, first))
         good = passed[where]
         served[todo[good]], parent[todo[good]] = k, coarse[where[good]]
-        dead[todo[good]] = gone[where[good]]
+        dead[todo[good]], cubic[todo[good]] = gone[where[good]], bicubic[where[good]]
         todo = todo[~good]
-    unit_table = np.full((len(units), 8), -1, np.int64)
-    unit_table[:, 7] = 0
+    unit_table = np.full((len(units), 9), -1, np.int64)
     buffers, meta = [], []
     offset = 0
     for k, (_, nodes, first) in enumerate(lattices):
@@ -199,7 +204,7 @@ def tile_values(
         buffers.append(nodes.ravel())
         meta.append((offset, nodes.shape[1], nodes.shape[2]))
         offset += nodes.size
-    unit_table[:, 7] = dead
+    unit_table[:, 7], unit_table[:, 8] = dead, cubic
     if lattices:
         fill(
             np.concatenate(buffers), np.array(meta, np.int64),
@@ -222,33 +227,66 @@ def _check(
     rs: slice,
     cs: slice,
     error: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    last: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The units ``units`` (n, 3: global cell row, column, level) of the lattice of ``step``
     posts, checked: the nodes (node rows, node columns, levels, 10) around them and the
-    global index of the first, whether each unit passes its checks, and whether it is dead
-    (module docstring). ``origin``: the global (row, column) index of post (0, 0) of tile
+    global index of the first, whether each unit passes its checks, whether it is dead, and
+    whether it is interpolated by cubics (module docstring; always where bilinear fails in the
+    ``last`` lattice). ``origin``: the global (row, column) index of post (0, 0) of tile
     (``rs``, ``cs``)."""
-    from orthomvp.occlusion.post_lattice_kernel import interpolate
+    points, at = _unique_rows((_SCALE * units[:, None, :] + _HALVES[None]).reshape(-1, 3))
+    at = at.reshape(len(units), len(_HALVES))  # (each evaluated once)
+    xyz, exact = _exact_at(terrain, camera, points, step, origin, rs, cs)
+    first = points.min(axis=0) // _SCALE - (1, 1, 0)  # (units start at a node; and the ring)
+    nodes = np.full((*(points.max(axis=0) // _SCALE - first + (2, 2, 1)), _CHANNELS), np.nan)
+    node = ~(points % _SCALE).any(axis=1)
+    nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
+    truth, where = exact[at], xyz[at]
+    est = _estimates(nodes, units - first, _HALVES, cubic=False)
+    bilinear = ~_misses(est, truth, where, error * CHECK_SHARE).any(axis=1)
+    far = last | _misses(est, truth, where, error * CHECK_SHARE * _FAR).any(axis=1)
+    dead = _outside(camera, truth[..., :2])
+    cubic = ~bilinear & far & ~dead
+    if cubic.any():  # the ring's nodes and the checks inside the cell
+        mine = units[cubic]
+        extra = _SCALE * mine[:, None, :] + np.concatenate([_QUARTERS, _RING])[None]
+        points, at = _unique_rows(extra.reshape(-1, 3))
+        at = at.reshape(len(mine), -1)[:, : len(_QUARTERS)]
+        xyz, exact = _exact_at(terrain, camera, points, step, origin, rs, cs)
+        node = ~(points % _SCALE).any(axis=1)
+        nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
+        est = _estimates(nodes, mine - first, _QUARTERS, cubic=True)
+        cubic[cubic] = ~_misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
+    return nodes, first, bilinear | cubic | dead, dead, cubic & ~dead
 
-    mine = np.concatenate([_CHECKS, _CORNERS, _RING])
-    points, at = _unique_rows((_SCALE * units[:, None, :] + mine[None]).reshape(-1, 3))
-    at = at.reshape(len(units), len(mine))  # (each evaluated once)
-    checks, seen = at[:, : len(_CHECKS)], at[:, : len(_CHECKS) + len(_CORNERS)]
+
+def _exact_at(
+    terrain: Terrain,
+    camera: Camera,
+    points: np.ndarray,
+    step: int,
+    origin: tuple[float, float],
+    rs: slice,
+    cs: slice,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The world points (n, 3) of lattice ``points`` (n, 3: global row and column in quarter
+    steps of ``step`` posts, height in half levels) and the camera's exact values there."""
     rows = points[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
     cols = points[:, 1] / 4.0 * step - origin[1] + cs.start
     xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
-    exact = fast_values(camera, xyz)
-    node = ~(points % _SCALE).any(axis=1)
-    first = points.min(axis=0) // _SCALE  # (units start at a node)
-    nodes = np.full((*(points.max(axis=0) // _SCALE - first + 1), _CHANNELS), np.nan)
-    nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
-    est = np.empty((len(_CHECKS), len(units), _CHANNELS))
-    for k, check in enumerate(_CHECKS):
-        interpolate(nodes, units - first, np.tile(check / _SCALE, (len(units), 1)), est[k])
-    est = est.transpose(1, 0, 2)
-    miss = _misses(est, exact[checks], xyz[checks], error * CHECK_SHARE).any(axis=1)
-    dead = _outside(camera, exact[seen][..., :2])
-    return nodes, first, ~miss | dead, dead
+    return xyz, fast_values(camera, xyz)
+
+
+def _estimates(nodes: np.ndarray, first: np.ndarray, checks: np.ndarray, cubic: bool) -> np.ndarray:
+    """The values (units, checks, 10) interpolated from ``nodes`` at the ``checks`` (in
+    :data:`_SCALE` units) of units whose first nodes are ``first`` (units, 3)."""
+    from orthomvp.occlusion.post_lattice_kernel import interpolate
+
+    est = np.empty((len(checks), len(first), _CHANNELS))
+    for k, check in enumerate(checks):
+        interpolate(nodes, first, np.tile(check / _SCALE, (len(first), 1)), cubic, est[k])
+    return est.transpose(1, 0, 2)
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,10 +12,13 @@ import numpy as np
 from orthomvp.jit import cached_jit
 
 
-def _weights(t: float, w: np.ndarray) -> None:
-    """Into ``w`` (4,): the Catmull-Rom weights of the nodes at -1, 0, 1, 2 for a point at
-    fraction ``t`` between nodes 0 and 1 (the cubic through the four, which passes through the
-    nodes and is exact for quadratics)."""
+def _weights(t: float, cubic: bool, w: np.ndarray) -> None:
+    """Into ``w`` (4,): the weights of the nodes at -1, 0, 1, 2 for a point at fraction ``t``
+    between nodes 0 and 1: linear, or with ``cubic`` Catmull-Rom's (the cubic through the
+    four, which passes through the nodes and is exact for quadratics)."""
+    if not cubic:
+        w[0], w[1], w[2], w[3] = 0.0, 1.0 - t, t, 0.0
+        return
     t2 = t * t
     t3 = t2 * t
     w[0] = 0.5 * (-t3 + 2.0 * t2 - t)
@@ -27,22 +30,28 @@ def _weights(t: float, w: np.ndarray) -> None:
 _weights = cached_jit(_weights, fastmath=False, error_model="numpy")
 
 
-def _interpolate(nodes: np.ndarray, first: np.ndarray, frac: np.ndarray, out: np.ndarray) -> None:
+def _interpolate(
+    nodes: np.ndarray, first: np.ndarray, frac: np.ndarray, cubic: bool, out: np.ndarray
+) -> None:
     """Into ``out`` (points, channels): the values of ``nodes`` (node rows, node columns,
-    levels, channels) interpolated (Catmull-Rom across rows and columns from the 4 x 4 nodes
-    around the unit, linear between levels) at each point's fractions ``frac`` (points, 3) of
-    its unit, whose first node is ``first`` (points, 3: node row, column, level); NaN where a
-    node is."""
+    levels, channels) interpolated at each point's fractions ``frac`` (points, 3) of its unit,
+    whose first node is ``first`` (points, 3: node row, column, level): bilinear across rows and
+    columns from the unit's corners, or with ``cubic`` Catmull-Rom from the 4 x 4 nodes around
+    it; linear between levels. NaN where a node is."""
     wa, wb = np.empty(4), np.empty(4)
     for p in range(first.shape[0]):
         i, j, k = first[p, 0], first[p, 1], first[p, 2]
-        _weights(frac[p, 0], wa)
-        _weights(frac[p, 1], wb)
+        _weights(frac[p, 0], cubic, wa)
+        _weights(frac[p, 1], cubic, wb)
         t = frac[p, 2]
         for q in range(nodes.shape[3]):
             low, high = 0.0, 0.0
             for x in range(4):
+                if wa[x] == 0.0 and not cubic:
+                    continue
                 for y in range(4):
+                    if wb[y] == 0.0 and not cubic:
+                        continue
                     w = wa[x] * wb[y]
                     low += w * nodes[i - 1 + x, j - 1 + y, k, q]
                     high += w * nodes[i - 1 + x, j - 1 + y, k + 1, q]
@@ -65,14 +74,15 @@ def _fill(
     """Into ``out`` (rows, cols, channels) at each post's tile row and column ``rc`` (posts, 2):
     its values interpolated in the unit that serves it, as :func:`interpolate`. ``where``
     (posts, 3): the post's global row and column (in posts) and height (in levels); ``which``
-    (posts,): its finest unit; ``unit`` (units, 8): per finest unit the lattice serving it (-1:
+    (posts,): its finest unit; ``unit`` (units, 9): per finest unit the lattice serving it (-1:
     none, the post is left alone), that lattice's unit (global row, column, level), the unit's
-    first node in that lattice's nodes (row, column, level) and whether it is dead (its values
-    NaN). The lattices' nodes lie one after another in ``buffer``; ``meta`` (lattices, 3):
-    where each begins and its numbers of node columns and levels; ``steps`` their steps in
-    posts. The direction (channels 6..8) is normalised."""
+    first node in that lattice's nodes (row, column, level), whether it is dead (its values
+    NaN) and whether it is cubic. The lattices' nodes lie one after another in ``buffer``;
+    ``meta`` (lattices, 3): where each begins and its numbers of node columns and levels;
+    ``steps`` their steps in posts. The direction (channels 6..8) is normalised."""
     n_ch = out.shape[2]
     wa, wb = np.empty(4), np.empty(4)
+    low, high = np.empty(n_ch), np.empty(n_ch)
     for p in range(which.shape[0]):
         u = which[p]
         k = unit[u, 0]
@@ -84,23 +94,26 @@ def _fill(
             for q in range(n_ch):
                 out[row, col, q] = np.nan
             continue
-        _weights(where[p, 0] / step - unit[u, 1], wa)
-        _weights(where[p, 1] / step - unit[u, 2], wb)
+        cubic = unit[u, 8] != 0
+        _weights(where[p, 0] / step - unit[u, 1], cubic, wa)
+        _weights(where[p, 1] / step - unit[u, 2], cubic, wb)
         t = where[p, 2] - unit[u, 3]
         cols, levels = meta[k, 1], meta[k, 2]
-        dl = n_ch
         dj = levels * n_ch
         di = cols * dj
-        base = meta[k, 0] + (unit[u, 4] - 1) * di + (unit[u, 5] - 1) * dj + unit[u, 6] * dl
+        base = meta[k, 0] + (unit[u, 4] - 1) * di + (unit[u, 5] - 1) * dj + unit[u, 6] * n_ch
+        low[:] = 0.0
+        high[:] = 0.0
+        lo, hi = (0, 4) if cubic else (1, 3)  # (bilinear: the corners alone)
+        for x in range(lo, hi):
+            for y in range(lo, hi):
+                w = wa[x] * wb[y]
+                s = base + x * di + y * dj
+                for q in range(n_ch):
+                    low[q] += w * buffer[s + q]
+                    high[q] += w * buffer[s + n_ch + q]
         for q in range(n_ch):
-            low, high = 0.0, 0.0
-            for x in range(4):
-                for y in range(4):
-                    w = wa[x] * wb[y]
-                    s = base + x * di + y * dj + q
-                    low += w * buffer[s]
-                    high += w * buffer[s + dl]
-            out[row, col, q] = low + t * (high - low)
+            out[row, col, q] = low[q] + t * (high[q] - low[q])
         norm = np.sqrt(out[row, col, 6] ** 2 + out[row, col, 7] ** 2 + out[row, col, 8] ** 2)
         for q in range(6, 9):
             out[row, col, q] /= norm
