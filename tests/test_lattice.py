@@ -33,9 +33,10 @@ from tests.conftest import shared
 UNDULATION = 28.0  # m, the geoid under the QuickBird scene (as tests/test_rpc.py)
 
 
-def quickbird_case() -> tuple[Terrain, Camera]:
-    """The QuickBird RPC camera over the ngi-aerial DEM, map frame."""
-    terrain = Terrain.read(shared("ngi-aerial", "dem.tif"), world="map", vertical_datum="ignore")
+def quickbird_case(world: str = "map") -> tuple[Terrain, Camera]:
+    """The QuickBird RPC camera over the ngi-aerial DEM, in the map frame (the camera's own
+    values through numpy and PROJ) or the body frame (through the RPC's numba kernels)."""
+    terrain = Terrain.read(shared("ngi-aerial", "dem.tif"), world=world, vertical_datum="ignore")
     camera = read_camera(shared("rpc-quickbird", "qb2_basic1b.tif"))
     return terrain, replace(camera.bind(terrain), height_offset=UNDULATION)
 
@@ -62,9 +63,12 @@ def _posts(terrain: Terrain) -> tuple[np.ndarray, np.ndarray]:
     return p, finite_rows(p)
 
 
-def check_bound(terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR) -> np.ndarray:
+def check_bound(
+    terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR, exact_within: float = 0.0
+) -> np.ndarray:
     """Every post's interpolated pixel, ray and GSD against the camera's own: within
-    ``error`` pixels (the ray's offset at the post in pixels of its GSD) and GSD_RELATIVE."""
+    ``error`` pixels (the ray's offset at the post in pixels of its GSD) and GSD_RELATIVE; the
+    posts left exact within ``exact_within`` (pixels, metres) of them (0: the same values)."""
     p, ok = _posts(terrain)
     whole = (slice(0, terrain.shape[0]), slice(0, terrain.shape[1]))
     values, exact = tile_values(terrain, camera, *whole, p, ok, error=error)
@@ -83,7 +87,7 @@ def check_bound(terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR) 
     assert (ray / gsd).max() <= error
     assert (np.abs(v[:, 9] - gsd) / gsd).max() <= GSD_RELATIVE
     assert (np.sign(v[:, 2]) == np.sign(t[:, 2])).all()
-    np.testing.assert_array_equal(values[exact], truth[exact])  # the exact path, as it is
+    np.testing.assert_allclose(values[exact], truth[exact], rtol=0, atol=exact_within)
     return exact
 
 
@@ -119,6 +123,19 @@ def test_rpc_within_the_bound() -> None:
 @pytest.mark.slow
 def test_rpc_codes_as_exact() -> None:
     terrain, camera = quickbird_case()
+    check_codes(terrain.crop(0, 300, 0, 327), camera)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_rpc_body_frame_within_the_bound_and_codes_as_exact() -> None:
+    """The body frame, as the command line binds an RPC camera: the lattice's exact values
+    from the RPC's numba kernels (tests/test_rpc_kernel.py), and at 24 m posts its cubics
+    (bilinear misses by far more than the bound over a cell of 64 posts)."""
+    terrain, camera = quickbird_case("body")
+    part = terrain.crop(100, 300, 60, 260)
+    check_bound(part, camera)
+    assert check_bound(part, camera, error=1e-6, exact_within=1e-5).any()
     check_codes(terrain.crop(0, 300, 0, 327), camera)
 
 
