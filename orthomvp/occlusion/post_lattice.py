@@ -337,15 +337,16 @@ def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndar
     base = terrain.to_world(nc[None, :], nr[:, None], np.zeros((len(nr), len(nc))))
     up = terrain.to_world(nc[None, :], nr[:, None], np.ones((len(nr), len(nc)))) - base
 
-    def between(v: np.ndarray) -> np.ndarray:  # bilinear, rows then columns
-        i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
-        t = ((r - nr[i]) / (nr[i + 1] - nr[i]))[:, None, None]
-        v = v[i] + t * (v[i + 1] - v[i])
-        j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
-        t = ((c - nc[j]) / (nc[j + 1] - nc[j]))[None, :, None]
-        return v[:, j] + t * (v[:, j + 1] - v[:, j])
+    from orthomvp.occlusion.post_lattice_kernel import affine_block
 
-    return between(base) + values[..., None].astype(np.float64) * between(up)
+    i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
+    j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
+    out = np.empty((len(r), len(c), 3))
+    affine_block(
+        base, up, i, (r - nr[i]) / (nr[i + 1] - nr[i]), j, (c - nc[j]) / (nc[j + 1] - nc[j]),
+        np.ascontiguousarray(values, np.float64), out,
+    )  # fmt: skip
+    return out
 
 
 def lattice(

@@ -120,3 +120,33 @@ def _fill(
 
 
 fill = cached_jit(_fill, fastmath=False, error_model="numpy")
+
+
+def _affine_block(
+    base: np.ndarray,
+    up: np.ndarray,
+    i: np.ndarray,
+    ti: np.ndarray,
+    j: np.ndarray,
+    tj: np.ndarray,
+    height: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Into ``out`` (rows, cols, 3): ``base`` + ``height`` * ``up`` at each post, ``base`` and
+    ``up`` (node rows, node columns, 3) bilinear between nodes (rows first, then columns): a
+    post of row r lies ``ti[r]`` of the way from node row ``i[r]`` to the next, of column c
+    ``tj[c]`` from node column ``j[c]``; ``height`` (rows, cols)."""
+    for r in range(out.shape[0]):
+        a, t = i[r], ti[r]
+        for c in range(out.shape[1]):
+            b, u = j[c], tj[c]
+            h = height[r, c]
+            for q in range(3):
+                v0 = base[a, b, q] + t * (base[a + 1, b, q] - base[a, b, q])
+                v1 = base[a, b + 1, q] + t * (base[a + 1, b + 1, q] - base[a, b + 1, q])
+                w0 = up[a, b, q] + t * (up[a + 1, b, q] - up[a, b, q])
+                w1 = up[a, b + 1, q] + t * (up[a + 1, b + 1, q] - up[a, b + 1, q])
+                out[r, c, q] = (v0 + u * (v1 - v0)) + h * (w0 + u * (w1 - w0))
+
+
+affine_block = cached_jit(_affine_block, fastmath=False, error_model="numpy")
