@@ -82,7 +82,6 @@ def _fill(
     ``steps`` their steps in posts. The direction (channels 6..8) is normalised."""
     n_ch = out.shape[2]
     wa, wb = np.empty(4), np.empty(4)
-    low, high = np.empty(n_ch), np.empty(n_ch)
     for p in range(which.shape[0]):
         u = which[p]
         k = unit[u, 0]
@@ -94,26 +93,36 @@ def _fill(
             for q in range(n_ch):
                 out[row, col, q] = np.nan
             continue
-        cubic = unit[u, 8] != 0
-        _weights(where[p, 0] / step - unit[u, 1], cubic, wa)
-        _weights(where[p, 1] / step - unit[u, 2], cubic, wb)
+        a = where[p, 0] / step - unit[u, 1]
+        b = where[p, 1] / step - unit[u, 2]
         t = where[p, 2] - unit[u, 3]
         cols, levels = meta[k, 1], meta[k, 2]
         dj = levels * n_ch
         di = cols * dj
-        base = meta[k, 0] + (unit[u, 4] - 1) * di + (unit[u, 5] - 1) * dj + unit[u, 6] * n_ch
-        low[:] = 0.0
-        high[:] = 0.0
-        lo, hi = (0, 4) if cubic else (1, 3)  # (bilinear: the corners alone)
-        for x in range(lo, hi):
-            for y in range(lo, hi):
-                w = wa[x] * wb[y]
-                s = base + x * di + y * dj
-                for q in range(n_ch):
-                    low[q] += w * buffer[s + q]
-                    high[q] += w * buffer[s + n_ch + q]
-        for q in range(n_ch):
-            out[row, col, q] = low[q] + t * (high[q] - low[q])
+        base = meta[k, 0] + unit[u, 4] * di + unit[u, 5] * dj + unit[u, 6] * n_ch
+        if not unit[u, 8]:  # bilinear: the unit's corners alone
+            w00, w01, w10, w11 = (1.0 - a) * (1.0 - b), (1.0 - a) * b, a * (1.0 - b), a * b
+            for q in range(n_ch):
+                s = base + q
+                low = w00 * buffer[s] + w01 * buffer[s + dj]
+                low += w10 * buffer[s + di] + w11 * buffer[s + di + dj]
+                s += n_ch
+                high = w00 * buffer[s] + w01 * buffer[s + dj]
+                high += w10 * buffer[s + di] + w11 * buffer[s + di + dj]
+                out[row, col, q] = low + t * (high - low)
+        else:
+            _weights(a, True, wa)
+            _weights(b, True, wb)
+            base -= di + dj
+            for q in range(n_ch):
+                low, high = 0.0, 0.0
+                for x in range(4):
+                    for y in range(4):
+                        w = wa[x] * wb[y]
+                        s = base + x * di + y * dj + q
+                        low += w * buffer[s]
+                        high += w * buffer[s + n_ch]
+                out[row, col, q] = low + t * (high - low)
         norm = np.sqrt(out[row, col, 6] ** 2 + out[row, col, 7] ** 2 + out[row, col, 8] ** 2)
         for q in range(6, 9):
             out[row, col, q] /= norm
