@@ -33,7 +33,6 @@ import numpy as np
 
 from orthomvp.camera import Camera, RpcCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
@@ -362,22 +361,23 @@ def lattice(
     to, the camera's values interpolated on the grid's lattices of ``steps`` posts within
     ``error`` pixels (module docstring); the rays' unit directions come with it
     (:attr:`PostGeometry.directions`)."""
+    from orthomvp.occlusion.post_lattice_kernel import finish, normals
+
     r0, r1, c0, c1 = tile_block(terrain, rs, cs)
     block = world_block(terrain, r0, r1, c0, c1)
-    n = grid_normals(block, terrain.up_vectors(block))
+    n = np.empty_like(block)
+    normals(block, terrain.world != WorldFrame.MAP, n)  # (grid_normals, to the bit)
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     p, n = block[inner], n[inner]
     ok = finite_rows(p) & finite_rows(n)
     values, _ = tile_values(terrain, camera, rs, cs, p, ok, steps=steps, error=error)
-    uv, depth = values[..., :2], values[..., _DEPTH]
-    with np.errstate(invalid="ignore"):
-        inside = ok & (depth > 0) & camera.in_image(uv)
-    origins = np.where(inside[..., None], values[..., _O], np.nan)
-    directions = np.where(inside[..., None], values[..., _D], np.nan)
-    to_cam = origins - p
-    x, y, zc = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
-    with np.errstate(invalid="ignore"):
-        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * zc) / np.sqrt(x * x + y * y + zc * zc)
+    if camera.width is None or camera.height is None:
+        camera.in_image(values[..., :2])  # (the error it raises)
+    inside = np.empty(ok.shape, bool)
+    origins, directions = np.empty_like(p), np.empty_like(p)
+    cos_e = np.empty(ok.shape)
+    finish(values, p, n, ok, camera.width, camera.height, inside, origins, directions, cos_e)
+    uv = values[..., :2]
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, values[..., _GSD], origins,
         directions,

@@ -159,3 +159,104 @@ def _affine_block(
 
 
 affine_block = cached_jit(_affine_block, fastmath=False, error_model="numpy")
+
+
+def _difference(p: np.ndarray, i: int, j: int, axis: int, out: np.ndarray) -> None:
+    """Into ``out`` (3,): :func:`orthomvp.geometry.normals._difference` of the grid of points
+    ``p`` (rows, cols, 3) at post (``i``, ``j``) along ``axis`` (0 rows, 1 columns): central,
+    one-sided at the ends and, component by component, next to holes; the same operations in
+    the same order, so the same values to the bit."""
+    n = p.shape[axis]
+    if n == 1:
+        out[:] = 0.0
+        return
+    k = i if axis == 0 else j
+    di, dj = (1, 0) if axis == 0 else (0, 1)
+    if k == 0:
+        for q in range(3):
+            out[q] = p[i + di, j + dj, q] - p[i, j, q]
+    elif k == n - 1:
+        for q in range(3):
+            out[q] = p[i, j, q] - p[i - di, j - dj, q]
+    else:
+        for q in range(3):
+            out[q] = (p[i + di, j + dj, q] - p[i - di, j - dj, q]) * 0.5
+    if not np.isnan(out[0]):
+        return
+    for q in range(3):
+        fwd = p[i + di, j + dj, q] - p[i, j, q] if k < n - 1 else np.nan
+        bwd = p[i, j, q] - p[i - di, j - dj, q] if k > 0 else np.nan
+        out[q] = bwd if np.isnan(fwd) else fwd
+
+
+_difference = cached_jit(_difference, fastmath=False, error_model="numpy")
+
+
+def _normals(p: np.ndarray, radial: bool, out: np.ndarray) -> None:
+    """Into ``out`` (rows, cols, 3): :func:`orthomvp.geometry.normals.grid_normals` of ``p``
+    (rows, cols, 3) with ``up`` the points' own directions (``radial``, the body frame's
+    :meth:`~orthomvp.geometry.terrain.Terrain.up_vectors`) or +z (the map frame's), to the
+    bit."""
+    a, b = np.empty(3), np.empty(3)
+    for i in range(p.shape[0]):
+        for j in range(p.shape[1]):
+            _difference(p, i, j, 1, a)
+            _difference(p, i, j, 0, b)
+            n0 = a[1] * b[2] - a[2] * b[1]
+            n1 = a[2] * b[0] - a[0] * b[2]
+            n2 = a[0] * b[1] - a[1] * b[0]
+            if radial:
+                x, y, z = p[i, j, 0], p[i, j, 1], p[i, j, 2]
+                norm = np.sqrt(x * x + y * y + z * z)
+                up = n0 * (x / norm) + n1 * (y / norm) + n2 * (z / norm)
+            else:
+                up = n0 * 0.0 + n1 * 0.0 + n2 * 1.0
+            scale = (1.0 if up >= 0 else -1.0) / np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            out[i, j, 0], out[i, j, 1], out[i, j, 2] = n0 * scale, n1 * scale, n2 * scale
+
+
+normals = cached_jit(_normals, fastmath=False, error_model="numpy")
+
+
+def _finish(
+    values: np.ndarray,
+    p: np.ndarray,
+    n: np.ndarray,
+    ok: np.ndarray,
+    width: float,
+    height: float,
+    inside: np.ndarray,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    cos_e: np.ndarray,
+) -> None:
+    """The posts' geometry from their ``values`` (rows, cols, 10), world points ``p`` and
+    normals ``n`` (rows, cols, 3) where ``ok``: whether each is ``inside`` the image of
+    ``width`` x ``height`` pixels (within half a pixel of its outermost centres) with a positive
+    depth, the ray's ``origins`` and ``directions`` there (NaN elsewhere) and the emission
+    cosine ``cos_e`` (NaN outside)."""
+    for i in range(p.shape[0]):
+        for j in range(p.shape[1]):
+            u, v, depth = values[i, j, 0], values[i, j, 1], values[i, j, 2]
+            seen = (
+                ok[i, j] and depth > 0 and u >= -0.5 and u <= width - 0.5 and v >= -0.5
+                and v <= height - 0.5
+            )  # fmt: skip
+            inside[i, j] = seen
+            if not seen:
+                for q in range(3):
+                    origins[i, j, q] = directions[i, j, q] = np.nan
+                cos_e[i, j] = np.nan
+                continue
+            for q in range(3):
+                origins[i, j, q] = values[i, j, 3 + q]
+                directions[i, j, q] = values[i, j, 6 + q]
+            x = origins[i, j, 0] - p[i, j, 0]
+            y = origins[i, j, 1] - p[i, j, 1]
+            z = origins[i, j, 2] - p[i, j, 2]
+            cos_e[i, j] = (n[i, j, 0] * x + n[i, j, 1] * y + n[i, j, 2] * z) / np.sqrt(
+                x * x + y * y + z * z
+            )
+
+
+finish = cached_jit(_finish, fastmath=False, error_model="numpy")
