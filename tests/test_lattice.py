@@ -184,3 +184,37 @@ def test_world_points_within_their_tolerance_whatever_the_tiling(res: float) -> 
     np.testing.assert_array_equal(np.isnan(whole), np.isnan(truth))
     assert np.nanmax(np.abs(whole - truth)) <= WORLD_TOLERANCE
     np.testing.assert_array_equal(world_block(terrain, 37, 211, 13, 158), whole[37:211, 13:158])
+
+
+@pytest.mark.slow
+def test_synthetic_rpc_cubics_within_the_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A made-up RPC camera (tests/test_rpc.py's) with a strong quadratic term, over rolling
+    relief in the body frame: bilinear cells of 64 posts miss by far more than the bound, so the
+    lattice takes cubics there (and the kernels' values); every post within the bound of the
+    camera's own numpy values, and the codes as the exact path's away from class boundaries."""
+    from orthomvp.camera import Rpc, RpcCamera
+    from orthomvp.occlusion import post_lattice
+    from tests.test_rpc import synthetic_rpc
+
+    values = synthetic_rpc()
+    values["samp_num_coeff"][7] = values["line_num_coeff"][8] = 2e-3  # L^2, P^2
+    camera = RpcCamera(Rpc.from_mapping(values), width=800, height=1000)
+    n, step = 120, 0.0005  # degrees, about 55 m
+    r, c = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 300 + 60 * np.sin(c / 9.0) * np.cos(r / 13.0) + 20 * np.sin((c + r) / 4.0)
+    transform = Affine(step, 0, 20.0 - n / 2 * step, 0, -step, 10.0 + n / 2 * step)
+    terrain = Terrain(z, transform, CRS.from_epsg(4326), world="body")
+    camera = camera.bind(terrain)
+    cubic = []
+    check = post_lattice._check
+
+    def counted(*args: object) -> tuple:
+        out = check(*args)
+        cubic.append(int(out[4].sum()))
+        return out
+
+    monkeypatch.setattr(post_lattice, "_check", counted)
+    check_bound(terrain, camera, exact_within=1e-5)
+    assert cubic[0] > 0
+    monkeypatch.undo()
+    check_codes(terrain, camera)

@@ -5,26 +5,37 @@ line scanners: each post needs iterations through the model), from an error-boun
 
 A post's pixel, depth, ray (origin and direction) and GSD are smooth functions of its grid
 column, row and height. They are evaluated exactly (the camera's own ``project``, ``ray`` and
-``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them) at the nodes of a
-lattice and interpolated in between (bilinear across the grid, linear in height). The lattice
-belongs to the grid, not to the tile, so that every tiling gives the same values: nodes at the
-grid's columns and rows that are multiples of ``step`` (counted from the CRS's origin in posts)
-and at heights that are multiples of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of
-the lattice between two levels of height. A unit's interpolation is checked against the exact
-values at its 27 midpoints and corners (the cell's centre, edge midpoints and corners, at its
-two levels and halfway between them); it fails where any check misses by more than half of
+``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them, or for an RPC camera in
+a geocentric world frame the same values from the RPC's numba kernels,
+:func:`orthomvp.camera.rpc_kernel.camera_values`, within about 1e-9 pixels) at the nodes of a
+lattice and interpolated in between (linear in height; across the grid bilinear, or cubic where
+bilinear would need far finer cells, see below). The lattice belongs to the grid, not to the
+tile, so that every tiling gives the same values: nodes at the grid's columns and rows that are
+multiples of ``step`` (counted from the CRS's origin in posts) and at heights that are multiples
+of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of the lattice between two levels of
+height. A unit's bilinear interpolation is checked against the exact values at its 27 midpoints
+and corners (the cell's centre, edge midpoints and corners, at its two levels and halfway between
+them: where a quadratic's error peaks); it fails where any check misses by more than half of
 ``error`` pixels (:data:`CHECK_SHARE`; the pixel's offset, or the ray's offset at the point in
 pixels of the point's GSD), by more than :data:`GSD_RELATIVE` of the GSD, changes the sign of
-the depth, or is not imaged (NaN). The posts of failed units go to the lattice of half the step
-(:data:`LATTICE_STEPS`), and past the finest to the exact path. A unit none of whose checks is
-imaged (beyond an RPC's domain, a line scanner's lines), or all of whose checks' pixels have a
-bounding box more than a pixel off the image, is taken as not imaged, its values NaN: an image
-would have to fit between checks half a cell apart to be missed. The exact path
-(``Geometry.GENERAL``) stays the test oracle. Normals and everything else built from the DEM
-alone are computed as in :func:`~orthomvp.occlusion.post_geometry.general`, from world points
-that on an ellipsoid come from a lattice too (:func:`world_block`).
+the depth, or is not imaged (NaN). Where bilinear misses by more than four times that (so that
+one halving of the cell, which quarters a quadratic's error, would not do), or in the finest
+lattice, the unit is tried with Catmull-Rom cubics across rows and columns instead (from the
+4 x 4 nodes around the cell; exact for quadratics, such as the RPC's curvature that held units
+to cells of 8 posts at 24 m), checked the same way at a quarter, half and three quarters of the
+cell (a cubic's error vanishes at the midpoint). The posts of units that fail both go to the
+lattice of half the step (:data:`LATTICE_STEPS`), and past the finest to the exact values. A
+unit none of whose checks is imaged (beyond an RPC's domain, a line scanner's lines), or all of
+whose checks' pixels have a bounding box more than a pixel off the image, is taken as not
+imaged, its values NaN: an image would have to fit between checks half a cell apart to be
+missed. The exact path (``Geometry.GENERAL``) stays the test oracle. Normals and everything
+else built from the DEM alone are computed as in
+:func:`~orthomvp.occlusion.post_geometry.general` (the same operations in numba kernels, the same
+values to the bit), from world points that on an ellipsoid come from a lattice too
+(:func:`world_block`).
 
-The interpolation runs in a numba kernel (:mod:`orthomvp.occlusion.post_lattice_kernel`).
+The interpolation, the normals and the world points run in numba kernels
+(:mod:`orthomvp.occlusion.post_lattice_kernel`).
 """
 
 from __future__ import annotations
