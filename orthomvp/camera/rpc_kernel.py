@@ -251,10 +251,11 @@ def _values(
     world frame at world points ``xyz`` (n, 3): pixel (u, v), depth (m, from the ray's origin,
     negative above ``top``), the ray's origin (m) and unit direction, GSD (m). ``frame``:
     ``a``, ``e2`` of the ellipsoid, the camera's ``height_offset``, ``top``, ``bottom`` (m)
-    and ``1 + margin``. One evaluation gives all: the origin is the inversion at ``top`` from
-    the point's own (lon, lat), the ray's low end the inversion at ``bottom`` from the
-    origin's, and the GSD comes from the analytic Jacobian of the pixel by the world point
-    (the pixels per metre along two axes perpendicular to the ray)."""
+    and ``1 + margin``. One evaluation gives all: the origin is the inversion at ``top``, the
+    ray's low end the inversion at ``bottom``, each started from the first-order move along
+    the ray from the point (from the origin), and the GSD comes from the analytic Jacobian of
+    the pixel by the world point (the pixels per metre along two axes perpendicular to the
+    ray)."""
     a, e2, offset, top, bottom, limit = frame[0], frame[1], frame[2], frame[3], frame[4], frame[5]
     r, work = np.empty((2, 4)), np.empty((2, 4))
     origin, low, here = np.empty(3), np.empty(3), np.empty(3)
@@ -282,8 +283,15 @@ def _values(
         dv0 = s[3] * r[1, 1] / s[5] * (180.0 / math.pi)
         dv1 = s[3] * r[1, 2] / s[7] * (180.0 / math.pi)
         dv2 = s[3] * r[1, 3] / s[9]
+        # Newton starts from the first-order move along the ray (the same pixel at another
+        # height: the L, P that undo the height's change of the pixel)
+        det = r[0, 1] * r[1, 2] - r[0, 2] * r[1, 1]
+        ax = -(r[1, 2] * r[0, 3] - r[0, 2] * r[1, 3]) / det  # dL/dH along the ray
+        ay = -(r[0, 1] * r[1, 3] - r[1, 1] * r[0, 3]) / det  # dP/dH
+        if not (math.isfinite(ax) and math.isfinite(ay)):
+            ax, ay = 0.0, 0.0
         zt = (top - s[8]) / s[9]
-        xt, yt = _ground(c, s, u, v, zt, x, y, r, work)
+        xt, yt = _ground(c, s, u, v, zt, x + ax * (zt - z), y + ay * (zt - z), r, work)
         if not _in_domain(xt, yt, zt, limit):
             continue
         _geocentric(
@@ -295,7 +303,7 @@ def _values(
         for k in range(3):
             out[p, 3 + k] = origin[k]
         zb = (bottom - s[8]) / s[9]
-        xb, yb = _ground(c, s, u, v, zb, xt, yt, r, work)
+        xb, yb = _ground(c, s, u, v, zb, xt + ax * (zb - zt), yt + ay * (zb - zt), r, work)
         if not _in_domain(xb, yb, zb, limit):
             continue
         _geocentric(
