@@ -131,26 +131,6 @@ def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
     return ~finite.any(axis=1) | (finite.all(axis=1) & off)
 
 
-def _misses(estimate: np.ndarray, exact: np.ndarray, xyz: np.ndarray, error: float) -> np.ndarray:
-    """Where the ``estimate`` (..., 10) misses the ``exact`` values at world points ``xyz``
-    (..., 3) beyond ``error`` pixels or the GSD's bound (module docstring), or either is not
-    finite."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gsd = exact[..., _GSD]
-        uv = np.hypot(*(estimate[..., k] - exact[..., k] for k in (_U, _V)))
-        rng = np.linalg.norm(xyz - exact[..., _O], axis=-1)
-        d = estimate[..., _D] / np.linalg.norm(estimate[..., _D], axis=-1, keepdims=True)
-        ray = np.linalg.norm(estimate[..., _O] - exact[..., _O], axis=-1)
-        ray = (ray + rng * np.linalg.norm(d - exact[..., _D], axis=-1)) / gsd
-        good = (
-            (uv <= error)
-            & (ray <= error)
-            & (np.abs(estimate[..., _GSD] - gsd) <= GSD_RELATIVE * gsd)
-            & (np.sign(estimate[..., _DEPTH]) == np.sign(exact[..., _DEPTH]))
-        )
-    return ~(good & np.isfinite(estimate).all(axis=-1) & np.isfinite(exact).all(axis=-1))
-
-
 def tile_values(
     terrain: Terrain,
     camera: Camera,
@@ -252,12 +232,9 @@ def _check(
     nodes = np.full((*(points.max(axis=0) // _SCALE - first + (2, 2, 1)), _CHANNELS), np.nan)
     node = ~(points % _SCALE).any(axis=1)
     nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
-    truth, where = exact[at], xyz[at]
-    est = _estimates(nodes, units - first, _HALVES, cubic=False)
-    bilinear = ~_misses(est, truth, where, error * CHECK_SHARE).any(axis=1)
-    far = last | _misses(est, truth, where, error * CHECK_SHARE * _FAR).any(axis=1)
-    dead = _outside(camera, truth[..., :2])
-    cubic = ~bilinear & far & ~dead
+    miss, far = _verdicts(nodes, units - first, _HALVES, False, exact, xyz, at, error)
+    dead = _outside(camera, exact[at][..., :2])
+    cubic = miss & (far | last) & ~dead
     if cubic.any():  # the ring's nodes and the checks inside the cell
         mine = units[cubic]
         extra = _SCALE * mine[:, None, :] + np.concatenate([_QUARTERS, _RING])[None]
@@ -266,9 +243,8 @@ def _check(
         xyz, exact = _exact_at(terrain, camera, points, step, origin, rs, cs)
         node = ~(points % _SCALE).any(axis=1)
         nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
-        est = _estimates(nodes, mine - first, _QUARTERS, cubic=True)
-        cubic[cubic] = ~_misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
-    return nodes, first, bilinear | cubic | dead, dead, cubic & ~dead
+        cubic[cubic] = ~_verdicts(nodes, mine - first, _QUARTERS, True, exact, xyz, at, error)[0]
+    return nodes, first, ~miss | cubic | dead, dead, cubic & ~dead
 
 
 def _exact_at(
@@ -288,15 +264,30 @@ def _exact_at(
     return xyz, fast_values(camera, xyz)
 
 
-def _estimates(nodes: np.ndarray, first: np.ndarray, checks: np.ndarray, cubic: bool) -> np.ndarray:
-    """The values (units, checks, 10) interpolated from ``nodes`` at the ``checks`` (in
-    :data:`_SCALE` units) of units whose first nodes are ``first`` (units, 3)."""
-    from orthomvp.occlusion.post_lattice_kernel import interpolate
+def _verdicts(
+    nodes: np.ndarray,
+    first: np.ndarray,
+    checks: np.ndarray,
+    cubic: bool,
+    exact: np.ndarray,
+    xyz: np.ndarray,
+    at: np.ndarray,
+    error: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per unit whose first node is ``first`` (units, 3): whether its interpolation from
+    ``nodes`` (bilinear, or ``cubic``) misses the ``exact`` values at the world points ``xyz``
+    of its ``checks`` (in :data:`_SCALE` units; ``at`` (units, checks): their points) by more
+    than its share of ``error`` (:data:`CHECK_SHARE`; the criteria of the module docstring), and
+    whether it misses by more than :data:`_FAR` times that."""
+    from orthomvp.occlusion.post_lattice_kernel import verdicts
 
-    est = np.empty((len(checks), len(first), _CHANNELS))
-    for k, check in enumerate(checks):
-        interpolate(nodes, first, np.tile(check / _SCALE, (len(first), 1)), cubic, est[k])
-    return est.transpose(1, 0, 2)
+    miss, far = np.empty(len(first), bool), np.empty(len(first), bool)
+    share = error * CHECK_SHARE
+    verdicts(
+        nodes, first, checks / _SCALE, cubic, exact, xyz, at, share, share * _FAR,
+        GSD_RELATIVE, miss, far,
+    )  # fmt: skip
+    return miss, far
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

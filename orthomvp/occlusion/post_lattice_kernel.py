@@ -1,6 +1,7 @@
-"""The interpolation of :mod:`orthomvp.occlusion.post_lattice` as a numba kernel: each point's
-values from the 4 x 4 x 2 nodes around its unit (cubic across rows and columns, linear between
-levels), without numpy's (points, channels) temporaries.
+"""The kernels of :mod:`orthomvp.occlusion.post_lattice` in numba: the units' checks and the
+posts' interpolation (from the 2 x 2 or, cubic, the 4 x 4 nodes around a unit across rows and
+columns, linear between levels), the world points, normals and post geometry, without numpy's
+(points, channels) temporaries.
 
 This module imports numba (through :mod:`orthomvp.jit`): it is imported where a lattice is
 first used."""
@@ -30,37 +31,6 @@ def _weights(t: float, cubic: bool, w: np.ndarray) -> None:
 _weights = cached_jit(_weights, fastmath=False, error_model="numpy")
 
 
-def _interpolate(
-    nodes: np.ndarray, first: np.ndarray, frac: np.ndarray, cubic: bool, out: np.ndarray
-) -> None:
-    """Into ``out`` (points, channels): the values of ``nodes`` (node rows, node columns,
-    levels, channels) interpolated at each point's fractions ``frac`` (points, 3) of its unit,
-    whose first node is ``first`` (points, 3: node row, column, level): bilinear across rows and
-    columns from the unit's corners, or with ``cubic`` Catmull-Rom from the 4 x 4 nodes around
-    it; linear between levels. NaN where a node is."""
-    wa, wb = np.empty(4), np.empty(4)
-    for p in range(first.shape[0]):
-        i, j, k = first[p, 0], first[p, 1], first[p, 2]
-        _weights(frac[p, 0], cubic, wa)
-        _weights(frac[p, 1], cubic, wb)
-        t = frac[p, 2]
-        for q in range(nodes.shape[3]):
-            low, high = 0.0, 0.0
-            for x in range(4):
-                if wa[x] == 0.0 and not cubic:
-                    continue
-                for y in range(4):
-                    if wb[y] == 0.0 and not cubic:
-                        continue
-                    w = wa[x] * wb[y]
-                    low += w * nodes[i - 1 + x, j - 1 + y, k, q]
-                    high += w * nodes[i - 1 + x, j - 1 + y, k + 1, q]
-            out[p, q] = low + t * (high - low)
-
-
-interpolate = cached_jit(_interpolate, fastmath=False, error_model="numpy")
-
-
 def _fill(
     buffer: np.ndarray,
     meta: np.ndarray,
@@ -72,7 +42,8 @@ def _fill(
     out: np.ndarray,
 ) -> None:
     """Into ``out`` (rows, cols, channels) at each post's tile row and column ``rc`` (posts, 2):
-    its values interpolated in the unit that serves it, as :func:`interpolate`. ``where``
+    its values interpolated in the unit that serves it (bilinear or cubic, as in
+    :func:`verdicts`). ``where``
     (posts, 3): the post's global row and column (in posts) and height (in levels); ``which``
     (posts,): its finest unit; ``unit`` (units, 9): per finest unit the lattice serving it (-1:
     none, the post is left alone), that lattice's unit (global row, column, level), the unit's
@@ -260,3 +231,79 @@ def _finish(
 
 
 finish = cached_jit(_finish, fastmath=False, error_model="numpy")
+
+
+def _verdicts(
+    nodes: np.ndarray,
+    first: np.ndarray,
+    frac: np.ndarray,
+    cubic: bool,
+    exact: np.ndarray,
+    xyz: np.ndarray,
+    at: np.ndarray,
+    error: float,
+    far: float,
+    gsd_relative: float,
+    miss: np.ndarray,
+    far_miss: np.ndarray,
+) -> None:
+    """Per unit whose first node is ``first`` (units, 3): whether its interpolation from
+    ``nodes`` (node rows, node columns, levels, channels; bilinear across rows and columns from
+    the unit's corners or, with ``cubic``, Catmull-Rom from the 4 x 4 nodes around it; linear
+    between levels) at its checks' fractions ``frac`` (checks, 3) ``miss``-es
+    the ``exact`` values (points, 10) at world points ``xyz`` (points, 3), ``at`` (units,
+    checks) giving each check's point, by more than ``error`` pixels (the pixel's offset, or the
+    ray's offset at the point in pixels of its GSD), by more than ``gsd_relative`` of the GSD,
+    in the sign of the depth, or by not being finite; and whether it misses by more than
+    ``far`` pixels (``far_miss``)."""
+    n_ch = nodes.shape[3]
+    wa, wb, est = np.empty(4), np.empty(4), np.empty(n_ch)
+    for p in range(first.shape[0]):
+        i, j, k = first[p, 0], first[p, 1], first[p, 2]
+        worst = 0.0
+        for m in range(frac.shape[0]):
+            _weights(frac[m, 0], cubic, wa)
+            _weights(frac[m, 1], cubic, wb)
+            t = frac[m, 2]
+            finite = True
+            for q in range(n_ch):
+                low, high = 0.0, 0.0
+                for x in range(4):
+                    if wa[x] == 0.0 and not cubic:
+                        continue
+                    for y in range(4):
+                        if wb[y] == 0.0 and not cubic:
+                            continue
+                        w = wa[x] * wb[y]
+                        low += w * nodes[i - 1 + x, j - 1 + y, k, q]
+                        high += w * nodes[i - 1 + x, j - 1 + y, k + 1, q]
+                est[q] = low + t * (high - low)
+                finite = finite and np.isfinite(est[q]) and np.isfinite(exact[at[p, m], q])
+            if not finite:
+                worst = np.inf
+                break
+            e = exact[at[p, m]]
+            gsd = e[9]
+            uv = np.hypot(est[0] - e[0], est[1] - e[1])
+            rng = np.sqrt(
+                (xyz[at[p, m], 0] - e[3]) ** 2 + (xyz[at[p, m], 1] - e[4]) ** 2
+                + (xyz[at[p, m], 2] - e[5]) ** 2
+            )  # fmt: skip
+            norm = np.sqrt(est[6] ** 2 + est[7] ** 2 + est[8] ** 2)
+            turn = np.sqrt(
+                (est[6] / norm - e[6]) ** 2 + (est[7] / norm - e[7]) ** 2
+                + (est[8] / norm - e[8]) ** 2
+            )  # fmt: skip
+            shift = np.sqrt((est[3] - e[3]) ** 2 + (est[4] - e[4]) ** 2 + (est[5] - e[5]) ** 2)
+            ray = (shift + rng * turn) / gsd
+            if not (abs(est[9] - gsd) <= gsd_relative * gsd and np.sign(est[2]) == np.sign(e[2])):
+                worst = np.inf
+                break
+            worst = max(worst, uv, ray)
+            if not worst <= far:
+                break
+        miss[p] = not worst <= error
+        far_miss[p] = not worst <= far
+
+
+verdicts = cached_jit(_verdicts, fastmath=False, error_model="numpy")
