@@ -147,20 +147,20 @@ def tile_values(
     from the grid's lattices of ``steps`` posts in turn (each a multiple of the last), or else
     exact (module docstring); and where they are exact (bool (rows, cols)). The posts are
     sorted once into the finest lattice's units; a coarser unit serves all of its own."""
-    from orthomvp.occlusion.post_lattice_kernel import fill
+    from orthomvp.occlusion.post_lattice_kernel import fill, posts
 
     rows, cols = ok.shape
     out = np.full((rows, cols, _CHANNELS), np.nan)
     exact = np.zeros((rows, cols), bool)
-    r, c = np.nonzero(ok)
-    if not r.size:
+    count = int(np.count_nonzero(ok))
+    if not count:
         return out, exact
     T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
     origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
-    gr, gc = r + origin[0], c + origin[1]
-    fl = terrain.values[rs, cs][r, c].astype(np.float64) / LEVEL_SPACING
     fine = steps[-1]
-    cell = np.stack([np.floor(gr / fine), np.floor(gc / fine), np.floor(fl)], -1).astype(np.int64)
+    rc, place = np.empty((count, 2), np.int64), np.empty((count, 3))
+    cell = np.empty((count, 3), np.int64)
+    posts(ok, terrain.values[rs, cs], *origin, fine, LEVEL_SPACING, rc, place, cell)
     units, which = _unique_rows(cell)  # the finest units holding posts
     served = np.full(len(units), -1)  # which lattice serves each
     parent = np.zeros_like(units)  # its unit in that lattice
@@ -199,10 +199,10 @@ def tile_values(
         fill(
             np.concatenate(buffers), np.array(meta, np.int64),
             np.array([step for step, _, _ in lattices], np.float64), unit_table, which,
-            np.stack([r, c], -1), np.stack([gr, gc, fl], -1), out,
+            rc, place, out,
         )  # fmt: skip
     rest = served[which] < 0
-    exact[r[rest], c[rest]] = True
+    exact[rc[rest, 0], rc[rest, 1]] = True
     if rest.any():
         out[exact] = fast_values(camera, p[exact])
     return out, exact

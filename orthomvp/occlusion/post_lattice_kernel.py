@@ -307,3 +307,37 @@ def _verdicts(
 
 
 verdicts = cached_jit(_verdicts, fastmath=False, error_model="numpy")
+
+
+def _posts(
+    ok: np.ndarray,
+    heights: np.ndarray,
+    row0: float,
+    col0: float,
+    fine: int,
+    level: float,
+    rc: np.ndarray,
+    where: np.ndarray,
+    cell: np.ndarray,
+) -> None:
+    """The posts where ``ok`` (rows, cols), in row-major order: their tile row and column
+    ``rc`` (posts, 2); ``where`` (posts, 3), their global row and column (``row0``, ``col0``:
+    those of the tile's post (0, 0)) and their height in ``level`` units (``heights`` (rows,
+    cols)); and ``cell`` (posts, 3), the unit of the lattice of ``fine`` posts holding each
+    (global cell row, column, level)."""
+    p = 0
+    for i in range(ok.shape[0]):
+        for j in range(ok.shape[1]):
+            if not ok[i, j]:
+                continue
+            gr, gc = i + row0, j + col0
+            fl = np.float64(heights[i, j]) / level
+            rc[p, 0], rc[p, 1] = i, j
+            where[p, 0], where[p, 1], where[p, 2] = gr, gc, fl
+            cell[p, 0] = np.int64(np.floor(gr / fine))
+            cell[p, 1] = np.int64(np.floor(gc / fine))
+            cell[p, 2] = np.int64(np.floor(fl))
+            p += 1
+
+
+posts = cached_jit(_posts, fastmath=False, error_model="numpy")
