@@ -43,14 +43,14 @@ def _fill(
 ) -> None:
     """Into ``out`` (rows, cols, channels) at each post's tile row and column ``rc`` (posts, 2):
     its values interpolated in the unit that serves it (bilinear or cubic, as in
-    :func:`verdicts`). ``where``
-    (posts, 3): the post's global row and column (in posts) and height (in levels); ``which``
-    (posts,): its finest unit; ``unit`` (units, 9): per finest unit the lattice serving it (-1:
-    none, the post is left alone), that lattice's unit (global row, column, level), the unit's
-    first node in that lattice's nodes (row, column, level), whether it is dead (its values
-    NaN) and whether it is cubic. The lattices' nodes lie one after another in ``buffer``;
-    ``meta`` (lattices, 3): where each begins and its numbers of node columns and levels;
-    ``steps`` their steps in posts. The direction (channels 6..8) is normalised."""
+    :func:`verdicts`). ``where`` (posts, 3): the post's global row and column (in posts) and
+    height (in levels); ``which`` (posts,): its finest unit; ``unit`` (units, 9): per finest
+    unit the lattice serving it (-1: none, the post is left alone), that lattice's unit
+    (global row, column, level), the unit's first node in that lattice's nodes (row, column,
+    level), whether it is dead (its values NaN) and whether it is cubic. The lattices' nodes
+    lie one after another in ``buffer``; ``meta`` (lattices, 3): where each begins and its
+    numbers of node columns and levels; ``steps`` their steps in posts. The direction
+    (channels 6..8) is normalised."""
     n_ch = out.shape[2]
     wa, wb = np.empty(4), np.empty(4)
     for p in range(which.shape[0]):
