@@ -84,7 +84,8 @@ def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
     """Whether :func:`lattice` serves ``camera``: an :class:`~orthomvp.camera.RpcCamera`
     (whose ground to image iterates), on a grid of 2 x 2 posts or more. CSM line scanners keep
     the exact path: at the bound that keeps the RPC's two world frames together, their checks
-    cost more than their own model (5.9x the frame camera's orthophoto against 1.5x)."""
+    cost more than their own one-search geometry
+    (:meth:`~orthomvp.camera.csm.linescan.LineScanCamera.imaging`)."""
     return isinstance(camera, RpcCamera) and min(terrain.shape) >= 2
 
 
