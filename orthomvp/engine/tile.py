@@ -251,20 +251,9 @@ def run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int = 1) ->
     "visibility": codes per view, "source": the mosaic's view per post, "stack": a mosaic's
     uncomposed samples), with ``threads`` threads for ray casting and visibility, inside
     :func:`orthomvp.engine.heap.tile_heap` (so that threads, processes and Dask workers run it
-    at the same speed, and its memory goes back to the system: keyed on the larger of its DEM
-    window's posts and its posts times its views, :func:`heap_posts`)."""
-    with heap.tile_heap(heap_posts(plan, plan.tiles[index])):
+    at the same speed, and its memory goes back to the system)."""
+    with heap.tile_heap(plan.tiles[index].dem_posts):
         return _run_tile(plan, index, kinds, threads)
-
-
-def heap_posts(plan: Plan, job: TileJob) -> int:
-    """What a tile's heap grows with, in posts: the larger of its DEM window's and its posts
-    (with the mosaic's margin) times its views. On a grid finer than the DEM the second
-    dominates (a 768-post tile of 4 views at 3 m reads about 10,000 DEM posts of 24 m and
-    holds 2.5 million view posts: without the release after it the heap kept 0.54 GB of
-    freed memory after the fixed benchmark set's run)."""
-    r0, r1, c0, c1 = plan.extent(job)
-    return max(job.dem_posts, (r1 - r0) * (c1 - c0) * len(job.views))
 
 
 def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> TileResult:
