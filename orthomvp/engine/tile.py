@@ -454,9 +454,9 @@ def _mosaic_tile(
         for i, k in enumerate(views):
             if posts[i].any():
                 camera = plan.views[k].camera
-                uv, gsd = kept[i].full()
+                at, sizes = kept[i].full()  # (positions and GSDs where the test may ask)
                 test = posts[i]
-                out[i] = support_blocked(grid, inner, camera, uv, gsd, emission[i], test, caster)
+                out[i] = support_blocked(grid, inner, camera, at, sizes, emission[i], test, caster)
         return out
 
     if testing:
