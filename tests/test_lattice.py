@@ -33,9 +33,10 @@ from tests.conftest import shared
 UNDULATION = 28.0  # m, the geoid under the QuickBird scene (as tests/test_rpc.py)
 
 
-def quickbird_case() -> tuple[Terrain, Camera]:
-    """The QuickBird RPC camera over the ngi-aerial DEM, map frame."""
-    terrain = Terrain.read(shared("ngi-aerial", "dem.tif"), world="map", vertical_datum="ignore")
+def quickbird_case(world: str = "map") -> tuple[Terrain, Camera]:
+    """The QuickBird RPC camera over the ngi-aerial DEM, in the map frame (the camera's own
+    values through numpy and PROJ) or the body frame (through the RPC's numba kernels)."""
+    terrain = Terrain.read(shared("ngi-aerial", "dem.tif"), world=world, vertical_datum="ignore")
     camera = read_camera(shared("rpc-quickbird", "qb2_basic1b.tif"))
     return terrain, replace(camera.bind(terrain), height_offset=UNDULATION)
 
@@ -62,9 +63,12 @@ def _posts(terrain: Terrain) -> tuple[np.ndarray, np.ndarray]:
     return p, finite_rows(p)
 
 
-def check_bound(terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR) -> np.ndarray:
+def check_bound(
+    terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR, exact_within: float = 0.0
+) -> np.ndarray:
     """Every post's interpolated pixel, ray and GSD against the camera's own: within
-    ``error`` pixels (the ray's offset at the post in pixels of its GSD) and GSD_RELATIVE."""
+    ``error`` pixels (the ray's offset at the post in pixels of its GSD) and GSD_RELATIVE; the
+    posts left exact within ``exact_within`` (pixels, metres) of them (0: the same values)."""
     p, ok = _posts(terrain)
     whole = (slice(0, terrain.shape[0]), slice(0, terrain.shape[1]))
     values, exact = tile_values(terrain, camera, *whole, p, ok, error=error)
@@ -83,7 +87,7 @@ def check_bound(terrain: Terrain, camera: Camera, error: float = LATTICE_ERROR) 
     assert (ray / gsd).max() <= error
     assert (np.abs(v[:, 9] - gsd) / gsd).max() <= GSD_RELATIVE
     assert (np.sign(v[:, 2]) == np.sign(t[:, 2])).all()
-    np.testing.assert_array_equal(values[exact], truth[exact])  # the exact path, as it is
+    np.testing.assert_allclose(values[exact], truth[exact], rtol=0, atol=exact_within)
     return exact
 
 
@@ -112,13 +116,26 @@ def test_rpc_within_the_bound() -> None:
     terrain, camera = quickbird_case()
     part = terrain.crop(100, 300, 60, 260)
     check_bound(part, camera)
-    assert check_bound(part, camera, error=1e-4).any()  # a tighter bound: some posts exact
+    assert check_bound(part, camera, error=1e-6).any()  # a tighter bound: some posts exact
 
 
 @pytest.mark.realdata
 @pytest.mark.slow
 def test_rpc_codes_as_exact() -> None:
     terrain, camera = quickbird_case()
+    check_codes(terrain.crop(0, 300, 0, 327), camera)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_rpc_body_frame_within_the_bound_and_codes_as_exact() -> None:
+    """The body frame, as the command line binds an RPC camera: the lattice's exact values
+    from the RPC's numba kernels (tests/test_rpc_kernel.py), and at 24 m posts its cubics
+    (bilinear misses by far more than the bound over a cell of 64 posts)."""
+    terrain, camera = quickbird_case("body")
+    part = terrain.crop(100, 300, 60, 260)
+    check_bound(part, camera)
+    assert check_bound(part, camera, error=1e-6, exact_within=1e-5).any()
     check_codes(terrain.crop(0, 300, 0, 327), camera)
 
 
@@ -167,3 +184,37 @@ def test_world_points_within_their_tolerance_whatever_the_tiling(res: float) -> 
     np.testing.assert_array_equal(np.isnan(whole), np.isnan(truth))
     assert np.nanmax(np.abs(whole - truth)) <= WORLD_TOLERANCE
     np.testing.assert_array_equal(world_block(terrain, 37, 211, 13, 158), whole[37:211, 13:158])
+
+
+@pytest.mark.slow
+def test_synthetic_rpc_cubics_within_the_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A made-up RPC camera (tests/test_rpc.py's) with a strong quadratic term, over rolling
+    relief in the body frame: bilinear cells of 64 posts miss by far more than the bound, so the
+    lattice takes cubics there (and the kernels' values); every post within the bound of the
+    camera's own numpy values, and the codes as the exact path's away from class boundaries."""
+    from orthomvp.camera import Rpc, RpcCamera
+    from orthomvp.occlusion import post_lattice
+    from tests.test_rpc import synthetic_rpc
+
+    values = synthetic_rpc()
+    values["samp_num_coeff"][7] = values["line_num_coeff"][8] = 2e-3  # L^2, P^2
+    camera = RpcCamera(Rpc.from_mapping(values), width=800, height=1000)
+    n, step = 120, 0.0005  # degrees, about 55 m
+    r, c = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 300 + 60 * np.sin(c / 9.0) * np.cos(r / 13.0) + 20 * np.sin((c + r) / 4.0)
+    transform = Affine(step, 0, 20.0 - n / 2 * step, 0, -step, 10.0 + n / 2 * step)
+    terrain = Terrain(z, transform, CRS.from_epsg(4326), world="body")
+    camera = camera.bind(terrain)
+    cubic = []
+    check = post_lattice._check
+
+    def counted(*args: object) -> tuple:
+        out = check(*args)
+        cubic.append(int(out[4].sum()))
+        return out
+
+    monkeypatch.setattr(post_lattice, "_check", counted)
+    check_bound(terrain, camera, exact_within=1e-5)
+    assert cubic[0] > 0
+    monkeypatch.undo()
+    check_codes(terrain, camera)

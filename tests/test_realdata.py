@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import rasterio
@@ -153,8 +154,19 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     # posts that only views doubtful there see (first hit in the last half post of epsilon)
     # stay empty: 2, both next to the few occluded posts
     assert (union & (src == 0)).sum() <= 2
-    for k, data in enumerate(orthos, start=1):
-        np.testing.assert_array_equal(mosaic[:, src == k], data[:, src == k])
+    # each post is the frame's orthophoto, but where the frame's sample reaches an occluder
+    # within 3 posts of its occlusion boundary (the clear pixels of orthomvp.ortho.support;
+    # 543 of 117,495 posts here, all beside a post the frame does not see)
+    box = np.ones((7, 7), np.uint8)
+    changed = 0
+    for k, (data, code) in enumerate(zip(orthos, codes, strict=True), start=1):
+        at = src == k
+        same = (mosaic[:, at] == data[:, at]).all(axis=0)
+        unseen = (np.nan_to_num(code) != Code.VISIBLE).astype(np.uint8)
+        near = cv2.dilate(unseen, box, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        assert near[at][~same].all()
+        changed += int((~same).sum())
+    assert changed < 0.005 * (src > 0).sum(), changed
 
 
 def inner_box(mask: np.ndarray) -> tuple[slice, slice]:

@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 
 from orthomvp.engine.support_samples import SupportSamples
-from orthomvp.ortho.support import candidates, feather
+from orthomvp.ortho.support import FEATHER_RADIUS, RADIUS, candidates, near
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_kept_where_the_support_test_can_ask(seed: int) -> None:
-    """Every post of the trust test's candidates and the feather's (support.candidates, as
-    the tile calls them on its views' sure posts) is kept, with its exact position and GSD;
-    far from a view's occlusion boundary nothing is."""
+    """Every post where the support test may ask (support.near within FEATHER_RADIUS, which
+    holds the trust test's candidates and the sharpening's posts within RADIUS) and every
+    doubtful visible post (the fill of doubtful holes) is kept, with its exact position and
+    GSD; far from a view's occlusion boundary nothing else is."""
     rng = np.random.default_rng(seed)
     views, rows, cols = 3, 90, 110
     sure = np.ones((views, rows, cols), bool)
@@ -25,9 +26,10 @@ def test_kept_where_the_support_test_can_ask(seed: int) -> None:
         sure[k][rng.random((rows, cols)) < 0.002] = False
     uv = rng.normal(size=(views, rows, cols, 2)) * 1000
     gsd = rng.random((views, rows, cols))
-    asked = candidates(sure) | feather(sure)
+    doubtful = ~sure & (rng.random((views, rows, cols)) < 0.01)
+    asked = candidates(sure) | near(sure, RADIUS) | near(sure, FEATHER_RADIUS) | doubtful
     for k in range(views):
-        kept = SupportSamples.keep(sure[k], uv[k], gsd[k])
+        kept = SupportSamples.keep(sure[k], uv[k], gsd[k], doubtful[k])
         assert kept.holds(asked[k])
         assert 0 < len(kept.index) < rows * cols
         full_uv, full_gsd = kept.full()
@@ -40,4 +42,4 @@ def test_kept_where_the_support_test_can_ask(seed: int) -> None:
         for a, b in zip(rr, cc, strict=True):
             far &= (np.abs(r - a) > 15) | (np.abs(c - b) > 15)
         assert far.any()
-        assert np.isnan(full_gsd[far]).all()
+        assert np.isnan(full_gsd[far & ~doubtful[k]]).all()

@@ -277,9 +277,17 @@ def ortho(
     type=click.Choice(HOLES),
     default=None,
     help="posts no image sees with trust: leave empty [default]; or, after those seen only "
-    "doubtfully (from the image of largest margin): from an image that sees them from behind "
+    "doubtfully (from the clear pixels of a doubtful image, else the image of largest "
+    "margin): from an image that sees them from behind "
     "(never occluded), inpainted from the posts around (holes up to 16 posts), or the most "
     "nadir naive value (ghosts); flagged in --source",
+)
+@click.option(
+    "--clear-pixels/--no-clear-pixels",
+    default=True,
+    show_default=True,
+    help="where an image's sample near an occlusion boundary reaches an occluder, take only "
+    "its clear pixels (fewer partial ghosts at wall feet; off: bilinear samples throughout)",
 )
 @click.option(
     "--fill",
@@ -310,6 +318,7 @@ def mosaic(
     balance: str,
     balance_reference: int | None,
     holes: str | None,
+    clear_pixels: bool,
     fill: str | None,
     visibility_out: Path | None,
     interp: Interp,
@@ -359,6 +368,7 @@ def mosaic(
         balance=None if balance == "none" else balance,
         reference=balance_reference,
         holes=holes or "empty",
+        clear=clear_pixels,
     )
     with warnings_as_lines():
         plan = _plan(dem, pairs, engine, output, eps=eps, interp=interp, mosaic=options)

@@ -2,14 +2,14 @@
 (:func:`orthomvp.ortho.support.blocked`): the image positions and GSDs only at the posts the
 test can ask about, not the whole tile.
 
-The test runs at posts a view sees surely (visible, not doubtful) with a post within
-:data:`~orthomvp.ortho.support.RADIUS` (the trust test's candidates) or
-:data:`~orthomvp.ortho.support.FEATHER_RADIUS` (the feather's) that it does not see
-(:func:`~orthomvp.ortho.support.candidates`): a subset of the posts within the larger radius of
-the view's own occlusion boundary, which each view's codes give alone, as the tile computes
-them. Keeping the positions (float64 (u, v)) and GSDs there only takes a mosaic tile's memory
-from about 66 to about 30 bytes per view and post held before composing (the fixed benchmark set,
-64 views over every post), so that tiles can stay large as views overlap."""
+The test and the clear-pixel resampling run at posts a view sees surely (visible, not
+doubtful) with a post within :data:`~orthomvp.ortho.support.RADIUS` (the trust test's
+candidates, and the sharpening) or :data:`~orthomvp.ortho.support.FEATHER_RADIUS` (the
+feather's) that it does not see (:func:`~orthomvp.ortho.support.near`), and at the view's
+doubtful visible posts (the fill of doubtful holes): posts that each view's codes and doubt
+give alone, as the tile computes them. Keeping the positions (float64 (u, v)) and GSDs there
+only takes a mosaic tile's memory from about 66 to about 30 bytes per view and post held
+before composing (the fixed benchmark set, 64 views over every post)."""
 
 from __future__ import annotations
 
@@ -36,15 +36,20 @@ class SupportSamples:
     gsd: np.ndarray
 
     @classmethod
-    def keep(cls, sure: np.ndarray, uv: np.ndarray, gsd: np.ndarray) -> SupportSamples:
+    def keep(
+        cls, sure: np.ndarray, uv: np.ndarray, gsd: np.ndarray, also: np.ndarray | None = None
+    ) -> SupportSamples:
         """The samples at the posts of ``sure`` (rows, cols: the view sees them, not
         doubtful) with a post not ``sure`` within :data:`REACH` (off the window counts as
-        sure, as :func:`~orthomvp.ortho.support.candidates` counts it); ``uv`` (rows, cols, 2)
-        and ``gsd`` (rows, cols) of the whole window."""
+        sure, as :func:`~orthomvp.ortho.support.near` counts it), and at the posts ``also``
+        (the view's doubtful visible posts, which the clear-pixel fill of doubtful holes
+        resamples); ``uv`` (rows, cols, 2) and ``gsd`` (rows, cols) of the whole window."""
         box = np.ones((2 * REACH + 1,) * 2, np.uint8)
         plane = np.ascontiguousarray(sure).view(np.uint8)
         inner = cv2.erode(plane, box, borderType=cv2.BORDER_CONSTANT, borderValue=1)
         near = sure & (inner == 0)
+        if also is not None:
+            near |= also
         return cls(sure.shape, np.flatnonzero(near), uv[near], gsd[near])
 
     def full(self) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from orthomvp.codes import Code
+from orthomvp.codes import Code, Interp
 from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
@@ -33,8 +33,8 @@ from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.composite import compose, doubtful, nadir_angle
 from orthomvp.ortho.holes import FLAGS
 from orthomvp.ortho.orthophoto import OUTSIDE, sample_image
+from orthomvp.ortho.support import Support, candidates, clear_blend, clear_taps
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, feather
 
 
 @dataclass
@@ -416,8 +416,10 @@ def _mosaic_tile(
         if slack is not None:
             slack[i] = np.where(doubt[i], vis.eps[inner] - vis.miss[inner], 0.0)
         if testing:
-            sure_i = (code == Code.VISIBLE) & ~doubt[i]
-            kept.append(SupportSamples.keep(sure_i, uv, vis.gsd[inner]))
+            seen_i = code == Code.VISIBLE
+            kept.append(
+                SupportSamples.keep(seen_i & ~doubt[i], uv, vis.gsd[inner], seen_i & doubt[i])
+            )
         if use_nadir:
             nadir[i] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
@@ -445,28 +447,44 @@ def _mosaic_tile(
     if correction is not None:
         correction = Correction(correction.gains[views], correction.offsets[views])
     blocked = np.zeros((m, *shape), bool)
-    sure = (codes == Code.VISIBLE) & ~doubt
-    tests = candidates(sure)
 
-    def support(posts: np.ndarray) -> np.ndarray:
+    def test(posts: np.ndarray) -> np.ndarray:
         """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
         out = np.zeros(posts.shape, bool)
         for i, k in enumerate(views):
             if posts[i].any():
                 camera = plan.views[k].camera
                 at, sizes = kept[i].full()  # (positions and GSDs where the test may ask)
-                test = posts[i]
-                out[i] = support_blocked(grid, inner, camera, at, sizes, emission[i], test, caster)
+                ask = posts[i]
+                out[i] = support_blocked(grid, inner, camera, at, sizes, emission[i], ask, caster)
         return out
 
+    def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The samples (bands, posts) at ``posts`` (views, rows, cols) of their clear pixels,
+        and those pixels' weights (posts,)."""
+        taken, clear = [], []
+        for i, k in enumerate(views):
+            if posts[i].any():
+                camera = plan.views[k].camera
+                at, sizes = kept[i].full()
+                taps, w = clear_taps(grid, inner, camera, at, sizes, emission[i], posts[i], caster)
+                pixels = sample_view(plan.views[k], taps.reshape(-1, 2), Interp.NEAREST)
+                value, weight = clear_blend(pixels.reshape(-1, *w.shape).swapaxes(0, 1), w)
+                taken.append(value)
+                clear.append(weight)
+        return np.concatenate(taken, axis=1), np.concatenate(clear)
+
+    support = None
     if testing:
+        sure = (codes == Code.VISIBLE) & ~doubt
+        support = Support(test, sure)
         with _timed(seconds, "visibility"):
-            blocked = support(tests)
+            blocked = support(candidates(sure))
     with _timed(seconds, "compose"):
         comp = compose(
             values, codes, emission, gsd, nadir, plan.mosaic, correction, doubt,
-            slack=slack, blocked=blocked, fused=plan.fused,
-            support=(lambda posts: support(posts & feather(sure) & ~tests)) if testing else None,
+            slack=slack, blocked=blocked, fused=plan.fused, support=support,
+            resample=resample if support else None,
         )  # fmt: skip
     source = np.array([0, *(k + 1 for k in views)])[comp.source[core]]  # 1-based of all views
     result.taken = _taken(source, n)

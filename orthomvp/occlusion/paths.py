@@ -15,8 +15,10 @@ and each step has faster ways where they apply, with the same results:
   order), ``SEPARABLE_KERNEL`` gives ``SEPARABLE``'s results bit for bit (about 2.5x faster,
   after a load of about 0.3 s a process). ``LATTICE`` serves the cameras whose
   ground-to-image is costly (RPC cameras): the camera's
-  pixels, rays and GSDs interpolated from an exact lattice within 0.004 pixel, checked at every
-  cell and exact where a check fails (:func:`orthomvp.occlusion.post_lattice.lattice`);
+  pixels, rays and GSDs interpolated (bilinear, or cubic where the camera curves) from an exact
+  lattice within 0.004 pixel, checked at every cell and exact where a check fails
+  (:func:`orthomvp.occlusion.post_lattice.lattice`; RPC cameras in a geocentric frame through
+  the RPC's numba kernels);
   ``GENERAL`` is its oracle, and the codes agree but next to class boundaries.
 - its ray, :class:`Rays`: ``WHOLE_MESH`` (cast on the whole occluder mesh of the caster),
   ``PART_MESHES`` (the rays from a camera centre over the map of an

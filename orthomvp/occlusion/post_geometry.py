@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
+from orthomvp.camera.csm import LineScanCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.geometry.normals import central_difference, grid_normals, unit_normals
 from orthomvp.geometry.terrain import Terrain
@@ -117,7 +118,9 @@ def block_axes(terrain: Terrain, block: tuple[int, int, int, int]) -> tuple[np.n
 
 def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeometry:
     """The posts of tile (``rs``, ``cs``) of ``terrain`` seen by ``camera``, any camera and
-    world frame; normals are central differences over the tile with one post around it."""
+    world frame; normals are central differences over the tile with one post around it. A
+    line scanner's pixels, ray origins and directions and GSDs come from one search
+    (:func:`_line_scan`); other cameras' from ``project``, ``origins`` and ``gsd``."""
     r0, r1, c0, c1 = tile_block(terrain, rs, cs)
     r, c = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     block = terrain.to_world(c, r, terrain.values[r0:r1, c0:c1])
@@ -125,6 +128,8 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     p, n = block[inner], n[inner]
     ok = finite_rows(p) & finite_rows(n)
+    if isinstance(camera, LineScanCamera):  # pixels, origins, rays, GSD from one evaluation
+        return _line_scan(camera, p, n, ok)
     uv, depth = camera.project(p)
     inside = ok & (depth > 0) & camera.in_image(uv)
     if isinstance(camera, PinholeCamera):  # one centre for every pixel
@@ -137,6 +142,25 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
         cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, camera.gsd(p), origins
+    )
+
+
+def _line_scan(
+    camera: LineScanCamera, p: np.ndarray, n: np.ndarray, ok: np.ndarray
+) -> PostGeometry:
+    """:func:`general`'s geometry of world points ``p`` with normals ``n`` (rows, cols, 3),
+    finite where ``ok``, seen by a line scanner: pixels, ray origins and directions and GSD
+    from one ground to image (:meth:`~orthomvp.camera.csm.LineScanCamera.imaging`), NaN
+    outside the image."""
+    uv, depth, origins, directions, gsd = camera.imaging(p)
+    inside = ok & (depth > 0) & camera.in_image(uv)
+    origins[~inside], directions[~inside] = np.nan, np.nan
+    to_cam = origins - p
+    x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
+    with np.errstate(invalid="ignore"):
+        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
+    return PostGeometry(
+        p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, gsd, origins, directions
     )
 
 

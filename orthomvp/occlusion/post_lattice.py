@@ -5,26 +5,37 @@ line scanners: each post needs iterations through the model), from an error-boun
 
 A post's pixel, depth, ray (origin and direction) and GSD are smooth functions of its grid
 column, row and height. They are evaluated exactly (the camera's own ``project``, ``ray`` and
-``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them) at the nodes of a
-lattice and interpolated in between (bilinear across the grid, linear in height). The lattice
-belongs to the grid, not to the tile, so that every tiling gives the same values: nodes at the
-grid's columns and rows that are multiples of ``step`` (counted from the CRS's origin in posts)
-and at heights that are multiples of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of
-the lattice between two levels of height. A unit's interpolation is checked against the exact
-values at its 27 midpoints and corners (the cell's centre, edge midpoints and corners, at its
-two levels and halfway between them); it fails where any check misses by more than half of
+``gsd``, as :func:`~orthomvp.occlusion.post_geometry.general` calls them, or for an RPC camera in
+a geocentric world frame the same values from the RPC's numba kernels,
+:func:`orthomvp.camera.rpc_kernel.camera_values`, within about 1e-9 pixels) at the nodes of a
+lattice and interpolated in between (linear in height; across the grid bilinear, or cubic where
+bilinear would need far finer cells, see below). The lattice belongs to the grid, not to the
+tile, so that every tiling gives the same values: nodes at the grid's columns and rows that are
+multiples of ``step`` (counted from the CRS's origin in posts) and at heights that are multiples
+of :data:`LEVEL_SPACING`. Each post lies in a unit: a cell of the lattice between two levels of
+height. A unit's bilinear interpolation is checked against the exact values at its 27 midpoints
+and corners (the cell's centre, edge midpoints and corners, at its two levels and halfway between
+them: where a quadratic's error peaks); it fails where any check misses by more than half of
 ``error`` pixels (:data:`CHECK_SHARE`; the pixel's offset, or the ray's offset at the point in
 pixels of the point's GSD), by more than :data:`GSD_RELATIVE` of the GSD, changes the sign of
-the depth, or is not imaged (NaN). The posts of failed units go to the lattice of half the step
-(:data:`LATTICE_STEPS`), and past the finest to the exact path. A unit none of whose checks is
-imaged (beyond an RPC's domain, a line scanner's lines), or all of whose checks' pixels have a
-bounding box more than a pixel off the image, is taken as not imaged, its values NaN: an image
-would have to fit between checks half a cell apart to be missed. The exact path
-(``Geometry.GENERAL``) stays the test oracle. Normals and everything else built from the DEM
-alone are computed as in :func:`~orthomvp.occlusion.post_geometry.general`, from world points
-that on an ellipsoid come from a lattice too (:func:`world_block`).
+the depth, or is not imaged (NaN). Where bilinear misses by more than four times that (so that
+one halving of the cell, which quarters a quadratic's error, would not do), or in the finest
+lattice, the unit is tried with Catmull-Rom cubics across rows and columns instead (from the
+4 x 4 nodes around the cell; exact for quadratics, such as the RPC's curvature that held units
+to cells of 8 posts at 24 m), checked the same way at a quarter, half and three quarters of the
+cell (a cubic's error vanishes at the midpoint). The posts of units that fail both go to the
+lattice of half the step (:data:`LATTICE_STEPS`), and past the finest to the exact values. A
+unit none of whose checks is imaged (beyond an RPC's domain, a line scanner's lines), or all of
+whose checks' pixels have a bounding box more than a pixel off the image, is taken as not
+imaged, its values NaN: an image would have to fit between checks half a cell apart to be
+missed. The exact path (``Geometry.GENERAL``) stays the test oracle. Normals and everything
+else built from the DEM alone are computed as in
+:func:`~orthomvp.occlusion.post_geometry.general` (the same operations in numba kernels, the same
+values to the bit), from world points that on an ellipsoid come from a lattice too
+(:func:`world_block`).
 
-The interpolation runs in a numba kernel (:mod:`orthomvp.occlusion.post_lattice_kernel`).
+The interpolation, the normals and the world points run in numba kernels
+(:mod:`orthomvp.occlusion.post_lattice_kernel`).
 """
 
 from __future__ import annotations
@@ -33,7 +44,6 @@ import numpy as np
 
 from orthomvp.camera import Camera, RpcCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.geometry.normals import grid_normals
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
@@ -48,6 +58,7 @@ LATTICE_ERROR = 0.004
 (:data:`CHECK_SHARE`), a margin for the posts between the checks."""
 CHECK_SHARE = 0.5
 """The share of the allowed error that a unit's checks may miss by."""
+_FAR = 4.0  # bilinear's error beyond the bound this many times: cubics, not a finer lattice
 WORLD_TOLERANCE = 1e-4
 """The largest offset (metres) of a world point from the lattice of :func:`world_block`."""
 GSD_RELATIVE = 1e-3
@@ -55,8 +66,18 @@ GSD_RELATIVE = 1e-3
 _U, _V, _DEPTH, _O, _D, _GSD = 0, 1, 2, slice(3, 6), slice(6, 9), 9  # channels of the values
 _CHANNELS = 10
 _TABLE_MOST = 1 << 24  # entries of _unique_rows's table at most (128 MiB)
-# a unit's checks: (row, column, level) in half steps from its first node
-_CHECKS = np.array([(a, b, t) for a in range(3) for b in range(3) for t in range(3)])
+# a unit's points, in quarter steps across rows and columns and half steps between levels
+# from its first node: the checks of bilinear interpolation (its corners, edge midpoints and
+# centre, at its two levels and halfway between them), those of cubic interpolation (inside it,
+# at a quarter, half and three quarters of the cell, at the same heights), and the other nodes
+# around it that cubic interpolation reads
+_SCALE = np.array([4, 4, 2])
+_HALVES = np.array([(2 * a, 2 * b, t) for a in range(3) for b in range(3) for t in range(3)])
+_QUARTERS = np.array([(a, b, t) for a in (1, 2, 3) for b in (1, 2, 3) for t in range(3)])
+_RING = np.array(
+    [(4 * a, 4 * b, 2 * t) for a in range(-1, 3) for b in range(-1, 3) for t in (0, 1)
+     if not (0 <= a <= 1 and 0 <= b <= 1)]
+)  # fmt: skip
 
 
 def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
@@ -84,6 +105,20 @@ def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
     return out
 
 
+def fast_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
+    """:func:`exact_values` through the RPC kernels where they serve the camera (an RPC camera
+    in a geocentric world frame, :func:`orthomvp.camera.rpc_kernel.camera_values`: the same
+    values within about 1e-9 pixels and 1e-8 metres, in one evaluation a point), else
+    :func:`exact_values` itself."""
+    if isinstance(camera, RpcCamera) and xyz.size:
+        from orthomvp.camera.rpc_kernel import camera_values
+
+        out = camera_values(camera, xyz)
+        if out is not None:
+            return out
+    return exact_values(camera, xyz)
+
+
 def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Per unit, whether its checks' pixels ``uv`` (units, checks, 2) show that none of its
     posts is imaged: none is imaged, or all are and their bounding box lies more than a pixel
@@ -94,26 +129,6 @@ def _outside(camera: Camera, uv: np.ndarray) -> np.ndarray:
     w, h = camera.width, camera.height
     off = (high[:, 0] < -1.5) | (high[:, 1] < -1.5) | (low[:, 0] > w + 0.5) | (low[:, 1] > h + 0.5)
     return ~finite.any(axis=1) | (finite.all(axis=1) & off)
-
-
-def _misses(estimate: np.ndarray, exact: np.ndarray, xyz: np.ndarray, error: float) -> np.ndarray:
-    """Where the ``estimate`` (..., 10) misses the ``exact`` values at world points ``xyz``
-    (..., 3) beyond ``error`` pixels or the GSD's bound (module docstring), or either is not
-    finite."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gsd = exact[..., _GSD]
-        uv = np.hypot(*(estimate[..., k] - exact[..., k] for k in (_U, _V)))
-        rng = np.linalg.norm(xyz - exact[..., _O], axis=-1)
-        d = estimate[..., _D] / np.linalg.norm(estimate[..., _D], axis=-1, keepdims=True)
-        ray = np.linalg.norm(estimate[..., _O] - exact[..., _O], axis=-1)
-        ray = (ray + rng * np.linalg.norm(d - exact[..., _D], axis=-1)) / gsd
-        good = (
-            (uv <= error)
-            & (ray <= error)
-            & (np.abs(estimate[..., _GSD] - gsd) <= GSD_RELATIVE * gsd)
-            & (np.sign(estimate[..., _DEPTH]) == np.sign(exact[..., _DEPTH]))
-        )
-    return ~(good & np.isfinite(estimate).all(axis=-1) & np.isfinite(exact).all(axis=-1))
 
 
 def tile_values(
@@ -132,24 +147,25 @@ def tile_values(
     from the grid's lattices of ``steps`` posts in turn (each a multiple of the last), or else
     exact (module docstring); and where they are exact (bool (rows, cols)). The posts are
     sorted once into the finest lattice's units; a coarser unit serves all of its own."""
-    from orthomvp.occlusion.post_lattice_kernel import fill
+    from orthomvp.occlusion.post_lattice_kernel import fill, posts
 
     rows, cols = ok.shape
     out = np.full((rows, cols, _CHANNELS), np.nan)
     exact = np.zeros((rows, cols), bool)
-    r, c = np.nonzero(ok)
-    if not r.size:
+    count = int(np.count_nonzero(ok))
+    if not count:
         return out, exact
     T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
     origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
-    gr, gc = r + origin[0], c + origin[1]
-    fl = terrain.values[rs, cs][r, c].astype(np.float64) / LEVEL_SPACING
     fine = steps[-1]
-    cell = np.stack([np.floor(gr / fine), np.floor(gc / fine), np.floor(fl)], -1).astype(np.int64)
+    rc, place = np.empty((count, 2), np.int64), np.empty((count, 3))
+    cell = np.empty((count, 3), np.int64)
+    posts(ok, terrain.values[rs, cs], *origin, fine, LEVEL_SPACING, rc, place, cell)
     units, which = _unique_rows(cell)  # the finest units holding posts
     served = np.full(len(units), -1)  # which lattice serves each
     parent = np.zeros_like(units)  # its unit in that lattice
     dead = np.zeros(len(units), bool)
+    cubic = np.zeros(len(units), bool)
     lattices = []
     todo = np.arange(len(units))
     for k, step in enumerate(steps):
@@ -158,14 +174,16 @@ def tile_values(
         up = units[todo].copy()
         up[:, :2] //= step // fine
         coarse, where = _unique_rows(up)
-        nodes, first, passed, gone = _check(terrain, camera, coarse, step, origin, rs, cs, error)
+        last = k == len(steps) - 1
+        nodes, first, passed, gone, bicubic = _check(
+            terrain, camera, coarse, step, origin, rs, cs, error, last
+        )
         lattices.append((step, nodes, first))
         good = passed[where]
         served[todo[good]], parent[todo[good]] = k, coarse[where[good]]
-        dead[todo[good]] = gone[where[good]]
+        dead[todo[good]], cubic[todo[good]] = gone[where[good]], bicubic[where[good]]
         todo = todo[~good]
-    unit_table = np.full((len(units), 8), -1, np.int64)
-    unit_table[:, 7] = 0
+    unit_table = np.full((len(units), 9), -1, np.int64)
     buffers, meta = [], []
     offset = 0
     for k, (_, nodes, first) in enumerate(lattices):
@@ -176,17 +194,17 @@ def tile_values(
         buffers.append(nodes.ravel())
         meta.append((offset, nodes.shape[1], nodes.shape[2]))
         offset += nodes.size
-    unit_table[:, 7] = dead
+    unit_table[:, 7], unit_table[:, 8] = dead, cubic
     if lattices:
         fill(
             np.concatenate(buffers), np.array(meta, np.int64),
             np.array([step for step, _, _ in lattices], np.float64), unit_table, which,
-            np.stack([r, c], -1), np.stack([gr, gc, fl], -1), out,
+            rc, place, out,
         )  # fmt: skip
     rest = served[which] < 0
-    exact[r[rest], c[rest]] = True
+    exact[rc[rest, 0], rc[rest, 1]] = True
     if rest.any():
-        out[exact] = exact_values(camera, p[exact])
+        out[exact] = fast_values(camera, p[exact])
     return out, exact
 
 
@@ -199,32 +217,77 @@ def _check(
     rs: slice,
     cs: slice,
     error: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    last: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The units ``units`` (n, 3: global cell row, column, level) of the lattice of ``step``
     posts, checked: the nodes (node rows, node columns, levels, 10) around them and the
-    global index of the first, whether each unit passes its checks, and whether it is dead
-    (module docstring). ``origin``: the global (row, column) index of post (0, 0) of tile
+    global index of the first, whether each unit passes its checks, whether it is dead, and
+    whether it is interpolated by cubics (module docstring; always where bilinear fails in the
+    ``last`` lattice). ``origin``: the global (row, column) index of post (0, 0) of tile
     (``rs``, ``cs``)."""
-    from orthomvp.occlusion.post_lattice_kernel import interpolate
-
-    half = (2 * units[:, None, :] + _CHECKS[None]).reshape(-1, 3)  # each unit's 27 checks
-    points, at = _unique_rows(half)  # in half steps, each evaluated once
-    at = at.reshape(len(units), len(_CHECKS))
-    rows = points[:, 0] / 2.0 * step - origin[0] + rs.start  # the terrain's rows and columns
-    cols = points[:, 1] / 2.0 * step - origin[1] + cs.start
-    xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
-    exact = exact_values(camera, xyz)
-    first = points.min(axis=0) // 2  # (units start at even half steps: a node)
-    even = ~(points % 2).any(axis=1)
-    nodes = np.full((*(points.max(axis=0) // 2 - first + 1), _CHANNELS), np.nan)
-    nodes[tuple((points[even] // 2 - first).T)] = exact[even]
-    est = np.empty((len(_CHECKS), len(units), _CHANNELS))
-    for k, check in enumerate(_CHECKS):
-        interpolate(nodes, units - first, np.tile(check / 2.0, (len(units), 1)), est[k])
-    est = est.transpose(1, 0, 2)
-    miss = _misses(est, exact[at], xyz[at], error * CHECK_SHARE).any(axis=1)
+    points, at = _unique_rows((_SCALE * units[:, None, :] + _HALVES[None]).reshape(-1, 3))
+    at = at.reshape(len(units), len(_HALVES))  # (each evaluated once)
+    xyz, exact = _exact_at(terrain, camera, points, step, origin, rs, cs)
+    first = points.min(axis=0) // _SCALE - (1, 1, 0)  # (units start at a node; and the ring)
+    nodes = np.full((*(points.max(axis=0) // _SCALE - first + (2, 2, 1)), _CHANNELS), np.nan)
+    node = ~(points % _SCALE).any(axis=1)
+    nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
+    miss, far = _verdicts(nodes, units - first, _HALVES, False, exact, xyz, at, error)
     dead = _outside(camera, exact[at][..., :2])
-    return nodes, first, ~miss | dead, dead
+    cubic = miss & (far | last) & ~dead
+    if cubic.any():  # the ring's nodes and the checks inside the cell
+        mine = units[cubic]
+        extra = _SCALE * mine[:, None, :] + np.concatenate([_QUARTERS, _RING])[None]
+        points, at = _unique_rows(extra.reshape(-1, 3))
+        at = at.reshape(len(mine), -1)[:, : len(_QUARTERS)]
+        xyz, exact = _exact_at(terrain, camera, points, step, origin, rs, cs)
+        node = ~(points % _SCALE).any(axis=1)
+        nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
+        cubic[cubic] = ~_verdicts(nodes, mine - first, _QUARTERS, True, exact, xyz, at, error)[0]
+    return nodes, first, ~miss | cubic | dead, dead, cubic & ~dead
+
+
+def _exact_at(
+    terrain: Terrain,
+    camera: Camera,
+    points: np.ndarray,
+    step: int,
+    origin: tuple[float, float],
+    rs: slice,
+    cs: slice,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The world points (n, 3) of lattice ``points`` (n, 3: global row and column in quarter
+    steps of ``step`` posts, height in half levels) and the camera's exact values there."""
+    rows = points[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
+    cols = points[:, 1] / 4.0 * step - origin[1] + cs.start
+    xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
+    return xyz, fast_values(camera, xyz)
+
+
+def _verdicts(
+    nodes: np.ndarray,
+    first: np.ndarray,
+    checks: np.ndarray,
+    cubic: bool,
+    exact: np.ndarray,
+    xyz: np.ndarray,
+    at: np.ndarray,
+    error: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per unit whose first node is ``first`` (units, 3): whether its interpolation from
+    ``nodes`` (bilinear, or ``cubic``) misses the ``exact`` values at the world points ``xyz``
+    of its ``checks`` (in :data:`_SCALE` units; ``at`` (units, checks): their points) by more
+    than its share of ``error`` (:data:`CHECK_SHARE`; the criteria of the module docstring), and
+    whether it misses by more than :data:`_FAR` times that."""
+    from orthomvp.occlusion.post_lattice_kernel import verdicts
+
+    miss, far = np.empty(len(first), bool), np.empty(len(first), bool)
+    share = error * CHECK_SHARE
+    verdicts(
+        nodes, first, checks / _SCALE, cubic, exact, xyz, at, share, share * _FAR,
+        GSD_RELATIVE, miss, far,
+    )  # fmt: skip
+    return miss, far
 
 
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -275,15 +338,16 @@ def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndar
     base = terrain.to_world(nc[None, :], nr[:, None], np.zeros((len(nr), len(nc))))
     up = terrain.to_world(nc[None, :], nr[:, None], np.ones((len(nr), len(nc)))) - base
 
-    def between(v: np.ndarray) -> np.ndarray:  # bilinear, rows then columns
-        i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
-        t = ((r - nr[i]) / (nr[i + 1] - nr[i]))[:, None, None]
-        v = v[i] + t * (v[i + 1] - v[i])
-        j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
-        t = ((c - nc[j]) / (nc[j + 1] - nc[j]))[None, :, None]
-        return v[:, j] + t * (v[:, j + 1] - v[:, j])
+    from orthomvp.occlusion.post_lattice_kernel import affine_block
 
-    return between(base) + values[..., None].astype(np.float64) * between(up)
+    i = np.clip(np.searchsorted(nr, r, side="right") - 1, 0, len(nr) - 2)
+    j = np.clip(np.searchsorted(nc, c, side="right") - 1, 0, len(nc) - 2)
+    out = np.empty((len(r), len(c), 3))
+    affine_block(
+        base, up, i, (r - nr[i]) / (nr[i + 1] - nr[i]), j, (c - nc[j]) / (nc[j + 1] - nc[j]),
+        np.ascontiguousarray(values, np.float64), out,
+    )  # fmt: skip
+    return out
 
 
 def lattice(
@@ -299,22 +363,23 @@ def lattice(
     to, the camera's values interpolated on the grid's lattices of ``steps`` posts within
     ``error`` pixels (module docstring); the rays' unit directions come with it
     (:attr:`PostGeometry.directions`)."""
+    from orthomvp.occlusion.post_lattice_kernel import finish, normals
+
     r0, r1, c0, c1 = tile_block(terrain, rs, cs)
     block = world_block(terrain, r0, r1, c0, c1)
-    n = grid_normals(block, terrain.up_vectors(block))
+    n = np.empty_like(block)
+    normals(block, terrain.world != WorldFrame.MAP, n)  # (grid_normals, to the bit)
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     p, n = block[inner], n[inner]
     ok = finite_rows(p) & finite_rows(n)
     values, _ = tile_values(terrain, camera, rs, cs, p, ok, steps=steps, error=error)
-    uv, depth = values[..., :2], values[..., _DEPTH]
-    with np.errstate(invalid="ignore"):
-        inside = ok & (depth > 0) & camera.in_image(uv)
-    origins = np.where(inside[..., None], values[..., _O], np.nan)
-    directions = np.where(inside[..., None], values[..., _D], np.nan)
-    to_cam = origins - p
-    x, y, zc = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
-    with np.errstate(invalid="ignore"):
-        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * zc) / np.sqrt(x * x + y * y + zc * zc)
+    if camera.width is None or camera.height is None:
+        camera.in_image(values[..., :2])  # (the error it raises)
+    inside = np.empty(ok.shape, bool)
+    origins, directions = np.empty_like(p), np.empty_like(p)
+    cos_e = np.empty(ok.shape)
+    finish(values, p, n, ok, camera.width, camera.height, inside, origins, directions, cos_e)
+    uv = values[..., :2]
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, values[..., _GSD], origins,
         directions,

@@ -46,8 +46,8 @@ from orthomvp.ortho.composite import (
     nadir_angle,
     overlap_width,
 )
+from orthomvp.ortho.support import Support, candidates, clear_blend, clear_taps
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates, feather
 from orthomvp.validate import of_type
 
 if TYPE_CHECKING:
@@ -88,7 +88,10 @@ class Mosaic:
     """A mosaic: ``data`` as in :class:`Ortho`; ``source`` (rows, cols) uint8, the 1-based index
     of the view each post is labelled with (0 where none); ``visibilities`` per view;
     ``flags`` (rows, cols) :class:`~orthomvp.ortho.composite.Flag`; ``weights`` (views, rows, cols)
-    each view's blend weight; ``correction`` the radiometric balance applied (or None)."""
+    each view's blend weight; ``correction`` the radiometric balance applied (or None);
+    ``resampled`` (views, rows, cols) where a view's value is the blend of its clear pixels,
+    its bilinear sample reaching an occluder (:func:`orthomvp.ortho.support.sharpen`; None:
+    one view)."""
 
     data: np.ndarray
     source: np.ndarray
@@ -98,6 +101,7 @@ class Mosaic:
     flags: np.ndarray
     weights: np.ndarray
     correction: Correction | None = None
+    resampled: np.ndarray | None = None
 
 
 def sample_image(
@@ -289,9 +293,8 @@ def mosaic(
     options = replace(options, blend=blend)
     blocked = np.zeros(shape, bool)
     sure = (codes == Code.VISIBLE) & ~doubt
-    tests = candidates(sure)
 
-    def support(posts: np.ndarray) -> np.ndarray:
+    def test(posts: np.ndarray) -> np.ndarray:
         """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
         out = np.zeros(posts.shape, bool)
         for k, (_, camera) in enumerate(views):
@@ -301,13 +304,28 @@ def mosaic(
             )
         return out
 
-    if n > 1:  # (only where a post has another view to prefer)
-        blocked = support(tests)
+    def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The samples (bands, posts) at ``posts`` (views, rows, cols) of their clear pixels,
+        and those pixels' weights (posts,)."""
+        taken, clear = [], []
+        for k, (image, camera) in enumerate(views):
+            if posts[k].any():
+                vis = visibilities[k]
+                taps, w = clear_taps(
+                    terrain, whole, camera, vis.uv, vis.gsd, vis.emission, posts[k], caster
+                )
+                pixels = sample_image(image, taps.reshape(-1, 2), Interp.NEAREST)
+                value, weight = clear_blend(pixels.reshape(nb, *w.shape).swapaxes(0, 1), w)
+                taken.append(value)
+                clear.append(weight)
+        return np.concatenate(taken, axis=1), np.concatenate(clear)
+
+    support = Support(test, sure) if n > 1 else None  # (only where another view can take over)
+    if support is not None:
+        blocked = support(candidates(sure))
     comp = compose(
         values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, support=(lambda posts: support(posts & feather(sure) & ~tests))
-        if n > 1 else None,
-        fused=fused,
+        blocked=blocked, support=support, resample=resample if support else None, fused=fused,
     )  # fmt: skip
     return Mosaic(
         comp.data,
@@ -318,6 +336,7 @@ def mosaic(
         comp.flags,
         comp.weights,
         correction,
+        comp.resampled,
     )
 
 

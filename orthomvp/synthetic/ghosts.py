@@ -47,48 +47,55 @@ def occluder_share(
     *,
     supersample: int = 3,
     reach: float | None = None,
+    nearest: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """The occluder share (n,) in 0..1 of the bilinear samples at pixel positions ``uv``
     (n, 2) of the posts at local points ``posts`` (n, 3) in view ``camera_name``: the weight of
     the rays of its four pixels (``supersample`` rays a side, as rendered) that hit the surface
     more than ``reach`` metres (default two post spacings) from the post and nearer the camera
     than it (rays that meet nothing count as not). Pixels outside the image carry no weight
-    (NaN where none is inside)."""
+    (NaN where none is inside). ``nearest`` (n,) bool: those posts' samples are their nearest
+    pixel's (``cv2.INTER_NEAREST``: the position rounded half to even), not bilinear;
+    ``weights`` (4, n): the four pixels' weights instead of the bilinear ones, in the order
+    (du, dv) (0, 0), (1, 0), (0, 1), (1, 1) (:func:`orthomvp.ortho.support.clear_taps`)."""
     cam = scene.cameras[camera_name]
     reach = 2 * scene.spacing if reach is None else reach
     k = supersample
     offs = (np.arange(k) + 0.5) / k - 0.5
     sub = np.stack(np.meshgrid(offs, offs, indexing="xy"), -1).reshape(-1, 2)
+    if nearest is not None:
+        uv = np.where(np.asarray(nearest, bool)[:, None], np.rint(uv), uv)
     base = np.floor(uv)
     frac = uv - base
     share = np.zeros(len(uv))
     total = np.zeros(len(uv))
-    for du in (0, 1):
-        for dv in (0, 1):
+    for t, (du, dv) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        if weights is None:
             w = (frac[:, 0] if du else 1 - frac[:, 0]) * (frac[:, 1] if dv else 1 - frac[:, 1])
-            pix = base + [du, dv]
-            inside = (
-                (pix[:, 0] >= 0)
-                & (pix[:, 0] <= cam.width - 1)
-                & (pix[:, 1] >= 0)
-                & (pix[:, 1] <= cam.height - 1)
-                & np.isfinite(w)
-            )
-            w = np.where(inside, w, 0.0)
-            total += w
-            far = np.zeros(len(uv))
-            for i0 in range(0, len(uv), CHUNK // len(sub)):
-                i1 = min(i0 + CHUNK // len(sub), len(uv))
-                rays = (pix[i0:i1, None, :] + sub).reshape(-1, 2)
-                o, d = cam.ray(rays)
-                d = d / np.linalg.norm(d, axis=1, keepdims=True)
-                q = hit_points(scene, o - ORIGIN, d).reshape(i1 - i0, len(sub), 3)
-                o = (o - ORIGIN).reshape(i1 - i0, len(sub), 3)
-                dist = np.linalg.norm(q - posts[i0:i1, None, :], axis=-1)
-                ahead = np.linalg.norm(q - o, axis=-1) < np.linalg.norm(
-                    posts[i0:i1, None] - o, axis=-1
-                )
-                far[i0:i1] = ((dist > reach) & ahead).mean(axis=1)
-            share += w * far
+        else:
+            w = np.asarray(weights[t], np.float64)
+        pix = base + [du, dv]
+        inside = (
+            (pix[:, 0] >= 0)
+            & (pix[:, 0] <= cam.width - 1)
+            & (pix[:, 1] >= 0)
+            & (pix[:, 1] <= cam.height - 1)
+            & np.isfinite(w)
+        )
+        w = np.where(inside, w, 0.0)
+        total += w
+        far = np.zeros(len(uv))
+        for i0 in range(0, len(uv), CHUNK // len(sub)):
+            i1 = min(i0 + CHUNK // len(sub), len(uv))
+            rays = (pix[i0:i1, None, :] + sub).reshape(-1, 2)
+            o, d = cam.ray(rays)
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            q = hit_points(scene, o - ORIGIN, d).reshape(i1 - i0, len(sub), 3)
+            o = (o - ORIGIN).reshape(i1 - i0, len(sub), 3)
+            dist = np.linalg.norm(q - posts[i0:i1, None, :], axis=-1)
+            ahead = np.linalg.norm(q - o, axis=-1) < np.linalg.norm(posts[i0:i1, None] - o, axis=-1)
+            far[i0:i1] = ((dist > reach) & ahead).mean(axis=1)
+        share += w * far
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(total > 0, share / total, np.nan)

@@ -68,6 +68,12 @@ class CsmDistortion:
         # all-zero coefficients are no distortion, except for transverse's polynomials
         object.__setattr__(self, "_identity", self.model != "transverse" and not c.any())
 
+    @property
+    def is_identity(self) -> bool:
+        """Whether the model leaves coordinates as they are (all coefficients zero, but for
+        the transverse model's polynomials)."""
+        return self._identity
+
     def distort(self, x: np.ndarray, y: np.ndarray, focal: float) -> tuple[np.ndarray, np.ndarray]:
         """Distorted focal-plane coordinates (mm) of undistorted ones (``focal`` in mm)."""
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)

@@ -10,7 +10,12 @@ Speed: the iteration runs on a table of sensor states sampled once per line (fin
 images), interpolated linearly, from a first line given by an affine fit of a pixel lattice.
 Where the table reproduces the ephemeris within :data:`TABLE_PIXELS` (orbital images) it
 serves rays and origins too; otherwise ground to image ends with Newton steps on the exact
-model and rays use the exact ephemeris.
+model and rays use the exact ephemeris. On blocks of :data:`KERNEL_POINTS` points or more the
+table is evaluated by numba kernels (:mod:`orthomvp.camera.csm.table_kernel`), and where the
+table serves the whole iteration runs point by point there, lens distortion included: the
+numpy iteration's values bit for bit, which stays their test oracle.
+:meth:`LineScanCamera.imaging` gives the visibility test a point's pixel, ray origin and
+direction and GSD from that one search.
 """
 
 from __future__ import annotations
@@ -39,6 +44,22 @@ _MAX_SECANT = 15  # usgscsm's iteration limit
 _CONVERGED = 1e-3  # lines: a larger final correction means the iteration failed (NaN)
 _MAX_POLISH = 4  # exact Newton steps after the table's iteration (one suffices on orbits)
 _POLISH_MARGIN = 0.5  # lines beyond the image where a table solution is still polished
+KERNEL_POINTS = 4096
+"""Fewest points for which the sensor-state table is evaluated by the numba kernel of
+:mod:`orthomvp.camera.csm.table_kernel` (the same values as numpy, bit for bit), which pays
+for its load (numba's import and the cached kernel, about 0.3 s once a process) on the
+blocks of an orthophoto."""
+KERNEL_DISTORTIONS = {
+    "radial": 1,
+    "lrolrocnac": 2,
+    "transverse": 3,
+    "kaguyalism": 4,
+    "dawnfc": 5,
+    "radtan": 6,
+}
+"""Each of usgscsm's lens distortion models (:data:`orthomvp.camera.csm.distortion.MODELS`)
+by its code in the kernel (no distortion is 0; :data:`orthomvp.camera.csm.table_kernel.RADIAL`
+and the others)."""
 GSD_LINES = 1e-3
 """Lines to which :meth:`LineScanCamera.gsd` finds where a point is imaged (usually the first
 Newton step; the range moves by far less than 1e-6 of itself over them)."""
@@ -60,7 +81,15 @@ class LineScanCamera(CsmImage):
     ``center_time``: the ISD's ``center_ephemeris_time`` (ephemeris seconds).
     """
 
-    _WINDOW_FREE = ("look_sign", "_table", "table_error", "_use_table", "_first_guess")
+    _WINDOW_FREE = (
+        "look_sign",
+        "_table",
+        "_table_rows",
+        "table_error",
+        "_use_table",
+        "_first_guess",
+        "_kernel_args",
+    )
 
     focal_plane: FocalPlane
     ellipsoid: Ellipsoid
@@ -139,11 +168,18 @@ class LineScanCamera(CsmImage):
         (M, 3) appears when seen at the time of CSM ``line`` (M,), and the distorted
         focal-plane x, y and camera-frame depth (M, 3); the sensor states from
         :meth:`_states` (``table``: from :attr:`_table` whatever :attr:`_use_table` says)."""
-        pos, rot = self._states(line, table=table or None)
-        rel = (xyz - pos).T
-        cam = [
-            rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2] for i in range(3)
-        ]
+        if (table or self._use_table) and len(line) >= KERNEL_POINTS:
+            from orthomvp.camera.csm.table_kernel import camera_coordinates
+
+            cam = camera_coordinates(*self._table_rows, line, xyz)  # the same values
+            cam = [cam[:, 0], cam[:, 1], cam[:, 2]]
+        else:
+            pos, rot = self._states(line, table=table or None)
+            rel = (xyz - pos).T
+            cam = [
+                rot[:, 0, i] * rel[0] + rot[:, 1, i] * rel[1] + rot[:, 2, i] * rel[2]
+                for i in range(3)
+            ]
         dx, dy = self.focal_plane.view(np.stack(cam, -1))
         view = np.stack([dx, dy, self.look_sign * self.focal_plane.axis_sign * cam[2]], -1)
         return self.focal_plane.detector_line(dx, dy), view
@@ -161,6 +197,14 @@ class LineScanCamera(CsmImage):
             [self.trajectory.position(t).T, self.trajectory.rotation(t).reshape(-1, 9).T]
         )
         return float(knots[1] - knots[0]), states, np.diff(states, axis=1)
+
+    @cached_property
+    def _table_rows(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """:attr:`_table`'s knots and differences one row per knot, (knots, 12) and
+        (knots - 1, 12), C-contiguous, and the knot spacing: as the kernel
+        (:mod:`orthomvp.camera.csm.table_kernel`) takes them."""
+        step, states, diffs = self._table
+        return np.ascontiguousarray(states.T), np.ascontiguousarray(diffs.T), step
 
     def _states(
         self, line: np.ndarray, *, table: bool | None = None, columns: int = 12
@@ -232,6 +276,34 @@ class LineScanCamera(CsmImage):
             return None
         return np.concatenate([coef, ground0]), slope
 
+    def _kernel_applies(self, points: int) -> bool:
+        """Whether ground to image of ``points`` points runs in the numba kernel of
+        :mod:`orthomvp.camera.csm.table_kernel` (the same values as the numpy iteration, bit
+        for bit): the table stands in for the ephemeris, and there are at least
+        :data:`KERNEL_POINTS` points."""
+        return points >= KERNEL_POINTS and self._use_table
+
+    @cached_property
+    def _kernel_args(self) -> tuple[tuple[np.ndarray, np.ndarray, float], np.ndarray, np.ndarray]:
+        """The table, focal plane and search as the kernel's ``ground_to_image`` takes them."""
+        fp = self.focal_plane
+        lens = 0 if fp.distortion.is_identity else KERNEL_DISTORTIONS[fp.distortion.model]
+        plane = np.array(
+            [fp.focal_length, float(self.look_sign * fp.axis_sign), *fp.i_trans_l,
+             fp.line_origin, fp.starting_line, fp.line_summing, *fp.i_trans_s,
+             fp.sample_origin, fp.starting_sample, fp.sample_summing, lens,
+             *np.pad(fp.distortion.coefficients, (0, 20))[:20]],
+            dtype=np.float64,
+        )  # fmt: skip
+        guess = self._first_guess
+        first = np.full(8, np.nan) if guess is None else np.append(guess[0], guess[1])
+        search = np.array(
+            [*first, PRECISION, _CONVERGED, float(self.lines), EDGE, _MAX_SECANT,
+             fp.focal_pixels],
+            dtype=np.float64,
+        )  # fmt: skip
+        return self._table_rows, plane, search
+
     def _table_line(
         self, xyz: np.ndarray, precision: float = PRECISION
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -277,6 +349,10 @@ class LineScanCamera(CsmImage):
         on the exact :meth:`_line_error` (with the table's slope) until its offset is within
         :data:`PRECISION`, as usgscsm's iteration ends. The line is usgscsm's: the line of
         that exposure plus the point's detector line offset."""
+        if self._kernel_applies(len(xyz)):
+            from orthomvp.camera.csm.table_kernel import ground_to_image
+
+            return ground_to_image(*self._kernel_args, xyz)[0]
         line, update, view, slope = self._table_line(xyz)
         if self._use_table:
             last = update
@@ -319,6 +395,43 @@ class LineScanCamera(CsmImage):
         line, _ = self._to_csm(as_points(uv, "origins", 2))
         pos = self._states(line.ravel(), columns=3)[0].reshape(line.shape + (3,))
         return np.where(self._valid_line(line)[..., None], pos, np.nan)
+
+    def imaging(self, xyz: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Everything the visibility test needs of world points ``xyz`` (..., 3), metres, from
+        one ground to image: the pixels ``uv`` (..., 2) and depths of :meth:`project`, the
+        sensor positions (..., 3) at the times of those lines (:meth:`origins`), the unit ray
+        directions (..., 3) from there to the points, and the GSD (metres per pixel across
+        the line of sight: the range from there over the focal length in pixels); NaN where
+        not imaged. The ray from the sensor position through the point's pixel passes
+        through the point to the precision of ground to image (:data:`PRECISION` lines), so
+        the direction to the point is the model's ray (:meth:`ray`) without a second
+        evaluation, and the range is :meth:`gsd`'s at the exact line rather than at
+        :data:`GSD_LINES`."""
+        xyz = as_points(xyz, "imaging", 3)
+        flat = xyz.reshape(-1, 3)
+        if self._kernel_applies(len(flat)):
+            from orthomvp.camera.csm.table_kernel import ground_to_image
+
+            out, rays = ground_to_image(*self._kernel_args, flat, rays=True)
+            line, sample, depth = out[:, 0], out[:, 1], out[:, 2]
+            origin, direction, gsd = rays[:, :3], rays[:, 3:6], rays[:, 6]
+        else:
+            line, sample, depth = self.csm_ground_to_image(flat)
+            origin = self._states(np.nan_to_num(line), columns=3)[0]
+            origin[~np.isfinite(line)] = np.nan
+            to_point = flat - origin
+            x, y, z = to_point[:, 0], to_point[:, 1], to_point[:, 2]
+            rng = np.sqrt(x * x + y * y + z * z)
+            direction = to_point / rng[:, None]
+            gsd = rng / self.focal_plane.focal_pixels
+        shape = xyz.shape[:-1]
+        return (
+            self._to_uv(line.reshape(shape), sample.reshape(shape)),
+            depth.reshape(shape),
+            origin.reshape(xyz.shape),
+            direction.reshape(xyz.shape),
+            gsd.reshape(shape),
+        )
 
     def image_to_ground(self, uv: np.ndarray, height: np.ndarray | float = 0.0) -> np.ndarray:
         """World points (..., 3) seen at pixels ``uv`` (..., 2) on the ellipsoid inflated by
