@@ -22,6 +22,7 @@ from orthomvp.engine import heap
 from orthomvp.engine.grid import WindowT, grid_to_dem
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.plan import IMAGE_MARGIN, SAMPLE_BUDGET_PIXELS, Plan, TileJob, pixel_window
+from orthomvp.engine.support_samples import SupportSamples
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import column_range, finite_rows
 from orthomvp.occlusion.occluders import Occluders
@@ -395,16 +396,15 @@ def _mosaic_tile(
     gsd = np.full((m, *shape), np.inf) if use_gsd else none
     nadir = np.full((m, *shape), np.inf) if use_nadir else none
     doubt = np.zeros((m, *shape), bool)
-    slack = np.zeros((m, *shape))
-    uvs = []
-    sizes = []  # each view's GSDs and emission angles (the support test's)
+    # the doubtful posts' slack only for a hole policy that uses it (fill_holes)
+    slack = np.zeros((m, *shape)) if holes != "empty" else None
+    testing = caster is not None and m > 1  # the support test (its samples: SupportSamples)
+    kept: list[SupportSamples] = []
     fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):
         with _timed(seconds, "visibility"):
             vis = _visibility(plan, grid, k, caster, window, threads, fields, plan.visibility_path)
         code, uv = vis.codes[inner], vis.uv[inner]
-        uvs.append(uv)
-        sizes.append((vis.gsd[inner], vis.emission[inner]))
         inside = code != Code.NODATA  # (the posts with a pixel)
         if not plan.occlusion:
             code = np.where(inside, Code.VISIBLE, Code.NODATA).astype(np.uint8)
@@ -413,7 +413,13 @@ def _mosaic_tile(
         if use_gsd:
             gsd[i] = vis.gsd[inner]
         doubt[i] = doubtful(vis.miss[inner], vis.eps[inner])
-        slack[i] = np.where(doubt[i], vis.eps[inner] - vis.miss[inner], 0.0)
+        if slack is not None:
+            slack[i] = np.where(doubt[i], vis.eps[inner] - vis.miss[inner], 0.0)
+        if testing:
+            seen_i = code == Code.VISIBLE
+            kept.append(
+                SupportSamples.keep(seen_i & ~doubt[i], uv, vis.gsd[inner], seen_i & doubt[i])
+            )
         if use_nadir:
             nadir[i] = np.where(inside, nadir_angle(grid, inner, plan.views[k].camera, uv), np.inf)
         need = code == Code.VISIBLE
@@ -446,8 +452,11 @@ def _mosaic_tile(
         """Where the views' samples at ``posts`` (views, rows, cols) reach an occluder."""
         out = np.zeros(posts.shape, bool)
         for i, k in enumerate(views):
-            camera = plan.views[k].camera
-            out[i] = support_blocked(grid, inner, camera, uvs[i], *sizes[i], posts[i], caster)
+            if posts[i].any():
+                camera = plan.views[k].camera
+                at, sizes = kept[i].full()  # (positions and GSDs where the test may ask)
+                ask = posts[i]
+                out[i] = support_blocked(grid, inner, camera, at, sizes, emission[i], ask, caster)
         return out
 
     def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -457,7 +466,8 @@ def _mosaic_tile(
         for i, k in enumerate(views):
             if posts[i].any():
                 camera = plan.views[k].camera
-                taps, w = clear_taps(grid, inner, camera, uvs[i], *sizes[i], posts[i], caster)
+                at, sizes = kept[i].full()
+                taps, w = clear_taps(grid, inner, camera, at, sizes, emission[i], posts[i], caster)
                 pixels = sample_view(plan.views[k], taps.reshape(-1, 2), Interp.NEAREST)
                 value, weight = clear_blend(pixels.reshape(-1, *w.shape).swapaxes(0, 1), w)
                 taken.append(value)
@@ -465,7 +475,7 @@ def _mosaic_tile(
         return np.concatenate(taken, axis=1), np.concatenate(clear)
 
     support = None
-    if caster is not None and m > 1:
+    if testing:
         sure = (codes == Code.VISIBLE) & ~doubt
         support = Support(test, sure)
         with _timed(seconds, "visibility"):

@@ -1,0 +1,68 @@
+"""What a mosaic tile keeps of each view for the support test
+(:func:`orthomvp.ortho.support.blocked`): the image positions and GSDs only at the posts the
+test can ask about, not the whole tile.
+
+The test and the clear-pixel resampling run at posts a view sees surely (visible, not
+doubtful) with a post within :data:`~orthomvp.ortho.support.RADIUS` (the trust test's
+candidates, and the sharpening) or :data:`~orthomvp.ortho.support.FEATHER_RADIUS` (the
+feather's) that it does not see (:func:`~orthomvp.ortho.support.near`), and at the view's
+doubtful visible posts (the fill of doubtful holes): posts that each view's codes and doubt
+give alone, as the tile computes them. Keeping the positions (float64 (u, v)) and GSDs there
+only takes a mosaic tile's memory from about 66 to about 30 bytes per view and post held
+before composing (the fixed benchmark set, 64 views over every post)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from orthomvp.ortho.support import FEATHER_RADIUS
+from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
+
+REACH = max(SUPPORT_RADIUS, FEATHER_RADIUS)
+"""Box radius (posts) within which a post the view does not see makes a post testable."""
+
+
+@dataclass(frozen=True)
+class SupportSamples:
+    """One view's image positions ``uv`` (n, 2) and GSDs ``gsd`` (n,) at the posts ``index``
+    (n,; flat, in C order) of a window of ``shape`` (rows, cols)."""
+
+    shape: tuple[int, int]
+    index: np.ndarray
+    uv: np.ndarray
+    gsd: np.ndarray
+
+    @classmethod
+    def keep(
+        cls, sure: np.ndarray, uv: np.ndarray, gsd: np.ndarray, also: np.ndarray | None = None
+    ) -> SupportSamples:
+        """The samples at the posts of ``sure`` (rows, cols: the view sees them, not
+        doubtful) with a post not ``sure`` within :data:`REACH` (off the window counts as
+        sure, as :func:`~orthomvp.ortho.support.near` counts it), and at the posts ``also``
+        (the view's doubtful visible posts, which the clear-pixel fill of doubtful holes
+        resamples); ``uv`` (rows, cols, 2) and ``gsd`` (rows, cols) of the whole window."""
+        box = np.ones((2 * REACH + 1,) * 2, np.uint8)
+        plane = np.ascontiguousarray(sure).view(np.uint8)
+        inner = cv2.erode(plane, box, borderType=cv2.BORDER_CONSTANT, borderValue=1)
+        near = sure & (inner == 0)
+        if also is not None:
+            near |= also
+        return cls(sure.shape, np.flatnonzero(near), uv[near], gsd[near])
+
+    def full(self) -> tuple[np.ndarray, np.ndarray]:
+        """(uv (rows, cols, 2), gsd (rows, cols)) of the window: the kept samples, NaN at the
+        other posts (which the support test never reads)."""
+        uv = np.full((*self.shape, 2), np.nan)
+        gsd = np.full(self.shape, np.nan)
+        uv.reshape(-1, 2)[self.index] = self.uv
+        gsd.reshape(-1)[self.index] = self.gsd
+        return uv, gsd
+
+    def holds(self, posts: np.ndarray) -> bool:
+        """Whether every post of ``posts`` (rows, cols) is kept."""
+        kept = np.zeros(self.shape, bool)
+        kept.reshape(-1)[self.index] = True
+        return not (posts & ~kept).any()
