@@ -15,16 +15,20 @@ numpy, with nothing to import or compile.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from orthomvp.camera import Camera, NullDistortion, PinholeCamera
-from orthomvp.camera.csm import LineScanCamera
 from orthomvp.codes import WorldFrame
 from orthomvp.geometry.normals import central_difference, grid_normals, unit_normals
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
+
+if TYPE_CHECKING:
+    from orthomvp.camera.csm import LineScanCamera
 
 
 @dataclass
@@ -128,7 +132,7 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
     inner = (slice(rs.start - r0, rs.stop - r0), slice(cs.start - c0, cs.stop - c0))
     p, n = block[inner], n[inner]
     ok = finite_rows(p) & finite_rows(n)
-    if isinstance(camera, LineScanCamera):  # pixels, origins, rays, GSD from one evaluation
+    if _is_line_scanner(camera):  # pixels, origins, rays, GSD from one evaluation
         return _line_scan(camera, p, n, ok)
     uv, depth = camera.project(p)
     inside = ok & (depth > 0) & camera.in_image(uv)
@@ -143,6 +147,13 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, camera.gsd(p), origins
     )
+
+
+def _is_line_scanner(camera: Camera) -> bool:
+    """Whether ``camera`` is a CSM line scanner, without importing :mod:`orthomvp.camera.csm`
+    (a run of other cameras never loads it; a line scanner's module is loaded by then)."""
+    module = sys.modules.get("orthomvp.camera.csm.linescan")
+    return module is not None and isinstance(camera, module.LineScanCamera)
 
 
 def _line_scan(
