@@ -18,6 +18,32 @@ import numpy as np
 from orthomvp.jit import cached_jit
 
 
+def _knot(line: float, step: float, last: int) -> tuple[np.int64, float]:
+    """The knot of CSM ``line`` in a table of knots ``step`` lines apart whose last difference
+    is number ``last``, and the fraction of the way to the next one, as
+    ``LineScanCamera._states``: the floor of line / step clipped to 0..last (a NaN line takes
+    knot 0, as ``np.nan_to_num``; the fraction beyond the ends extrapolates)."""
+    big = np.finfo(np.float64).max
+    x = line / step
+    f = x
+    if np.isnan(f):
+        f = 0.0
+    elif f > big:
+        f = big
+    elif f < -big:
+        f = -big
+    kf = np.floor(f)
+    if kf < 0:
+        kf = 0.0
+    elif kf > last:
+        kf = np.float64(last)
+    k = np.int64(kf)
+    return k, x - np.float64(k)
+
+
+_knot = cached_jit(_knot, fastmath=False, error_model="numpy", inline="always")
+
+
 def _camera_coordinates(
     states: np.ndarray,
     diffs: np.ndarray,
@@ -32,23 +58,8 @@ def _camera_coordinates(
     camera-to-body rotation row-major) with ``diffs`` (knots - 1, 12) to the next knot
     (extrapolated beyond the ends; a NaN line takes the first knot, as ``np.nan_to_num``)."""
     last = diffs.shape[0] - 1
-    big = np.finfo(np.float64).max
     for m in range(len(line)):
-        x = line[m] / step
-        f = x
-        if np.isnan(f):
-            f = 0.0
-        elif f > big:
-            f = big
-        elif f < -big:
-            f = -big
-        kf = np.floor(f)
-        if kf < 0:
-            kf = 0.0
-        elif kf > last:
-            kf = np.float64(last)
-        k = np.int64(kf)
-        frac = x - np.float64(k)
+        k, frac = _knot(line[m], step, last)
         r0 = xyz[m, 0] - (diffs[k, 0] * frac + states[k, 0])
         r1 = xyz[m, 1] - (diffs[k, 1] * frac + states[k, 1])
         r2 = xyz[m, 2] - (diffs[k, 2] * frac + states[k, 2])
@@ -67,23 +78,7 @@ def _table_point(
 ) -> float:
     """Into ``out`` (columns,): the first ``columns`` table values at CSM ``line``, as
     ``LineScanCamera._states``; returns the knot fraction (unused by callers but numba's)."""
-    last = diffs.shape[0] - 1
-    big = np.finfo(np.float64).max
-    x = line / step
-    f = x
-    if np.isnan(f):
-        f = 0.0
-    elif f > big:
-        f = big
-    elif f < -big:
-        f = -big
-    kf = np.floor(f)
-    if kf < 0:
-        kf = 0.0
-    elif kf > last:
-        kf = np.float64(last)
-    k = np.int64(kf)
-    frac = x - np.float64(k)
+    k, frac = _knot(line, step, diffs.shape[0] - 1)
     for j in range(columns):
         out[j] = diffs[k, j] * frac + states[k, j]
     return frac
