@@ -1,5 +1,7 @@
 """numba compilation of the fused kernels (:mod:`orthomvp.mvp.kernel`,
-:mod:`orthomvp.occlusion.post_geometry_kernel`, :mod:`orthomvp.ortho.composite_kernel`): lazily on
+:mod:`orthomvp.occlusion.post_geometry_kernel`, :mod:`orthomvp.occlusion.post_lattice_kernel`,
+:mod:`orthomvp.ortho.composite_kernel`, :mod:`orthomvp.camera.rpc_kernel`,
+:mod:`orthomvp.camera.csm.table_kernel`): lazily on
 first call, releasing the GIL, cached on disk in the user's cache folder (:func:`cache_dir`:
 ``NUMBA_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/orthomvp/numba`` or
 ``~/.cache/orthomvp/numba``), never in the package's own folder. Import this module only where a

@@ -62,3 +62,29 @@ def test_fused_compose_of_many_views_is_numpys(views: int) -> None:
     for name in ("data", "source", "flags", "weights"):
         np.testing.assert_array_equal(getattr(ref, name), getattr(got, name), err_msg=name)
     assert (ref.source > 0).any()
+
+
+def test_box_sums_of_an_empty_window_write_nothing(tmp_path) -> None:
+    """The box-sum kernel on a window of no rows or no columns returns without writing (it
+    wrote a first row of column sums past an empty buffer): run with numba's bounds checking
+    on, in a fresh cache, where such a write raises IndexError."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from orthomvp.ortho.composite_kernel import _box\n"
+        "for shape in ((0, 5), (5, 0), (0, 0)):\n"
+        "    a = np.zeros(shape, np.int32)\n"
+        "    _box(a, 2, np.zeros(shape, np.int32), np.zeros(shape, np.int32))\n"
+        "a = np.arange(12, dtype=np.int32).reshape(3, 4)\n"
+        "out = np.zeros_like(a)\n"
+        "_box(a, 1, out, np.zeros_like(a))\n"
+        "print(out[1, 1], out[0, 0])\n"
+    )
+    env = {**os.environ, "NUMBA_BOUNDSCHECK": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert run.returncode == 0, run.stderr[-2000:]
+    # the 3 x 3 box around (1, 1) holds 0..2, 4..6, 8..10; around (0, 0): 0, 1, 4, 5
+    assert run.stdout.split() == ["45", "10"]

@@ -361,7 +361,7 @@ def frame(camera: RpcCamera) -> np.ndarray | None:
     """The ``frame`` of :func:`values` for ``camera`` (a, e2, height_offset, top, bottom,
     1 + margin), or None where its world frame is not plain geocentric metres on an ellipsoid
     whose conversions the kernels reproduce within :data:`FRAME_TOLERANCE` of PROJ's (checked
-    once per world CRS and RPC domain at the corners and centre of the domain)."""
+    once per world CRS and RPC domain at the 27 points of a 3 x 3 x 3 grid over the domain)."""
     found = _FRAMES.get(camera)
     if found is None:
         crs, rpc = camera.crs, camera.rpc

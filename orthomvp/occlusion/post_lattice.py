@@ -1,5 +1,5 @@
-"""Per-post geometry of a tile for cameras whose ground-to-image is costly (RPC cameras, CSM
-line scanners: each post needs iterations through the model), from an error-bounded lattice:
+"""Per-post geometry of a tile for cameras whose ground-to-image is costly (RPC cameras: each
+post needs iterations through the model; :func:`lattice_applies`), from an error-bounded lattice:
 :func:`lattice` gives :func:`~orthomvp.occlusion.post_geometry.general`'s
 :class:`~orthomvp.occlusion.post_geometry.PostGeometry` within :data:`LATTICE_ERROR` pixels.
 

@@ -32,6 +32,8 @@ def _box(a: np.ndarray, radius: int, out: np.ndarray, tmp: np.ndarray) -> None:
     :func:`orthomvp.ortho.composite.box_sum`); ``tmp`` (rows, cols; integers) is scratch. ``out``
     may be ``a`` itself."""
     rows, cols = a.shape
+    if rows == 0 or cols == 0:  # nothing to sum (and no first row to start from)
+        return
     for c in range(cols):  # the column sums of the first row's box
         tmp[0, c] = 0
     for i in range(min(radius + 1, rows)):

@@ -75,13 +75,12 @@ _camera_coordinates = cached_jit(_camera_coordinates, fastmath=False, error_mode
 
 def _table_point(
     states: np.ndarray, diffs: np.ndarray, step: float, line: float, columns: int, out: np.ndarray
-) -> float:
+) -> None:
     """Into ``out`` (columns,): the first ``columns`` table values at CSM ``line``, as
-    ``LineScanCamera._states``; returns the knot fraction (unused by callers but numba's)."""
+    ``LineScanCamera._states``."""
     k, frac = _knot(line, step, diffs.shape[0] - 1)
     for j in range(columns):
         out[j] = diffs[k, j] * frac + states[k, j]
-    return frac
 
 
 _table_point = cached_jit(_table_point, fastmath=False, error_model="numpy", inline="always")
