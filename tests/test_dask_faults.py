@@ -48,6 +48,23 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def long_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The crater scene of 200 x 200 posts (625 8-post tiles) for runs on two worker
+    processes that a test stops once they log their tiles: the log's first line comes after
+    2 s of tiles (``orthomvp.engine.progress.LOG_AFTER``), and on a quiet machine two
+    processes finish :func:`scene`'s 400 tiles about then, so the signal found the outputs
+    complete."""
+    out = tmp_path_factory.mktemp("long") / "scene"
+    subprocess.run(
+        [*ORTHOMVP, "-q", "synth", "crater", str(out), "--size", "200", "--spacing", "32"],
+        check=True,
+        timeout=180,
+        env=ENV,
+    )
+    return out
+
+
 ORTHOMVP = [sys.executable, "-c", "from orthomvp.cli import main_entry; main_entry()"]
 ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])}
 
@@ -479,12 +496,12 @@ def signal_run(
     [(signal.SIGINT, True), (signal.SIGINT, False), (signal.SIGTERM, False)],
 )
 def test_a_signal_during_a_run_with_workers_is_one_line(
-    scene: Path, tmp_path: Path, backend: list[str], sig: signal.Signals, group: bool
+    long_scene: Path, tmp_path: Path, backend: list[str], sig: signal.Signals, group: bool
 ) -> None:
     """SIGINT (to the group, or the command alone) or SIGTERM while the workers run tiles:
     the signal's status and one line (no worker's traceback), nothing kept, and no worker
     left."""
-    status, err, below, out = signal_run(scene, tmp_path, backend, sig, group)
+    status, err, below, out = signal_run(long_scene, tmp_path, backend, sig, group)
     lines = [x for x in err.strip().splitlines() if "tiles" not in x and "plan" not in x]
     expected = 130 if sig == signal.SIGINT else 143
     assert_one_line(status, "\n".join(lines), expected, "interrupted; no partial output")
@@ -493,11 +510,11 @@ def test_a_signal_during_a_run_with_workers_is_one_line(
     assert_nothing_left(out, tmp_path / "tmp")
 
 
-def test_processes_die_with_their_parent(scene: Path, tmp_path: Path) -> None:
+def test_processes_die_with_their_parent(long_scene: Path, tmp_path: Path) -> None:
     """``--processes 2`` with the command SIGKILLed mid-run: its workers and multiprocessing's
     resource tracker end within seconds."""
     out = tmp_path / "o.tif"
-    args = ortho_args(scene, out, "--tile", "8", "--processes", "2")
+    args = ortho_args(long_scene, out, "--tile", "8", "--processes", "2")
     args.remove("-q")
     with started(args, stderr=subprocess.PIPE, text=True) as proc:
         wait_progress(proc, 25, "tiles:")
