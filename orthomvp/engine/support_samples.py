@@ -15,13 +15,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from orthomvp.ortho.support import FEATHER_RADIUS
+from orthomvp.ortho.support import FEATHER_RADIUS, near
 from orthomvp.ortho.support import RADIUS as SUPPORT_RADIUS
 
-REACH = max(SUPPORT_RADIUS, FEATHER_RADIUS)
+SAMPLE_REACH = max(SUPPORT_RADIUS, FEATHER_RADIUS)
 """Box radius (posts) within which a post the view does not see makes a post testable."""
 
 
@@ -40,17 +39,14 @@ class SupportSamples:
         cls, sure: np.ndarray, uv: np.ndarray, gsd: np.ndarray, also: np.ndarray | None = None
     ) -> SupportSamples:
         """The samples at the posts of ``sure`` (rows, cols: the view sees them, not
-        doubtful) with a post not ``sure`` within :data:`REACH` (off the window counts as
-        sure, as :func:`~orthomvp.ortho.support.near` counts it), and at the posts ``also``
+        doubtful) with a post not ``sure`` within :data:`SAMPLE_REACH` (off the window counts
+        as sure: :func:`~orthomvp.ortho.support.near`), and at the posts ``also``
         (the view's doubtful visible posts, which the clear-pixel fill of doubtful holes
         resamples); ``uv`` (rows, cols, 2) and ``gsd`` (rows, cols) of the whole window."""
-        box = np.ones((2 * REACH + 1,) * 2, np.uint8)
-        plane = np.ascontiguousarray(sure).view(np.uint8)
-        inner = cv2.erode(plane, box, borderType=cv2.BORDER_CONSTANT, borderValue=1)
-        near = sure & (inner == 0)
+        kept = near(sure[None], SAMPLE_REACH)[0]
         if also is not None:
-            near |= also
-        return cls(sure.shape, np.flatnonzero(near), uv[near], gsd[near])
+            kept |= also
+        return cls(sure.shape, np.flatnonzero(kept), uv[kept], gsd[kept])
 
     def full(self) -> tuple[np.ndarray, np.ndarray]:
         """(uv (rows, cols, 2), gsd (rows, cols)) of the window: the kept samples, NaN at the
