@@ -140,13 +140,18 @@ def general(terrain: Terrain, camera: Camera, rs: slice, cs: slice) -> PostGeome
         origins, origin = None, camera.center
     else:  # where each post is imaged from (NaN where it is not imaged)
         origins = origin = camera.origins(np.where(inside[..., None], uv, np.nan))
-    to_cam = origin - p
-    x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]  # (einsum over 3: 3x slower)
-    with np.errstate(invalid="ignore"):
-        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
+    cos_e = _emission_cosine(n, origin - p)
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, camera.gsd(p), origins
     )
+
+
+def _emission_cosine(n: np.ndarray, to_cam: np.ndarray) -> np.ndarray:
+    """The cosine (rows, cols) between unit normals ``n`` and the vectors ``to_cam`` from the
+    posts to the camera (rows, cols, 3), metres; NaN where either is."""
+    x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]  # (einsum over 3: 3x slower)
+    with np.errstate(invalid="ignore"):
+        return (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
 
 
 def _is_line_scanner(camera: Camera) -> bool:
@@ -166,10 +171,7 @@ def _line_scan(
     uv, depth, origins, directions, gsd = camera.imaging(p)
     inside = ok & (depth > 0) & camera.in_image(uv)
     origins[~inside], directions[~inside] = np.nan, np.nan
-    to_cam = origins - p
-    x, y, z = to_cam[..., 0], to_cam[..., 1], to_cam[..., 2]
-    with np.errstate(invalid="ignore"):
-        cos_e = (n[..., 0] * x + n[..., 1] * y + n[..., 2] * z) / np.sqrt(x * x + y * y + z * z)
+    cos_e = _emission_cosine(n, origins - p)
     return PostGeometry(
         p[..., 0], p[..., 1], p[..., 2], ok, uv, inside, cos_e, gsd, origins, directions
     )
