@@ -38,14 +38,7 @@ CASE_SECONDS = 30.0
 def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The crater scene of 160 x 160 posts: with 8-post tiles, 400 tiles and a run of several
     seconds on one Dask worker, long enough to kill something mid-run."""
-    out = tmp_path_factory.mktemp("scene") / "scene"
-    subprocess.run(
-        [*ORTHOMVP, "-q", "synth", "crater", str(out), "--size", "160", "--spacing", "40"],
-        check=True,
-        timeout=120,
-        env=ENV,
-    )
-    return out
+    return crater(tmp_path_factory.mktemp("scene"), 160, 40)
 
 
 @pytest.fixture(scope="module")
@@ -55,12 +48,16 @@ def long_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
     2 s of tiles (``orthomvp.engine.progress.LOG_AFTER``), and on a quiet machine two
     processes finish :func:`scene`'s 400 tiles about then, so the signal found the outputs
     complete."""
-    out = tmp_path_factory.mktemp("long") / "scene"
+    return crater(tmp_path_factory.mktemp("long"), 200, 32)
+
+
+def crater(folder: Path, size: int, spacing: float) -> Path:
+    """A crater scene of ``size`` x ``size`` posts ``spacing`` metres apart written by
+    ``orthomvp synth`` into ``folder``/scene."""
+    out = folder / "scene"
+    args = ["--size", str(size), "--spacing", str(spacing)]
     subprocess.run(
-        [*ORTHOMVP, "-q", "synth", "crater", str(out), "--size", "200", "--spacing", "32"],
-        check=True,
-        timeout=180,
-        env=ENV,
+        [*ORTHOMVP, "-q", "synth", "crater", str(out), *args], check=True, timeout=120, env=ENV
     )
     return out
 
