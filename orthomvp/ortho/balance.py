@@ -27,10 +27,13 @@ class Correction:
     offsets: np.ndarray
 
     def apply(self, values: np.ndarray) -> np.ndarray:
-        """``values`` (views, bands, ...) corrected, float32."""
-        shape = self.gains.shape + (1,) * (values.ndim - 2)
-        out = values * self.gains.reshape(shape) + self.offsets.reshape(shape)
-        return out.astype(np.float32)
+        """``values`` (views, bands, ...) corrected, float32 (computed in float64 and rounded,
+        one view at a time: the float64 products of a view, not of all, are held at once)."""
+        shape = self.gains.shape[1:] + (1,) * (values.ndim - 2)
+        out = np.empty(values.shape, np.float32)
+        for k, (gain, offset) in enumerate(zip(self.gains, self.offsets, strict=True)):
+            out[k] = values[k] * gain.reshape(shape) + offset.reshape(shape)
+        return out
 
 
 def pair_stats(values: np.ndarray, codes: np.ndarray) -> np.ndarray:
