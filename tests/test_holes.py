@@ -179,7 +179,7 @@ def test_blocked_samples_hold_the_occluders(city: Path) -> None:
     three times as often as those it clears."""
     from orthomvp.occlusion.visibility import occluder_caster
     from orthomvp.ortho.composite import doubtful
-    from orthomvp.ortho.support import blocked, candidates
+    from orthomvp.ortho.support import blocked, candidates, window_samples
     from orthomvp.synthetic.ghosts import occluder_share
 
     scene = make_scene("city", size=96)
@@ -194,7 +194,8 @@ def test_blocked_samples_hold_the_occluders(city: Path) -> None:
     shares = {True: [], False: []}
     for k, (v, name) in enumerate(zip(vis, NAMES, strict=True)):
         camera = scene.cameras[name]
-        hit = blocked(scene.terrain, whole, camera, v.uv, v.gsd, v.emission, tests[k], caster)
+        samples = window_samples(v.uv, v.gsd)
+        hit = blocked(scene.terrain, whole, camera, samples, v.emission, tests[k], caster)
         assert not (hit & ~tests[k]).any()
         for flag in (True, False):
             at = tests[k] & (hit == flag)
@@ -276,7 +277,7 @@ def test_clear_pixels_remove_the_partial_ghosts(city: Path) -> None:
     and weights, with other values exactly at the resampled posts."""
     from orthomvp.occlusion.visibility import occluder_caster
     from orthomvp.ortho.orthophoto import sample_image
-    from orthomvp.ortho.support import clear_blend, clear_taps
+    from orthomvp.ortho.support import clear_blend, clear_taps, window_samples
     from orthomvp.synthetic.ghosts import occluder_share
 
     scene = make_scene("city", size=96)
@@ -291,8 +292,9 @@ def test_clear_pixels_remove_the_partial_ghosts(city: Path) -> None:
     for k, name in enumerate(NAMES):
         at, vis = got.resampled[k], got.visibilities[k]
         assert at.sum() > 20
+        samples = window_samples(vis.uv, vis.gsd)
         taps, w = clear_taps(
-            scene.terrain, whole, scene.cameras[name], vis.uv, vis.gsd, vis.emission, at, caster
+            scene.terrain, whole, scene.cameras[name], samples, vis.emission, at, caster
         )
         assert (w.sum(axis=0) > 0).all()  # (a post with no clear pixel is not resampled)
         for how, weights in (("bilinear", None), ("clear", w)):

@@ -14,7 +14,7 @@ from orthomvp.occlusion.visibility import compute_visibility, default_eps, occlu
 from orthomvp.ortho.composite import MosaicOptions, doubtful, trusted
 from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image
 from orthomvp.ortho.support import blocked as support_blocked
-from orthomvp.ortho.support import candidates
+from orthomvp.ortho.support import candidates, window_samples
 from orthomvp.quality.eps_study import eps_study, reclassify
 from orthomvp.synthetic import away_from_boundaries, classification_scores, load_scene, look_at
 
@@ -75,7 +75,7 @@ def test_mosaic_fills_hidden_posts(scene) -> None:
     for k, (v, (_, cam)) in enumerate(zip(vis, views, strict=True)):
         test = tests[k]
         blocked[k] = support_blocked(
-            scene.terrain, whole, cam, v.uv, v.gsd, v.emission, test, caster
+            scene.terrain, whole, cam, window_samples(v.uv, v.gsd), v.emission, test, caster
         )
     assert blocked.any()
     trust = trusted(seen, doubt, blocked)

@@ -32,9 +32,9 @@ def test_kept_where_the_support_test_can_ask(seed: int) -> None:
         kept = SupportSamples.keep(sure[k], uv[k], gsd[k], doubtful[k])
         assert kept.holds(asked[k])
         assert 0 < len(kept.index) < rows * cols
-        full_uv, full_gsd = kept.full()
-        np.testing.assert_array_equal(full_uv[asked[k]], uv[k][asked[k]])
-        np.testing.assert_array_equal(full_gsd[asked[k]], gsd[k][asked[k]])
+        at_uv, at_gsd = kept.at(*np.nonzero(asked[k]))
+        np.testing.assert_array_equal(at_uv, uv[k][asked[k]])
+        np.testing.assert_array_equal(at_gsd, gsd[k][asked[k]])
         # not kept: posts more than FEATHER_RADIUS from every post the view does not see
         far = np.ones((rows, cols), bool)
         rr, cc = np.nonzero(~sure[k])
@@ -42,4 +42,5 @@ def test_kept_where_the_support_test_can_ask(seed: int) -> None:
         for a, b in zip(rr, cc, strict=True):
             far &= (np.abs(r - a) > 15) | (np.abs(c - b) > 15)
         assert far.any()
-        assert np.isnan(full_gsd[far & ~doubtful[k]]).all()
+        lost_uv, lost_gsd = kept.at(*np.nonzero(far & ~doubtful[k]))
+        assert np.isnan(lost_uv).all() and np.isnan(lost_gsd).all()

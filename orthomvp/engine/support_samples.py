@@ -48,14 +48,16 @@ class SupportSamples:
             kept |= also
         return cls(sure.shape, np.flatnonzero(kept), uv[kept], gsd[kept])
 
-    def full(self) -> tuple[np.ndarray, np.ndarray]:
-        """(uv (rows, cols, 2), gsd (rows, cols)) of the window: the kept samples, NaN at the
-        other posts (which the support test never reads)."""
-        uv = np.full((*self.shape, 2), np.nan)
-        gsd = np.full(self.shape, np.nan)
-        uv.reshape(-1, 2)[self.index] = self.uv
-        gsd.reshape(-1)[self.index] = self.gsd
-        return uv, gsd
+    def at(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The kept image positions (n, 2) and GSDs (n,) at the posts (``rows``, ``cols``)
+        (n,) of the window, NaN at posts not kept (which the support test never asks): the
+        :data:`~orthomvp.ortho.support.PostSamples` of the view."""
+        flat = np.ravel_multi_index((rows, cols), self.shape)
+        if not len(self.index):
+            return np.full((len(flat), 2), np.nan), np.full(len(flat), np.nan)
+        at = np.minimum(np.searchsorted(self.index, flat), len(self.index) - 1)
+        found = self.index[at] == flat
+        return np.where(found[:, None], self.uv[at], np.nan), np.where(found, self.gsd[at], np.nan)
 
     def holds(self, posts: np.ndarray) -> bool:
         """Whether every post of ``posts`` (rows, cols) is kept."""

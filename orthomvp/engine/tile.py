@@ -454,9 +454,8 @@ def _mosaic_tile(
         for i, k in enumerate(views):
             if posts[i].any():
                 camera = plan.views[k].camera
-                at, sizes = kept[i].full()  # (positions and GSDs where the test may ask)
                 ask = posts[i]
-                out[i] = support_blocked(grid, inner, camera, at, sizes, emission[i], ask, caster)
+                out[i] = support_blocked(grid, inner, camera, kept[i].at, emission[i], ask, caster)
         return out
 
     def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -466,8 +465,7 @@ def _mosaic_tile(
         for i, k in enumerate(views):
             if posts[i].any():
                 camera = plan.views[k].camera
-                at, sizes = kept[i].full()
-                taps, w = clear_taps(grid, inner, camera, at, sizes, emission[i], posts[i], caster)
+                taps, w = clear_taps(grid, inner, camera, kept[i].at, emission[i], posts[i], caster)
                 pixels = sample_view(plan.views[k], taps.reshape(-1, 2), Interp.NEAREST)
                 value, weight = clear_blend(pixels.reshape(-1, *w.shape).swapaxes(0, 1), w)
                 taken.append(value)

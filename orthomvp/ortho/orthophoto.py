@@ -46,7 +46,7 @@ from orthomvp.ortho.composite import (
     nadir_angle,
     overlap_width,
 )
-from orthomvp.ortho.support import Support, candidates, clear_blend, clear_taps
+from orthomvp.ortho.support import Support, candidates, clear_blend, clear_taps, window_samples
 from orthomvp.ortho.support import blocked as support_blocked
 from orthomvp.validate import of_type
 
@@ -300,8 +300,9 @@ def mosaic(
         for k, (_, camera) in enumerate(views):
             vis = visibilities[k]
             out[k] = support_blocked(
-                terrain, whole, camera, vis.uv, vis.gsd, vis.emission, posts[k], caster
-            )
+                terrain, whole, camera, window_samples(vis.uv, vis.gsd), vis.emission, posts[k],
+                caster,
+            )  # fmt: skip
         return out
 
     def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -311,8 +312,9 @@ def mosaic(
         for k, (image, camera) in enumerate(views):
             if posts[k].any():
                 vis = visibilities[k]
+                samples = window_samples(vis.uv, vis.gsd)
                 taps, w = clear_taps(
-                    terrain, whole, camera, vis.uv, vis.gsd, vis.emission, posts[k], caster
+                    terrain, whole, camera, samples, vis.emission, posts[k], caster
                 )
                 pixels = sample_image(image, taps.reshape(-1, 2), Interp.NEAREST)
                 value, weight = clear_blend(pixels.reshape(nb, *w.shape).swapaxes(0, 1), w)

@@ -73,28 +73,39 @@ ray's first hit nearer the camera than the post is an occluder (on the city, 0.5
 0.25 m pixels: about 2 posts)."""
 
 
+PostSamples = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""A view's image positions (n, 2) and ground sample distances (n,) at posts (rows, cols) (n,)
+of a window: :func:`window_samples` of whole-window arrays, or what a mosaic tile keeps
+(:meth:`orthomvp.engine.support_samples.SupportSamples.at`)."""
+
+
+def window_samples(uv: np.ndarray, gsd: np.ndarray) -> PostSamples:
+    """The :data:`PostSamples` of image positions ``uv`` (rows, cols, 2) and ground sample
+    distances ``gsd`` (rows, cols) of a whole window."""
+    return lambda rows, cols: (uv[rows, cols], gsd[rows, cols])
+
+
 def blocked(
     grid: Terrain,
     inner: tuple[slice, slice],
     camera: Camera,
-    uv: np.ndarray,
-    gsd: np.ndarray,
+    samples: PostSamples,
     emission: np.ndarray,
     test: np.ndarray,
     caster: RayCaster | Occluders,
 ) -> np.ndarray:
     """Where (rows, cols) the sample of ``camera`` at the posts ``inner`` of ``grid`` (image
-    positions ``uv`` (rows, cols, 2), ground sample distances ``gsd`` (rows, cols) metres
-    and emission angles ``emission`` (rows, cols) degrees of
-    :class:`~orthomvp.occlusion.visibility.Visibility`) reaches an occluder (module
-    docstring), tested at the posts ``test`` (rows, cols) only (False elsewhere); ``caster``
-    casts on the occluder surface (world frame, metres)."""
+    positions and ground sample distances, metres, of ``samples``, and emission angles
+    ``emission`` (rows, cols) degrees of :class:`~orthomvp.occlusion.visibility.Visibility`)
+    reaches an occluder (module docstring), tested at the posts ``test`` (rows, cols) only
+    (False elsewhere); ``caster`` casts on the occluder surface (world frame, metres)."""
     out = np.zeros(test.shape, bool)
     if not test.any():
         return out
     rows, cols = np.nonzero(test)
+    uv, gsd = samples(rows, cols)
     shifts = OFFSET * np.array(DIRECTIONS, np.float64)  # all four rays of a post in one cast
-    at = uv[rows, cols][None] + shifts[:, None]
+    at = uv[None] + shifts[:, None]
     far = _occluders(grid, inner, camera, rows, cols, at, gsd, emission, caster).any(axis=0)
     out[rows[far], cols[far]] = True
     return out
@@ -104,8 +115,7 @@ def clear_taps(
     grid: Terrain,
     inner: tuple[slice, slice],
     camera: Camera,
-    uv: np.ndarray,
-    gsd: np.ndarray,
+    samples: PostSamples,
     emission: np.ndarray,
     posts: np.ndarray,
     caster: RayCaster | Occluders,
@@ -116,8 +126,9 @@ def clear_taps(
     or :func:`blocked`'s ray beyond it (:data:`OFFSET` pixels diagonally from the post's
     position, on the pixel's side), first hits an occluder (the rule of :func:`blocked`)."""
     rows, cols = np.nonzero(posts)
+    uv, gsd = samples(rows, cols)
     # the positions as the samples take them (float32: equal in every window that holds them)
-    at = uv[rows, cols].astype(np.float32).astype(np.float64)
+    at = uv.astype(np.float32).astype(np.float64)
     base = np.floor(at)
     frac = at - base
     steps = np.array([(0, 0), (1, 0), (0, 1), (1, 1)], np.float64)  # (du, dv)
@@ -155,12 +166,13 @@ def _occluders(
     caster: RayCaster | Occluders,
 ) -> np.ndarray:
     """Whether (m, n) the rays through the pixel positions ``at`` (m, n, 2) first hit an
-    occluder of the posts (``rows``, ``cols``) (n,) of ``inner`` (module docstring; arguments
-    as :func:`blocked` takes them), all in one cast."""
+    occluder of the posts (``rows``, ``cols``) (n,) of ``inner``, whose ground sample
+    distances are ``gsd`` (n,) (module docstring; the other arguments as :func:`blocked`
+    takes them), all in one cast."""
     r0, c0 = inner[0].start or 0, inner[1].start or 0
     height = grid.values[inner][rows, cols]
     points = grid.to_world((cols + c0).astype(np.float64), (rows + r0).astype(np.float64), height)
-    size = REACH * OFFSET * facing_gsd(gsd[rows, cols], emission[rows, cols])
+    size = REACH * OFFSET * facing_gsd(gsd, emission[rows, cols])
     up = grid.up_vectors(points)
     m = len(at)
     o, d = camera.ray(at.reshape(-1, 2))
