@@ -25,6 +25,9 @@ lattice, the unit is tried with Catmull-Rom cubics across rows and columns inste
 to cells of 8 posts at 24 m), checked the same way at a quarter, half and three quarters of the
 cell (a cubic's error vanishes at the midpoint). The posts of units that fail both go to the
 lattice of half the step (:data:`LATTICE_STEPS`), and past the finest to the exact values. A
+grid's units are first tried on the coarsest lattice whose unit around a probe (the centre of
+the RPC's domain) passes, the same for all its tiles (:func:`_first_lattice`): where every unit
+of a lattice would halve, none is checked on it. A
 unit none of whose checks is imaged (beyond an RPC's domain, a line scanner's lines), or all of
 whose checks' pixels have a bounding box more than a pixel off the image, is taken as not
 imaged, its values NaN: an image would have to fit between checks half a cell apart to be
@@ -39,6 +42,11 @@ The interpolation, the normals and the world points run in numba kernels
 """
 
 from __future__ import annotations
+
+import math
+import threading
+import weakref
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -87,6 +95,33 @@ def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
     cost more than their own one-search geometry
     (:meth:`~orthomvp.camera.csm.linescan.LineScanCamera.imaging`)."""
     return isinstance(camera, RpcCamera) and min(terrain.shape) >= 2
+
+
+def preload(cameras: Iterable[object]) -> threading.Thread | None:
+    """Start loading the lattice's numba kernels in a daemon thread when :func:`lattice` will
+    serve one of ``cameras`` (an RPC camera; other items are ignored), and return the thread
+    (else None): numba's import and the load of its first kernel (about half a second, the
+    same every process) then overlap what the caller does meanwhile (planning the tiles)
+    instead of holding up the first tiles, whose threads all wait on that load."""
+    if not any(isinstance(camera, RpcCamera) for camera in cameras):
+        return None
+    thread = threading.Thread(target=_load_kernels, name="orthomvp-kernels", daemon=True)
+    thread.start()
+    return thread
+
+
+def _load_kernels() -> None:
+    """Import the lattice's and the RPC's kernel modules and load one kernel (with the types
+    :func:`lattice` calls it with: numba loads, not compiles); any failure is left to the
+    tiles, which meet it again and report it."""
+    try:
+        from orthomvp.camera import rpc_kernel  # noqa: F401
+        from orthomvp.occlusion.post_lattice_kernel import normals
+
+        block = np.zeros((2, 2, 3))
+        normals(block, True, np.empty_like(block))
+    except Exception:  # noqa: BLE001, S110 (the tiles report it)
+        pass
 
 
 def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
@@ -158,6 +193,7 @@ def tile_values(
         return out, exact
     T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
     origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
+    steps = steps[_first_lattice(terrain, camera, steps, error) :]
     fine = steps[-1]
     rc, place = np.empty((count, 2), np.int64), np.empty((count, 3))
     cell = np.empty((count, 3), np.int64)
@@ -207,6 +243,49 @@ def tile_values(
     if rest.any():
         out[exact] = fast_values(camera, p[exact])
     return out, exact
+
+
+_FIRST: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _first_lattice(terrain: Terrain, camera: Camera, steps: tuple[int, ...], error: float) -> int:
+    """The index in ``steps`` of the lattice that the units of ``terrain``'s grid are tried on
+    first: the first whose unit around a probe passes its checks (bilinear, or cubic where
+    bilinear misses far), the probe being the centre of an RPC camera's domain (its longitude
+    and latitude offsets, at its height offset); 0 for other cameras, or where the probe's unit
+    is not imaged. A unit that a coarser lattice would have served is then served by a finer
+    one, checked the same way; a grid whose units all fail the coarser lattice (the QuickBird
+    image at 6 m: every unit of 64 posts misses by less than four times the bound and halves)
+    is spared checking them. The same for every tile of a grid (kept per camera and grid)."""
+    if not isinstance(camera, RpcCamera) or len(steps) < 2:
+        return 0
+    T = terrain.transform
+    origin = (T.f / T.e + 0.5, T.c / T.a + 0.5)  # the global index of post (0, 0)
+    key = (
+        terrain.crs, terrain.world, terrain.radius_values, T.a, T.b, T.d, T.e,
+        origin[0] % 1.0, origin[1] % 1.0, steps, error,
+    )  # fmt: skip
+    known = _FIRST.setdefault(camera, {})
+    if key not in known:
+        rpc = camera.rpc
+        c, r = map(
+            float, terrain.lonlat_to_pixel(np.radians(rpc.long_off), np.radians(rpc.lat_off))
+        )
+        level = math.floor((rpc.height_off - camera.height_offset) / LEVEL_SPACING)
+        first = 0
+        while first < len(steps) - 1 and math.isfinite(r) and math.isfinite(c):
+            step = steps[first]
+            unit = np.array([[math.floor((r + origin[0]) / step),
+                              math.floor((c + origin[1]) / step), level]])  # fmt: skip
+            _, _, passed, dead, _ = _check(
+                terrain, camera, unit, step, origin, slice(0, 0), slice(0, 0), error, False
+            )
+            if dead[0] or passed[0]:
+                first = 0 if dead[0] else first
+                break
+            first += 1
+        known[key] = first
+    return known[key]
 
 
 def _check(
