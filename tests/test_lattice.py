@@ -244,23 +244,3 @@ def test_first_lattice_from_the_probe(res: float, first: int) -> None:
     rs, cs = slice(37, 201), slice(13, 158)
     alone, _ = tile_values(window, camera, slice(0, 164), slice(0, 145), p[rs, cs], ok[rs, cs])
     np.testing.assert_allclose(alone, whole[rs, cs], rtol=1e-12, atol=1e-9, equal_nan=True)
-
-
-def test_preload_only_for_the_cameras_the_lattice_serves() -> None:
-    """preload starts a thread for an RPC camera (which loads the lattice's and the RPC's kernel
-    modules) and none for a frame camera or a camera file's path."""
-    import sys
-
-    from orthomvp.camera import Rpc, RpcCamera
-    from orthomvp.occlusion.post_lattice import preload
-    from tests.test_rpc import synthetic_rpc
-
-    terrain = bench_terrain(40)
-    assert preload([bench_line_scanner(terrain), "camera.json"]) is None
-    thread = preload([RpcCamera(Rpc.from_mapping(synthetic_rpc()), width=800, height=1000)])
-    assert thread is not None
-    thread.join(timeout=120)
-    assert not thread.is_alive()
-    assert {"orthomvp.occlusion.post_lattice_kernel", "orthomvp.camera.rpc_kernel"} <= set(
-        sys.modules
-    )

@@ -76,10 +76,6 @@ def _plan(
 ) -> Plan:
     from orthomvp.engine import plan_ortho
 
-    if engine.processes is None and engine.dask is None:  # (the tiles' threads need them)
-        from orthomvp.occlusion.post_lattice import preload
-
-        preload(camera for _, camera in views)
     return plan_ortho(
         dem.path,
         views,

@@ -44,9 +44,7 @@ The interpolation, the normals and the world points run in numba kernels
 from __future__ import annotations
 
 import math
-import threading
 import weakref
-from collections.abc import Iterable
 
 import numpy as np
 
@@ -95,33 +93,6 @@ def lattice_applies(terrain: Terrain, camera: Camera) -> bool:
     cost more than their own one-search geometry
     (:meth:`~orthomvp.camera.csm.linescan.LineScanCamera.imaging`)."""
     return isinstance(camera, RpcCamera) and min(terrain.shape) >= 2
-
-
-def preload(cameras: Iterable[object]) -> threading.Thread | None:
-    """Start loading the lattice's numba kernels in a daemon thread when :func:`lattice` will
-    serve one of ``cameras`` (an RPC camera; other items are ignored), and return the thread
-    (else None): numba's import and the load of its first kernel (about half a second, the
-    same every process) then overlap what the caller does meanwhile (planning the tiles)
-    instead of holding up the first tiles, whose threads all wait on that load."""
-    if not any(isinstance(camera, RpcCamera) for camera in cameras):
-        return None
-    thread = threading.Thread(target=_load_kernels, name="orthomvp-kernels", daemon=True)
-    thread.start()
-    return thread
-
-
-def _load_kernels() -> None:
-    """Import the lattice's and the RPC's kernel modules and load one kernel (with the types
-    :func:`lattice` calls it with: numba loads, not compiles); any failure is left to the
-    tiles, which meet it again and report it."""
-    try:
-        from orthomvp.camera import rpc_kernel  # noqa: F401
-        from orthomvp.occlusion.post_lattice_kernel import normals
-
-        block = np.zeros((2, 2, 3))
-        normals(block, True, np.empty_like(block))
-    except Exception:  # noqa: BLE001, S110 (the tiles report it)
-        pass
 
 
 def exact_values(camera: Camera, xyz: np.ndarray) -> np.ndarray:
