@@ -284,7 +284,7 @@ def _check(
     node = ~(points % _SCALE).any(axis=1)
     nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
     miss, far = _verdicts(nodes, units - first, _HALVES, False, exact, xyz, at, error)
-    dead = _outside(camera, exact[at][..., :2])
+    dead = _outside(camera, exact[:, :2][at])
     cubic = miss & (far | last) & ~dead
     if cubic.any():  # the ring's nodes and the checks inside the cell
         mine = units[cubic]
@@ -344,21 +344,19 @@ def _verdicts(
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of ``a`` (n, 3) of integers, in order, and where each row of ``a``
     is among them (as ``np.unique(axis=0, return_inverse=True)``), through a table over their
-    span (small: cells and levels of a tile; a sort where it is not)."""
-    low = a.min(axis=0)
-    a = a - low
-    span = a.max(axis=0) + 1
-    key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
-    if np.prod(span.astype(np.float64)) > _TABLE_MOST:  # (a tile of extreme relief): a sort
-        keys, inverse = np.unique(key, return_inverse=True)
-    else:
-        table = np.zeros(int(np.prod(span)), np.int64)
-        table[key] = 1
-        keys = np.flatnonzero(table)
-        table[keys] = np.arange(len(keys))
-        inverse = table[key]
-    rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
-    return rows + low, inverse.ravel()
+    span (small: cells and levels of a tile; a kernel, :func:`unique_table`) or, where it is
+    not, a sort."""
+    from orthomvp.occlusion.post_lattice_kernel import unique_table
+
+    a = np.ascontiguousarray(a, np.int64)
+    if not len(a):
+        return np.empty((0, 3), np.int64), np.empty(0, np.int64)
+    rows, inverse = np.empty_like(a), np.empty(len(a), np.int64)
+    m = unique_table(a, _TABLE_MOST, rows, inverse)
+    if m >= 0:
+        return rows[:m], inverse
+    rows, inverse = np.unique(a, axis=0, return_inverse=True)  # (a tile of extreme relief)
+    return rows, inverse.ravel()
 
 
 def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
