@@ -218,3 +218,29 @@ def test_synthetic_rpc_cubics_within_the_bound(monkeypatch: pytest.MonkeyPatch) 
     assert cubic[0] > 0
     monkeypatch.undo()
     check_codes(terrain, camera)
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(("res", "first"), [(6.0, 1), (2.0, 0)])
+def test_first_lattice_from_the_probe(res: float, first: int) -> None:
+    """QuickBird in the body frame over rolling relief on the bench's transverse Mercator grid:
+    at 6 m posts every unit of 64 posts misses by less than four times the bound and halves,
+    so the probe starts the lattice at 32 posts; at 2 m at 64. Either way every post within the
+    bound of the camera's own values, and a tile's values those of the whole grid."""
+    from orthomvp.occlusion.post_lattice import LATTICE_STEPS, _first_lattice
+
+    n = 240
+    r, c = np.mgrid[0:n, 0:n].astype(np.float64)
+    z = 450 + 150 * np.sin(c / 37.0) * np.cos(r / 29.0)
+    transform = Affine(res, 0, -57000.0, 0, -res, -3728900.0)
+    terrain = Terrain(z, transform, CRS.from_proj4(SYNTHETIC_PEER_CRS), world="body")
+    camera = read_camera(shared("rpc-quickbird", "qb2_basic1b.tif"))
+    camera = replace(camera.bind(terrain), height_offset=UNDULATION)
+    assert _first_lattice(terrain, camera, LATTICE_STEPS, LATTICE_ERROR) == first
+    check_bound(terrain, camera)
+    p, ok = _posts(terrain)
+    whole, _ = tile_values(terrain, camera, slice(0, n), slice(0, n), p, ok)
+    window = terrain.crop(37, 201, 13, 158)
+    rs, cs = slice(37, 201), slice(13, 158)
+    alone, _ = tile_values(window, camera, slice(0, 164), slice(0, 145), p[rs, cs], ok[rs, cs])
+    np.testing.assert_allclose(alone, whole[rs, cs], rtol=1e-12, atol=1e-9, equal_nan=True)

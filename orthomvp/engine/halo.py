@@ -35,6 +35,7 @@ import numpy as np
 from orthomvp.camera import Camera, PinholeCamera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, WindowT
+from orthomvp.geometry.crs import geocentric_transformer
 from orthomvp.geometry.terrain import perimeter
 
 TRACK_SAMPLES = 9
@@ -83,11 +84,16 @@ def exit_distance(dem: DemSource, p: np.ndarray, d: np.ndarray) -> np.ndarray:
     if dem.preview.is_sphere:
         return _ball_exit(p, d, a + dem.h_max)
     # ellipsoid: O lies inside the ball of radius a + max(h_max, 0); bisect its convex extent
+    # on the points' geodetic heights alone (the values of from_world, through the same
+    # transformation, without mapping the points onto the grid)
+    to_geodetic = geocentric_transformer(dem.preview.crs, dem.preview.radii)
     lo = np.zeros(len(p))
     hi = _ball_exit(p, d, a + max(dem.h_max, 0.0))
     for _ in range(BISECTIONS):
         mid = (lo + hi) / 2
-        inside = dem.from_world(p + mid[:, None] * d)[2] <= dem.h_max
+        q = p + mid[:, None] * d
+        _, _, h = to_geodetic.transform(q[:, 0], q[:, 1], q[:, 2], direction="INVERSE")
+        inside = np.asarray(h) <= dem.h_max
         lo, hi = np.where(inside, mid, lo), np.where(inside, hi, mid)
     return hi
 
@@ -128,6 +134,8 @@ def _lines_of_sight(
     uv, _ = camera.project(p)
     origin = camera.origins(uv)
     known = np.isfinite(origin).all(axis=1)
+    if known.all():  # (the sensor's positions, from the model's rays, only for the others)
+        return c, r, p, origin
     others = sensor_positions(camera)
     k = len(others)
     return (

@@ -25,6 +25,9 @@ lattice, the unit is tried with Catmull-Rom cubics across rows and columns inste
 to cells of 8 posts at 24 m), checked the same way at a quarter, half and three quarters of the
 cell (a cubic's error vanishes at the midpoint). The posts of units that fail both go to the
 lattice of half the step (:data:`LATTICE_STEPS`), and past the finest to the exact values. A
+grid's units are first tried on the coarsest lattice whose unit around a probe (the centre of
+the RPC's domain) passes, the same for all its tiles (:func:`_first_lattice`): where every unit
+of a lattice would halve, none is checked on it. A
 unit none of whose checks is imaged (beyond an RPC's domain, a line scanner's lines), or all of
 whose checks' pixels have a bounding box more than a pixel off the image, is taken as not
 imaged, its values NaN: an image would have to fit between checks half a cell apart to be
@@ -40,10 +43,14 @@ The interpolation, the normals and the world points run in numba kernels
 
 from __future__ import annotations
 
+import math
+import weakref
+
 import numpy as np
 
 from orthomvp.camera import Camera, RpcCamera
 from orthomvp.codes import WorldFrame
+from orthomvp.geometry.crs import geocentric_transformer
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
@@ -158,6 +165,7 @@ def tile_values(
         return out, exact
     T = terrain.transform  # a post's index counted from the CRS's origin: tile index + offset
     origin = (T.f / T.e + 0.5 + rs.start, T.c / T.a + 0.5 + cs.start)
+    steps = steps[_first_lattice(terrain, camera, steps, error) :]
     fine = steps[-1]
     rc, place = np.empty((count, 2), np.int64), np.empty((count, 3))
     cell = np.empty((count, 3), np.int64)
@@ -209,6 +217,49 @@ def tile_values(
     return out, exact
 
 
+_FIRST: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _first_lattice(terrain: Terrain, camera: Camera, steps: tuple[int, ...], error: float) -> int:
+    """The index in ``steps`` of the lattice that the units of ``terrain``'s grid are tried on
+    first: the first whose unit around a probe passes its checks (bilinear, or cubic where
+    bilinear misses far), the probe being the centre of an RPC camera's domain (its longitude
+    and latitude offsets, at its height offset); 0 for other cameras, or where the probe's unit
+    is not imaged. A unit that a coarser lattice would have served is then served by a finer
+    one, checked the same way; a grid whose units all fail the coarser lattice (the QuickBird
+    image at 6 m: every unit of 64 posts misses by less than four times the bound and halves)
+    is spared checking them. The same for every tile of a grid (kept per camera and grid)."""
+    if not isinstance(camera, RpcCamera) or len(steps) < 2:
+        return 0
+    T = terrain.transform
+    origin = (T.f / T.e + 0.5, T.c / T.a + 0.5)  # the global index of post (0, 0)
+    key = (
+        terrain.crs, terrain.world, terrain.radius_values, T.a, T.b, T.d, T.e,
+        origin[0] % 1.0, origin[1] % 1.0, steps, error,
+    )  # fmt: skip
+    known = _FIRST.setdefault(camera, {})
+    if key not in known:
+        rpc = camera.rpc
+        c, r = map(
+            float, terrain.lonlat_to_pixel(np.radians(rpc.long_off), np.radians(rpc.lat_off))
+        )
+        level = math.floor((rpc.height_off - camera.height_offset) / LEVEL_SPACING)
+        first = 0
+        while first < len(steps) - 1 and math.isfinite(r) and math.isfinite(c):
+            step = steps[first]
+            unit = np.array([[math.floor((r + origin[0]) / step),
+                              math.floor((c + origin[1]) / step), level]])  # fmt: skip
+            _, _, passed, dead, _ = _check(
+                terrain, camera, unit, step, origin, slice(0, 0), slice(0, 0), error, False
+            )
+            if dead[0] or passed[0]:
+                first = 0 if dead[0] else first
+                break
+            first += 1
+        known[key] = first
+    return known[key]
+
+
 def _check(
     terrain: Terrain,
     camera: Camera,
@@ -234,7 +285,7 @@ def _check(
     node = ~(points % _SCALE).any(axis=1)
     nodes[tuple((points[node] // _SCALE - first).T)] = exact[node]
     miss, far = _verdicts(nodes, units - first, _HALVES, False, exact, xyz, at, error)
-    dead = _outside(camera, exact[at][..., :2])
+    dead = _outside(camera, exact[:, :2][at])
     cubic = miss & (far | last) & ~dead
     if cubic.any():  # the ring's nodes and the checks inside the cell
         mine = units[cubic]
@@ -258,10 +309,20 @@ def _exact_at(
     cs: slice,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The world points (n, 3) of lattice ``points`` (n, 3: global row and column in quarter
-    steps of ``step`` posts, height in half levels) and the camera's exact values there."""
-    rows = points[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
-    cols = points[:, 1] / 4.0 * step - origin[1] + cs.start
-    xyz = terrain.to_world(cols, rows, points[:, 2] / 2.0 * LEVEL_SPACING)
+    steps of ``step`` posts, height in half levels) and the camera's exact values there. On an
+    ellipsoid in the body frame each of their distinct places (a point's row and column; most
+    are taken at three heights or more) is mapped to longitude and latitude once, then every
+    point goes to body-fixed coordinates: :meth:`Terrain.to_world`'s operations, its values."""
+    places, at = _unique_rows(np.column_stack([points[:, :2], np.zeros(len(points), np.int64)]))
+    rows = places[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
+    cols = places[:, 1] / 4.0 * step - origin[1] + cs.start
+    height = points[:, 2] / 2.0 * LEVEL_SPACING
+    if terrain.world == WorldFrame.MAP or terrain.radius_values or terrain.is_sphere:
+        xyz = terrain.to_world(cols[at], rows[at], height)
+    else:
+        lon, lat = terrain.pixel_to_lonlat(cols, rows, wrap=False)
+        to_body = geocentric_transformer(terrain.crs, terrain.radii)  # (Terrain's own)
+        xyz = np.stack(to_body.transform(np.degrees(lon)[at], np.degrees(lat)[at], height), -1)
     return xyz, fast_values(camera, xyz)
 
 
@@ -294,21 +355,19 @@ def _verdicts(
 def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of ``a`` (n, 3) of integers, in order, and where each row of ``a``
     is among them (as ``np.unique(axis=0, return_inverse=True)``), through a table over their
-    span (small: cells and levels of a tile; a sort where it is not)."""
-    low = a.min(axis=0)
-    a = a - low
-    span = a.max(axis=0) + 1
-    key = (a[:, 0] * span[1] + a[:, 1]) * span[2] + a[:, 2]
-    if np.prod(span.astype(np.float64)) > _TABLE_MOST:  # (a tile of extreme relief): a sort
-        keys, inverse = np.unique(key, return_inverse=True)
-    else:
-        table = np.zeros(int(np.prod(span)), np.int64)
-        table[key] = 1
-        keys = np.flatnonzero(table)
-        table[keys] = np.arange(len(keys))
-        inverse = table[key]
-    rows = np.stack([keys // (span[1] * span[2]), keys // span[2] % span[1], keys % span[2]], -1)
-    return rows + low, inverse.ravel()
+    span (small: cells and levels of a tile; a kernel, :func:`unique_table`) or, where it is
+    not, a sort."""
+    from orthomvp.occlusion.post_lattice_kernel import unique_table
+
+    a = np.ascontiguousarray(a, np.int64)
+    if not len(a):
+        return np.empty((0, 3), np.int64), np.empty(0, np.int64)
+    rows, inverse = np.empty_like(a), np.empty(len(a), np.int64)
+    m = unique_table(a, _TABLE_MOST, rows, inverse)
+    if m >= 0:
+        return rows[:m], inverse
+    rows, inverse = np.unique(a, axis=0, return_inverse=True)  # (a tile of extreme relief)
+    return rows, inverse.ravel()
 
 
 def world_block(terrain: Terrain, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:

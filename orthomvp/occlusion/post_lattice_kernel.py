@@ -341,3 +341,38 @@ def _posts(
 
 
 posts = cached_jit(_posts, fastmath=False, error_model="numpy")
+
+
+def _unique_table(a: np.ndarray, most: int, rows: np.ndarray, inverse: np.ndarray) -> int:
+    """The distinct rows of ``a`` (n, 3) of integers in order into ``rows`` (n, 3), and where
+    each row of ``a`` is among them into ``inverse`` (n,), through a table over their span
+    (as :func:`orthomvp.occlusion.post_lattice._unique_rows`); returns their number, or -1
+    (nothing written) when the span holds more than ``most`` entries."""
+    n = a.shape[0]
+    low0, low1, low2 = a[0, 0], a[0, 1], a[0, 2]
+    high0, high1, high2 = low0, low1, low2
+    for i in range(1, n):
+        low0, high0 = min(low0, a[i, 0]), max(high0, a[i, 0])
+        low1, high1 = min(low1, a[i, 1]), max(high1, a[i, 1])
+        low2, high2 = min(low2, a[i, 2]), max(high2, a[i, 2])
+    span1, span2 = high1 - low1 + 1, high2 - low2 + 1
+    if np.float64(high0 - low0 + 1) * np.float64(span1) * np.float64(span2) > most:
+        return -1
+    table = np.zeros((high0 - low0 + 1) * span1 * span2, np.int64)
+    for i in range(n):
+        inverse[i] = ((a[i, 0] - low0) * span1 + (a[i, 1] - low1)) * span2 + (a[i, 2] - low2)
+        table[inverse[i]] = 1
+    m = 0
+    for key in range(table.shape[0]):
+        if table[key]:
+            rows[m, 0] = key // (span1 * span2) + low0
+            rows[m, 1] = key // span2 % span1 + low1
+            rows[m, 2] = key % span2 + low2
+            table[key] = m
+            m += 1
+    for i in range(n):
+        inverse[i] = table[inverse[i]]
+    return m
+
+
+unique_table = cached_jit(_unique_table, fastmath=False, error_model="numpy")
