@@ -170,3 +170,19 @@ def test_plans_are_those_of_the_per_tile_planner(where: str, tmp_path: Path) -> 
         assert list(plan.tiles) == jobs
         assert plan.reach == tuple(reach) and plan.elevation == tuple(elevation)
         assert sum(len(job.views) for job in jobs) > len(jobs)
+
+
+def test_footprints_that_share_a_lattice_are_each_views_own(crater_dir: Path) -> None:
+    """image_footprints of views that sample the same DEM window (the same view three times
+    between two others) share its lattice and give each view's image_footprint."""
+    from orthomvp.engine.footprint import image_footprint, image_footprints
+
+    views = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in ("oblique", "nadir")]
+    plan = plan_ortho(crater_dir / "dem.tif", views, progress=False, occlusion=False)
+    oblique, nadir = plan.views
+    sources = [oblique, nadir, nadir, nadir, oblique]
+    for got, view in zip(image_footprints(plan.dem, sources), sources, strict=True):
+        want = image_footprint(plan.dem, view)
+        assert got.window == want.window and got.seen == want.seen > 100
+        for name in ("outline", "gsd", "emission"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
