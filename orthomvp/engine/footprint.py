@@ -65,10 +65,13 @@ def image_footprint(dem: DemSource, view: ImageSource) -> Footprint:
 
 def image_footprints(dem: DemSource, views: Sequence[ImageSource]) -> list[Footprint]:
     """:func:`image_footprint` of every view of ``views``; views one after another that search
-    the same window of the DEM share its lattice (its values and world points)."""
+    the same window of the DEM share its lattice (its values and world points), and every view
+    the coarse lattice of the search on a large DEM."""
     out, last = [], None
+    rows, cols = dem.shape
+    coarse = _coarse(dem) if max(rows, cols) > SAMPLES else None
     for view in views:
-        window = _window(dem, view.camera)
+        window = (0, rows, 0, cols) if coarse is None else _search(view.camera, *coarse)
         if window is None:
             out.append(_empty())
             continue
@@ -76,13 +79,6 @@ def image_footprints(dem: DemSource, views: Sequence[ImageSource]) -> list[Footp
             last = (window, _lattice(dem, window))
         out.append(_footprint(dem, view, *last[1]))
     return out
-
-
-def _window(dem: DemSource, camera: Camera) -> WindowT | None:
-    """The window of the DEM a footprint is sampled in: the whole DEM, or on a DEM larger than
-    :data:`SAMPLES` posts a side, what :func:`_search` finds (None: nothing)."""
-    rows, cols = dem.shape
-    return _search(dem, camera) if max(rows, cols) > SAMPLES else (0, rows, 0, cols)
 
 
 def _lattice(
@@ -163,22 +159,28 @@ def _lattice_values(dem: DemSource, rr: np.ndarray, cc: np.ndarray) -> np.ndarra
     return np.stack([dem.read((int(r), int(r) + 1, c0, c1))[0, cc - c0] for r in rr])
 
 
-def _search(dem: DemSource, camera: Camera) -> WindowT | None:
-    """The window of the cells of a coarse lattice (:data:`SEARCH` cells a side at most) that
-    can project into the image: the box of a cell's corners projected at the DEM's lowest and
-    highest values meets the image, or the cell straddles the edge of what the camera images
-    (some corners project, others not). None when no cell can."""
+def _coarse(dem: DemSource) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The coarse lattice of :func:`_search` (:data:`SEARCH` cells a side at most): its rows,
+    columns and world points at the DEM's lowest and highest values (2, rows, cols, 3)."""
     rows, cols = dem.shape
     step = max(1, math.ceil(max(rows, cols) / SEARCH))
     rr, cc = _axis(0, rows, step), _axis(0, cols, step)
     c, r = np.meshgrid(cc.astype(np.float64), rr.astype(np.float64))
-    uv = np.stack(
-        [camera.project(dem.to_world(c, r, np.full(c.shape, h)))[0] for h in (dem.h_min, dem.h_max)]
-    )  # (2 heights, rows, cols, 2)
+    points = [dem.to_world(c, r, np.full(c.shape, h)) for h in (dem.h_min, dem.h_max)]
+    return rr, cc, np.stack(points)
+
+
+def _search(camera: Camera, rr: np.ndarray, cc: np.ndarray, points: np.ndarray) -> WindowT | None:
+    """The window of the cells of the coarse lattice (:func:`_coarse`: rows ``rr``, columns
+    ``cc``, world ``points``) that can project into the image: the box of a cell's corners
+    projected at the DEM's lowest and highest values meets the image, or the cell straddles
+    the edge of what the camera images (some corners project, others not). None when no cell
+    can."""
+    uv = project_pieces(camera, points)  # (2 heights, rows, cols, 2)
     corners = np.concatenate(
         [uv[:, :-1, :-1], uv[:, 1:, :-1], uv[:, :-1, 1:], uv[:, 1:, 1:]], axis=0
     )  # (8, cells r, cells c, 2)
-    finite = np.isfinite(corners).all(axis=-1)
+    finite = np.isfinite(corners[..., 0]) & np.isfinite(corners[..., 1])
     with np.errstate(invalid="ignore"):
         low = np.where(finite[..., None], corners, np.inf).min(axis=0)
         high = np.where(finite[..., None], corners, -np.inf).max(axis=0)
