@@ -31,9 +31,9 @@ MOSAIC_SMALL_TILE = 192
 """Smallest tile side :func:`mosaic_tile` chooses, posts, where many views overlap one place:
 64 views over a tile of 192 posts with the margin hold 3.2 million view posts (4 views over
 768 posts: 2.5 million; over 256: 5.2 million). The fixed set of ``orthomvp bench`` at 64
-views peaked at 805 MB in tiles of 192 (801 at 4 views; 991 in 256) for 5% more CPU; tiles of
-128 peaked at 620 MB but took 56% more CPU (the visibility test of a view costs about 5 ms a
-tile besides its posts)."""
+views peaked at 805 MB in tiles of 192 (787-841 at 4 views; 991 in 256), 5% more CPU; tiles of
+128 peaked at 620 MB but took 56% more CPU (the visibility phase 1.7x for 1.2x the posts:
+it has fixed costs per view and tile)."""
 
 TILE_STEP = 64
 """:func:`auto_tile` gives multiples of it, so that each tile makes the output's first six
