@@ -71,9 +71,9 @@ SAMPLE_BUDGET_PIXELS = 1 << 24
 
 BATCH_POSTS = 1 << 13
 """Posts sampled (perimeters and lattices) in one run of tiles that planning projects at once
-for every view: small enough that a run's arrays stay in cache (the halos of 60 tiles of 256
-posts x 64 views planned in 1.9 s of CPU in runs of 2^13 posts, 2.0 s in 2^12, 7-9 s in 2^15;
-3.4 s tile by tile)."""
+for every view: small enough that a run's arrays stay in cache (60 tiles of 256 posts x 64
+views, boxes and halos: 1.7-2.1 s of CPU in runs of 2^12 to 2^14 posts, 7-9 s in 2^15,
+3.2-3.6 s tile by tile)."""
 
 
 @dataclass(frozen=True)
