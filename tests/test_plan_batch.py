@@ -13,9 +13,16 @@ import pytest
 
 from orthomvp.bench.mosaic import growing_scene
 from orthomvp.camera import PinholeCamera
-from orthomvp.engine import plan_ortho
+from orthomvp.engine import halo, plan_ortho
 from orthomvp.engine.grid import grid_to_dem
-from orthomvp.engine.halo import TileSamples, footprint, image_box, tile_halo
+from orthomvp.engine.halo import (
+    BATCH_POSTS,
+    TileSamples,
+    footprint,
+    image_box,
+    tile_halo,
+    tile_runs,
+)
 from orthomvp.engine.plan import TileJob, _sees, _union, grow, pixel_window
 from orthomvp.synthetic import make_scene
 from orthomvp.synthetic.cameras import look_at
@@ -157,32 +164,21 @@ def per_tile(plan: object, margin: int) -> tuple[list[TileJob], list[float], lis
 
 @pytest.mark.slow
 @pytest.mark.parametrize("where", ["synthetic", "ngi-aerial"])
-def test_plans_are_those_of_the_per_tile_planner(where: str, tmp_path: Path) -> None:
-    """A 16-image mosaic plan (tiles of 64 posts and of the default side): every tile's views,
-    DEM window and image windows, and every view's reach and elevation, are the per-tile
-    planner's."""
+def test_plans_are_those_of_the_per_tile_planner(
+    where: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 16-image mosaic plan (tiles of 64 posts, in runs of the default size and of one tile
+    each, and of the default side): every tile's views, DEM window and image windows, and
+    every view's reach and elevation, are the per-tile planner's."""
     if where == "ngi-aerial" and not (NGI / "dem.tif").is_file():
         pytest.skip(f"real data not available: {NGI} is absent")
     dem, views, _ = growing_scene(NGI if where == "ngi-aerial" else None, 16, tmp_path)
-    for tile in (64, None):
+    for tile, batch in ((64, BATCH_POSTS), (64, 1), (None, BATCH_POSTS)):
+        monkeypatch.setattr(halo, "BATCH_POSTS", batch)
         plan = plan_ortho(dem, views, res="30m", progress=False, tile=tile)
+        if batch == BATCH_POSTS:
+            assert len(tile_runs(list(plan.grid.tiles(plan.tile)))) > 1 or tile is None
         jobs, reach, elevation = per_tile(plan, plan.margin)
         assert list(plan.tiles) == jobs
         assert plan.reach == tuple(reach) and plan.elevation == tuple(elevation)
         assert sum(len(job.views) for job in jobs) > len(jobs)
-
-
-def test_footprints_that_share_a_lattice_are_each_views_own(crater_dir: Path) -> None:
-    """image_footprints of views that sample the same DEM window (the same view three times
-    between two others) share its lattice and give each view's image_footprint."""
-    from orthomvp.engine.footprint import image_footprint, image_footprints
-
-    views = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in ("oblique", "nadir")]
-    plan = plan_ortho(crater_dir / "dem.tif", views, progress=False, occlusion=False)
-    oblique, nadir = plan.views
-    sources = [oblique, nadir, nadir, nadir, oblique]
-    for got, view in zip(image_footprints(plan.dem, sources), sources, strict=True):
-        want = image_footprint(plan.dem, view)
-        assert got.window == want.window and got.seen == want.seen > 100
-        for name in ("outline", "gsd", "emission"):
-            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))

@@ -7,6 +7,7 @@ only the headers of the images; everything else is geometry on the tiles' perime
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -35,7 +36,7 @@ from orthomvp.engine.grid_choice import (
     grid_spacing,
     read_source,
 )
-from orthomvp.engine.halo import TileSamples, ToDem, footprint
+from orthomvp.engine.halo import TileSamples, ToDem, footprint, tile_runs
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tiling import (
@@ -68,12 +69,6 @@ IMAGE_MARGIN = 2
 
 SAMPLE_BUDGET_PIXELS = 1 << 24
 """Pixels of an image window (per band) above which a tile samples its image in pieces."""
-
-BATCH_POSTS = 1 << 13
-"""Posts sampled (perimeters and lattices) in one run of tiles that planning projects at once
-for every view: small enough that a run's arrays stay in cache (60 tiles of 256 posts x 64
-views, boxes and halos: 1.7-2.1 s of CPU in runs of 2^12 to 2^14 posts, 7-9 s in 2^15,
-3.2-3.6 s tile by tile)."""
 
 
 @dataclass(frozen=True)
@@ -264,9 +259,10 @@ def _jobs(
     view the image box of every tile (None where not computed), and per view the farthest
     occluder track (DEM posts) and the lowest line of sight (degrees) over all tiles, all for
     the tiles grown by ``margin`` posts (the posts they compute). With ``candidates``, an index
-    of the grid, only the views it finds can see a tile are tried. Tiles go in runs of about
-    :data:`BATCH_POSTS` sampled posts, and in each run every view's image boxes, then its
-    halos where it sees a tile, are found at once (:class:`~orthomvp.engine.halo.TileSamples`)."""
+    of the grid, only the views it finds can see a tile are tried. Tiles go in runs
+    (:func:`~orthomvp.engine.halo.tile_runs`), and in each run every view's image boxes, then
+    its halos where it sees a tile, are found at once
+    (:class:`~orthomvp.engine.halo.TileSamples`)."""
     n = len(views)
     grown = [grow(window, margin, grid.shape) for window in windows]
     need = [footprint(dem, to_dem, window, grid.on_dem) for window in grown]
@@ -279,11 +275,14 @@ def _jobs(
             tiles[k].append(i)
     seen: list[list[int]] = [[] for _ in windows]
     image: list[list[WindowT]] = [[] for _ in windows]
+    at = [0] * n  # per view, its first tile not yet planned (tiles[k] ascends)
     with Progress("planning tiles", progress, len(windows)) as bar:
-        for first, last in _runs(grown):
+        for first, last in tile_runs(grown):
             samples = TileSamples(dem, to_dem, grown[first:last])
             for k, view in enumerate(views):
-                mine = [i - first for i in tiles[k] if first <= i < last]
+                end = bisect.bisect_left(tiles[k], last, at[k])
+                mine = [i - first for i in tiles[k][at[k] : end]]
+                at[k] = end
                 sees = []
                 for j, box in zip(mine, samples.image_boxes(mine, view.camera), strict=True):
                     boxes[k][first + j] = box
@@ -304,19 +303,6 @@ def _jobs(
         for i, window in enumerate(windows)
     ]
     return jobs, boxes, reach, elevation
-
-
-def _runs(windows: list[WindowT]) -> list[tuple[int, int]]:
-    """``windows`` cut into consecutive runs (first, last) of at most :data:`BATCH_POSTS`
-    posts sampled (their perimeters and 9 x 9 lattices; one window a run at least)."""
-    runs, first, posts = [], 0, 0
-    for i, (r0, r1, c0, c1) in enumerate(windows):
-        size = 2 * (r1 - r0 + c1 - c0) + 81
-        if posts and posts + size > BATCH_POSTS:
-            runs.append((first, i))
-            first, posts = i, 0
-        posts += size
-    return runs + [(first, len(windows))] if windows else runs
 
 
 def plan_ortho(
