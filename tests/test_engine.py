@@ -558,9 +558,11 @@ def test_auto_tile_gives_every_core_a_tile_on_small_grids(crater_dir: Path) -> N
     assert check_tile(None) is None
     # a mosaic's tiles keep every view's samples under the heap's mmap threshold
     from orthomvp.engine.heap import MMAP_THRESHOLD
-    from orthomvp.engine.tiling import mosaic_tile
+    from orthomvp.engine.tiling import MOSAIC_SMALL_TILE, mosaic_tile
 
-    assert mosaic_tile(2, 3, 13) == 1024 and mosaic_tile(50, 3, 13) == 256
+    assert mosaic_tile(2, 3, 13) == 1024 and mosaic_tile(30, 3, 13) == 256
+    # where many views overlap, below 256 posts (MOSAIC_SMALL_TILE), however many views
+    assert mosaic_tile(50, 3, 13) == mosaic_tile(500, 3, 13) == MOSAIC_SMALL_TILE < 256
     for views, bands in ((3, 1), (4, 3), (6, 3), (8, 4)):
         tile = mosaic_tile(views, bands, 13)
         stack = (tile + 26) ** 2 * views * bands * 4  # bytes, the tile with its margin

@@ -155,7 +155,7 @@ def test_huge_grids_are_refused_before_any_tile_is_planned(
 
     with monkeypatch.context() as patch:
         patch.setattr(plan_module, "ViewIndex", never)
-        patch.setattr(plan_module, "plan_tiles", never)
+        patch.setattr(plan_module, "_jobs", never)
         with pytest.raises(InputError, match="tiles of 2 posts, more than the 250,000") as info:
             plan_ortho(dem, views, res="1m", tile=2, progress=False)
         cols, rows, count = re.search(

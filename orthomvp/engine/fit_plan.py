@@ -32,10 +32,11 @@ the flatness thresholds) come from one pass over each image in blocks when plann
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,9 +45,9 @@ from orthomvp.codes import WorldFrame
 from orthomvp.engine.arguments import dem_path, dem_reading, eps_posts, view_pairs
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, output_grid
 from orthomvp.engine.grid_choice import check_plan, read_source
-from orthomvp.engine.halo import footprint, image_box, tile_halo
+from orthomvp.engine.halo import Box, Halo, footprint, image_box, tile_halo
 from orthomvp.engine.images import ImageSource, image_source
-from orthomvp.engine.plan import _sees, _union, plan_tiles
+from orthomvp.engine.plan import _sees, _union
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tiling import (
     MESH_BYTES,
@@ -364,3 +365,28 @@ def plan_fit(
         tuple(elevation),
         progress,
     )
+
+
+def plan_tiles(
+    windows: list[WindowT],
+    job: Callable[[int, WindowT], tuple[Any, list[Box | None], list[Halo | None]]],
+    views: int,
+    progress: bool,
+) -> tuple[list[Any], list[list[Box | None]], list[float], list[float]]:
+    """Run ``job(index, window)`` for every tile window: the jobs, per view the image box of
+    every tile, and per view the farthest occluder track (DEM posts) and the lowest line of
+    sight (degrees) over all tiles."""
+    jobs: list[Any] = []
+    boxes: list[list[Box | None]] = [[] for _ in range(views)]
+    reach, elevation = [0.0] * views, [90.0] * views
+    with Progress("planning tiles", progress, len(windows)) as bar:
+        for index, window in enumerate(windows):
+            tile_job, tile_boxes, halos = job(index, window)
+            jobs.append(tile_job)
+            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
+                boxes[k].append(box)
+                if halo is not None:
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
+            bar.update()
+    return jobs, boxes, reach, elevation

@@ -11,6 +11,7 @@ Posts hidden by terrain are still within the footprint: nothing here tests occlu
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +30,9 @@ SEARCH = 256
 
 GSD_SAMPLES = 4096
 """Seen lattice posts (at most, evenly chosen) at which GSD and emission are computed."""
+
+PIECE = 1 << 14
+"""Points projected at once (:func:`project_pieces`)."""
 
 
 @dataclass(frozen=True)
@@ -56,20 +60,53 @@ class Footprint:
 def image_footprint(dem: DemSource, view: ImageSource) -> Footprint:
     """The :class:`Footprint` of ``view`` (its camera in the DEM's world frame, with its image
     size) on ``dem``."""
+    return image_footprints(dem, [view])[0]
+
+
+def image_footprints(dem: DemSource, views: Sequence[ImageSource]) -> list[Footprint]:
+    """:func:`image_footprint` of every view of ``views``; views one after another that search
+    the same window of the DEM share its lattice (its values and world points), and every view
+    the coarse lattice of the search on a large DEM."""
+    out, last = [], None
     rows, cols = dem.shape
-    window: WindowT | None = (0, rows, 0, cols)
-    if max(rows, cols) > SAMPLES:
-        window = _search(dem, view.camera)
-    if window is None:
-        return _empty()
+    coarse = _coarse(dem) if max(rows, cols) > SAMPLES else None
+    for view in views:
+        window = (0, rows, 0, cols) if coarse is None else _search(view.camera, *coarse)
+        if window is None:
+            out.append(_empty())
+            continue
+        if last is None or last[0] != window:
+            last = (window, _lattice(dem, window))
+        out.append(_footprint(dem, view, *last[1]))
+    return out
+
+
+def _lattice(
+    dem: DemSource, window: WindowT
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The lattice a footprint in ``window`` is sampled on: its step (posts), its rows and
+    columns, their DEM values and their world points."""
     r0, r1, c0, c1 = window
     step = max(1, math.ceil(max(r1 - r0, c1 - c0) / SAMPLES))
     rr, cc = _axis(r0, r1, step), _axis(c0, c1, step)
     values = _lattice_values(dem, rr, cc)
     c, r = np.meshgrid(cc.astype(np.float64), rr.astype(np.float64))
-    points = dem.to_world(c, r, values)
-    uv, _ = view.camera.project(points)
-    seen = np.isfinite(values) & np.isfinite(uv).all(axis=-1)
+    return step, rr, cc, values, dem.to_world(c, r, values)
+
+
+def _footprint(
+    dem: DemSource,
+    view: ImageSource,
+    step: int,
+    rr: np.ndarray,
+    cc: np.ndarray,
+    values: np.ndarray,
+    points: np.ndarray,
+) -> Footprint:
+    """The footprint of ``view`` from its lattice (:func:`_lattice`)."""
+    rows, cols = dem.shape
+    uv = project_pieces(view.camera, points)
+    seen = np.isfinite(values) & np.isfinite(uv[..., 0]) & np.isfinite(uv[..., 1])
     seen[seen] = view.camera.in_image(uv[seen])
     if not seen.any():
         return _empty()
@@ -89,6 +126,16 @@ def image_footprint(dem: DemSource, view: ImageSource) -> Footprint:
     gsd, emission = ground_gsd(dem, view.camera, p, uv_seen)
     time = _times(view, uv[seen])
     return Footprint(found, step, int(seen.sum()), outline, gsd, emission, time)
+
+
+def project_pieces(camera: Camera, points: np.ndarray) -> np.ndarray:
+    """``camera.project(points)[0]`` (pixels, (..., 2)) of world ``points`` (..., 3), in
+    pieces of :data:`PIECE` points: the same values, with temporaries that stay in cache (a
+    frame camera projected 166,000 points in 28 ms at once, in 9 ms in pieces)."""
+    flat = points.reshape(-1, 3)
+    pieces = [camera.project(flat[i : i + PIECE])[0] for i in range(0, len(flat), PIECE)]
+    uv = np.concatenate(pieces) if pieces else np.empty((0, 2))
+    return uv.reshape(*points.shape[:-1], 2)
 
 
 def _empty() -> Footprint:
@@ -112,22 +159,28 @@ def _lattice_values(dem: DemSource, rr: np.ndarray, cc: np.ndarray) -> np.ndarra
     return np.stack([dem.read((int(r), int(r) + 1, c0, c1))[0, cc - c0] for r in rr])
 
 
-def _search(dem: DemSource, camera: Camera) -> WindowT | None:
-    """The window of the cells of a coarse lattice (:data:`SEARCH` cells a side at most) that
-    can project into the image: the box of a cell's corners projected at the DEM's lowest and
-    highest values meets the image, or the cell straddles the edge of what the camera images
-    (some corners project, others not). None when no cell can."""
+def _coarse(dem: DemSource) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The coarse lattice of :func:`_search` (:data:`SEARCH` cells a side at most): its rows,
+    columns and world points at the DEM's lowest and highest values (2, rows, cols, 3)."""
     rows, cols = dem.shape
     step = max(1, math.ceil(max(rows, cols) / SEARCH))
     rr, cc = _axis(0, rows, step), _axis(0, cols, step)
     c, r = np.meshgrid(cc.astype(np.float64), rr.astype(np.float64))
-    uv = np.stack(
-        [camera.project(dem.to_world(c, r, np.full(c.shape, h)))[0] for h in (dem.h_min, dem.h_max)]
-    )  # (2 heights, rows, cols, 2)
+    points = [dem.to_world(c, r, np.full(c.shape, h)) for h in (dem.h_min, dem.h_max)]
+    return rr, cc, np.stack(points)
+
+
+def _search(camera: Camera, rr: np.ndarray, cc: np.ndarray, points: np.ndarray) -> WindowT | None:
+    """The window of the cells of the coarse lattice (:func:`_coarse`: rows ``rr``, columns
+    ``cc``, world ``points``) that can project into the image: the box of a cell's corners
+    projected at the DEM's lowest and highest values meets the image, or the cell straddles
+    the edge of what the camera images (some corners project, others not). None when no cell
+    can."""
+    uv = project_pieces(camera, points)  # (2 heights, rows, cols, 2)
     corners = np.concatenate(
         [uv[:, :-1, :-1], uv[:, 1:, :-1], uv[:, :-1, 1:], uv[:, 1:, 1:]], axis=0
     )  # (8, cells r, cells c, 2)
-    finite = np.isfinite(corners).all(axis=-1)
+    finite = np.isfinite(corners[..., 0]) & np.isfinite(corners[..., 1])
     with np.errstate(invalid="ignore"):
         low = np.where(finite[..., None], corners, np.inf).min(axis=0)
         high = np.where(finite[..., None], corners, -np.inf).max(axis=0)

@@ -36,7 +36,7 @@ import numpy as np
 from orthomvp.camera import in_world, sensor_positions
 from orthomvp.camera.rpc import in_vertical_datum
 from orthomvp.codes import WorldFrame
-from orthomvp.engine.footprint import Footprint, image_footprint, union_window, window_bounds
+from orthomvp.engine.footprint import Footprint, image_footprints, union_window, window_bounds
 from orthomvp.engine.grid import (
     DemSource,
     OutputGrid,
@@ -173,7 +173,7 @@ def choose_grid(
     if grid == "dem" or (units is not None and bounds is not None):
         return output_grid(dem, units, bounds, crs)
     if footprints is None:
-        footprints = [image_footprint(dem, view) for view in sources]
+        footprints = image_footprints(dem, sources)
     windows = [f.window for f in footprints if f.window is not None]
     if not windows:
         return output_grid(dem, units, bounds, crs)

@@ -7,11 +7,12 @@ only the headers of the images; everything else is geometry on the tiles' perime
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import bisect
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,7 +36,7 @@ from orthomvp.engine.grid_choice import (
     grid_spacing,
     read_source,
 )
-from orthomvp.engine.halo import Halo, ToDem, footprint, image_box, tile_halo
+from orthomvp.engine.halo import TileSamples, ToDem, footprint, tile_runs
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tiling import (
@@ -243,43 +244,65 @@ def _sees(box: Box | None, view: ImageSource) -> bool:
     )
 
 
-def _job(
+def _jobs(
     dem: DemSource,
     to_dem: ToDem,
     grid: OutputGrid,
     views: tuple[ImageSource, ...],
-    index: int,
-    window: WindowT,
+    windows: list[WindowT],
     occlusion: bool,
     margin: int = 0,
     candidates: ViewIndex | None = None,
-) -> tuple[TileJob, list[Box | None], list[Halo | None]]:
-    """Plan one tile: the job (the views that see it, its DEM window), and per view the
-    tile's image box and its occluder halo (None where not computed), all for the tile grown
-    by ``margin`` posts (the posts it computes). With ``candidates``, an index of the grid, only
-    the views it finds can see the tile are tried (the others' boxes stay None)."""
-    tile, window = window, grow(window, margin, grid.shape)
-    boxes: list[Box | None] = [None] * len(views)
-    halos: list[Halo | None] = [None] * len(views)
-    need = footprint(dem, to_dem, window, grid.on_dem)
-    if need[0] >= need[1] or need[2] >= need[3]:  # the tile lies off the DEM
-        return TileJob(index, tile, (), None, ()), boxes, halos
-    seen, windows = [], []
-    among = range(len(views)) if candidates is None else candidates.views(window)
-    for k in among:
-        view = views[k]
-        boxes[k] = image_box(dem, to_dem, window, view.camera)
-        if not _sees(boxes[k], view):
-            continue
-        seen.append(k)
-        u0, u1, v0, v1 = boxes[k]
-        windows.append(pixel_window(view, (u0, v0), (u1, v1)))
-        if occlusion:
-            halos[k] = tile_halo(dem, to_dem, window, view.camera)
-            need = _union(need, halos[k].window)
-    if not seen:
-        return TileJob(index, tile, (), None, ()), boxes, halos
-    return TileJob(index, tile, tuple(seen), need, tuple(windows)), boxes, halos
+    progress: bool = False,
+) -> tuple[list[TileJob], list[list[Box | None]], list[float], list[float]]:
+    """Plan the tiles ``windows``: their jobs (the views that see a tile, its DEM window), per
+    view the image box of every tile (None where not computed), and per view the farthest
+    occluder track (DEM posts) and the lowest line of sight (degrees) over all tiles, all for
+    the tiles grown by ``margin`` posts (the posts they compute). With ``candidates``, an index
+    of the grid, only the views it finds can see a tile are tried. Tiles go in runs
+    (:func:`~orthomvp.engine.halo.tile_runs`), and in each run every view's image boxes, then
+    its halos where it sees a tile, are found at once
+    (:class:`~orthomvp.engine.halo.TileSamples`)."""
+    n = len(views)
+    grown = [grow(window, margin, grid.shape) for window in windows]
+    need = [footprint(dem, to_dem, window, grid.on_dem) for window in grown]
+    on = [r0 < r1 and c0 < c1 for r0, r1, c0, c1 in need]  # else the tile lies off the DEM
+    boxes: list[list[Box | None]] = [[None] * len(windows) for _ in range(n)]
+    reach, elevation = [0.0] * n, [90.0] * n
+    tiles: list[list[int]] = [[] for _ in range(n)]  # per view, the tiles it may see
+    for i, window in enumerate(grown):
+        for k in (range(n) if candidates is None else candidates.views(window)) if on[i] else ():
+            tiles[k].append(i)
+    seen: list[list[int]] = [[] for _ in windows]
+    image: list[list[WindowT]] = [[] for _ in windows]
+    at = [0] * n  # per view, its first tile not yet planned (tiles[k] ascends)
+    with Progress("planning tiles", progress, len(windows)) as bar:
+        for first, last in tile_runs(grown):
+            samples = TileSamples(dem, to_dem, grown[first:last])
+            for k, view in enumerate(views):
+                end = bisect.bisect_left(tiles[k], last, at[k])
+                mine = [i - first for i in tiles[k][at[k] : end]]
+                at[k] = end
+                sees = []
+                for j, box in zip(mine, samples.image_boxes(mine, view.camera), strict=True):
+                    boxes[k][first + j] = box
+                    if _sees(box, view):
+                        sees.append(j)
+                        seen[first + j].append(k)
+                        image[first + j].append(pixel_window(view, box[::2], box[1::2]))
+                halos = samples.halos(sees, view.camera) if occlusion else []
+                for j, halo in zip(sees if occlusion else [], halos, strict=True):
+                    need[first + j] = _union(need[first + j], halo.window)
+                    reach[k] = max(reach[k], halo.reach)
+                    elevation[k] = min(elevation[k], halo.elevation)
+            bar.update(last - first)
+    jobs = [
+        TileJob(i, window, tuple(seen[i]), need[i], tuple(image[i]))
+        if seen[i]
+        else TileJob(i, window, (), None, ())
+        for i, window in enumerate(windows)
+    ]
+    return jobs, boxes, reach, elevation
 
 
 def plan_ortho(
@@ -440,7 +463,7 @@ def tile_grid(
     :func:`auto_tile`, from ``smallest`` to ``largest``, for a mosaic of ``stack`` bands at most
     :func:`mosaic_tile` of the views that see a tile), each with ``margin`` posts around it,
     its DEM window (with the occluder halo when ``occlusion``) and its image boxes
-    (:func:`plan_tiles`), checked (:func:`check_plan`)."""
+    (:func:`_jobs`), checked (:func:`check_plan`)."""
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     out = choose_grid(source, sources, grid=grid, res=res, bounds=bounds, crs=crs)
     check_grid_size(out, source, sources, output_dir)
@@ -451,44 +474,14 @@ def tile_grid(
         largest = min(largest, mosaic_tile(found.most(margin), stack, margin))
     tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
     check_tile_count(out, tile)
-    jobs, boxes, reach, elevation = plan_tiles(
-        out.tiles(tile),
-        lambda i, window: _job(source, to_dem, out, sources, i, window, occlusion, margin, found),
-        len(sources),
-        progress,
+    windows = out.tiles(tile)
+    jobs, boxes, reach, elevation = _jobs(
+        source, to_dem, out, sources, windows, occlusion, margin, found, progress
     )
     seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
     for k in range(len(sources)):
         if not seen[k]:  # its box in every tile, for the message saying why
             alone = (sources[k],)
-            tiles = enumerate(out.tiles(tile))
-            boxes[k] = [
-                _job(source, to_dem, out, alone, i, w, False, margin)[1][0] for i, w in tiles
-            ]
+            boxes[k] = _jobs(source, to_dem, out, alone, windows, False, margin)[1][0]
     check_plan(source, sources, boxes, seen, reach, elevation)
     return TiledGrid(source, sources, out, jobs, reach, elevation, tile)
-
-
-def plan_tiles(
-    windows: list[WindowT],
-    job: Callable[[int, WindowT], tuple[Any, list[Box | None], list[Halo | None]]],
-    views: int,
-    progress: bool,
-) -> tuple[list[Any], list[list[Box | None]], list[float], list[float]]:
-    """Run ``job(index, window)`` for every tile window: the jobs, per view the image box of
-    every tile, and per view the farthest occluder track (DEM posts) and the lowest line of
-    sight (degrees) over all tiles."""
-    jobs: list[Any] = []
-    boxes: list[list[Box | None]] = [[] for _ in range(views)]
-    reach, elevation = [0.0] * views, [90.0] * views
-    with Progress("planning tiles", progress, len(windows)) as bar:
-        for index, window in enumerate(windows):
-            tile_job, tile_boxes, halos = job(index, window)
-            jobs.append(tile_job)
-            for k, (box, halo) in enumerate(zip(tile_boxes, halos, strict=True)):
-                boxes[k].append(box)
-                if halo is not None:
-                    reach[k] = max(reach[k], halo.reach)
-                    elevation[k] = min(elevation[k], halo.elevation)
-            bar.update()
-    return jobs, boxes, reach, elevation

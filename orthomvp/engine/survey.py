@@ -17,7 +17,7 @@ import numpy as np
 
 from orthomvp.engine.grid import grid_to_dem, output_grid
 from orthomvp.engine.grid_choice import grid_spacing
-from orthomvp.engine.plan import Plan, _job, plan_tiles
+from orthomvp.engine.plan import Plan, _jobs
 from orthomvp.ortho.balance import pair_stats, solve_balance
 from orthomvp.ortho.composite import clamp_blend, overlap_width
 
@@ -48,11 +48,15 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
         post_scale = grid_spacing(grid, plan.dem) / plan.spacing
     to_dem = grid_to_dem(grid, plan.dem)
     plain = replace(plan.mosaic, seamlines=False, blend=0, balance=None, holes="empty")
-    jobs, *_ = plan_tiles(
+    jobs, *_ = _jobs(
+        plan.dem,
+        to_dem,
+        grid,
+        plan.views,
         grid.tiles(plan.tile),
-        lambda i, w: _job(plan.dem, to_dem, grid, plan.views, i, w, plan.occlusion, plain.margin),
-        len(plan.views),
-        progress,
+        plan.occlusion,
+        plain.margin,
+        progress=progress,
     )
     coarse = replace(
         plan,

@@ -27,6 +27,14 @@ whose longer side is shorter than two of them is one tile (at 24 m on ngi-aerial
 posts: 0.40 s for the whole command against 0.42 s in tiles of 256, one of them 35 posts
 high); a mosaic's compose still gains from tiles of :data:`SMALL_TILE`."""
 
+MOSAIC_SMALL_TILE = 192
+"""Smallest tile side :func:`mosaic_tile` chooses, posts, where many views overlap one place:
+64 views over a tile of 192 posts with the margin hold 3.2 million view posts (4 views over
+768 posts: 2.5 million; over 256: 5.2 million). The fixed set of ``orthomvp bench`` at 64
+views peaked at 805 MB in tiles of 192 (787-841 at 4 views; 991 in 256), 5% more CPU; tiles of
+128 peaked at 620 MB but took 56% more CPU (the visibility phase 1.7x for 1.2x the posts:
+it has fixed costs per view and tile)."""
+
 TILE_STEP = 64
 """:func:`auto_tile` gives multiples of it, so that each tile makes the output's first six
 overview levels from its own posts (:mod:`orthomvp.engine.overviews`)."""
@@ -86,8 +94,8 @@ def auto_tile(
 
 
 def mosaic_tile(views: int | Callable[[int], int], bands: int, margin: int) -> int:
-    """The largest default tile side of a mosaic (a multiple of 128, at least
-    :data:`SMALL_TILE`, at most :data:`TILE`) whose stack of the samples of the views that see
+    """The largest default tile side of a mosaic (a multiple of 128 from :data:`SMALL_TILE` to
+    :data:`TILE`, else :data:`MOSAIC_SMALL_TILE`) whose stack of the samples of the views that see
     one tile (float32, with the ``margin`` around the tile) stays below the heap's mmap
     threshold (:data:`orthomvp.engine.heap.MMAP_THRESHOLD`): larger blocks come afresh from the
     kernel at every allocation, and compose's temporaries of that size then cost page faults (a
@@ -96,11 +104,11 @@ def mosaic_tile(views: int | Callable[[int], int], bands: int, margin: int) -> i
     or every view (a count). The memory rule: a tile's stack holds only its own views, so
     tiles shrink as more views overlap one place, not as more images join the mosaic."""
     per_post = max(4 * bands, 8)
-    for side in range(TILE, SMALL_TILE - 1, -128):
+    for side in (*range(TILE, SMALL_TILE - 1, -128), MOSAIC_SMALL_TILE):
         count = views if isinstance(views, int) else views(side)
         if (side + 2 * margin) ** 2 * max(count, 1) * per_post <= MMAP_THRESHOLD:
             return side
-    return SMALL_TILE
+    return MOSAIC_SMALL_TILE
 
 
 def check_tile(tile: object) -> int | None:
