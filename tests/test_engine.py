@@ -693,3 +693,29 @@ def test_prefetched_image_windows_sample_as_reads(
     assert readers == [job.image_windows[0]] and len(alone) == 1 and alone != readers
     assert one.filled == two.filled > 0
     np.testing.assert_array_equal(read(tmp_path / "one.tif"), read(tmp_path / "two.tif"))
+
+
+def test_a_mosaics_small_tiles_grow_where_the_grid_would_need_too_many(
+    crater_dir: Path, monkeypatch
+) -> None:  # noqa: ANN001
+    """Where many views overlap, a mosaic's default tile may go below 256 posts
+    (MOSAIC_SMALL_TILE); where that would cut the grid into more than MAX_TILES tiles, the
+    default grows (by TILE_STEP) until it does not, instead of refusing a plan whose tile the
+    user did not choose. A tile the user chose is still refused."""
+    import orthomvp.engine.grid_choice as grid_choice
+    import orthomvp.engine.plan as plan_module
+    from orthomvp.errors import InputError
+
+    views = [(crater_dir / f"{v}.tif", crater_dir / f"{v}.tsai") for v in ("nadir", "oblique")]
+    monkeypatch.setattr(plan_module, "mosaic_tile", lambda *args: 192)
+    plan = plan_ortho(crater_dir / "dem.tif", views, progress=False, grid="dem", res="5m")
+    rows, cols = plan.grid.shape
+    assert plan.tile == 192 and rows > 2 * 192
+    at = {side: -(-rows // side) * -(-cols // side) for side in (192, 256)}
+    assert at[192] > at[256]
+    for module in (grid_choice, plan_module):
+        monkeypatch.setattr(module, "MAX_TILES", at[256])
+    plan = plan_ortho(crater_dir / "dem.tif", views, progress=False, grid="dem", res="5m")
+    assert plan.tile == 256 and len(plan.tiles) == at[256]
+    with pytest.raises(InputError, match="choose larger tiles"):
+        plan_ortho(crater_dir / "dem.tif", views, progress=False, grid="dem", res="5m", tile=192)

@@ -255,11 +255,17 @@ def check_grid_size(
             )
 
 
+def tile_count(grid: OutputGrid, tile: int) -> int:
+    """Tiles of ``tile`` posts a side that cover ``grid``."""
+    rows, cols = grid.shape
+    return -(-rows // tile) * -(-cols // tile)
+
+
 def check_tile_count(grid: OutputGrid, tile: int) -> None:
     """Refuse, before any tile is planned, a grid cut into more than :data:`MAX_TILES` tiles
     of ``tile`` posts a side: InputError, one line with the grid and the count."""
     rows, cols = grid.shape
-    tiles = -(-rows // tile) * -(-cols // tile)
+    tiles = tile_count(grid, tile)
     if tiles > MAX_TILES:
         raise InputError(
             f"the output grid of {cols:,} x {rows:,} posts would be {count_text(tiles)} tiles of "

@@ -136,21 +136,7 @@ def _lines_of_sight(
     from: its centre for a frame camera; else the origin of the ray through each post's pixel
     (a line scanner's position when it images the post), and for posts it does not image
     every one of :func:`~orthomvp.camera.sensor_positions` (any could matter)."""
-    if isinstance(camera, PinholeCamera):
-        return c, r, p, np.broadcast_to(camera.center, p.shape)
-    uv, _ = camera.project(p)
-    origin = camera.origins(uv)
-    known = np.isfinite(origin).all(axis=1)
-    if known.all():  # (the sensor's positions, from the model's rays, only for the others)
-        return c, r, p, origin
-    others = sensor_positions(camera)
-    k = len(others)
-    return (
-        np.concatenate([c[known], np.repeat(c[~known], k)]),
-        np.concatenate([r[known], np.repeat(r[~known], k)]),
-        np.concatenate([p[known], np.repeat(p[~known], k, axis=0)]),
-        np.concatenate([origin[known], np.tile(others, ((~known).sum(), 1))]),
-    )
+    return _lines_of_sight_batch(camera, c, r, p, np.zeros(len(c), np.intp))[:4]
 
 
 def footprint(dem: DemSource, to_dem: ToDem, tile: WindowT, on_dem: bool) -> WindowT:
@@ -359,6 +345,8 @@ def _lines_of_sight_batch(
     uv, _ = camera.project(p)
     origin = camera.origins(uv)
     known = np.isfinite(origin).all(axis=1)
+    if known.all():  # (the sensor's positions, from the model's rays, only for the others)
+        return c, r, p, origin, segment
     others = sensor_positions(camera)
     k = len(others)
     order = np.argsort(

@@ -28,6 +28,7 @@ from orthomvp.engine.arguments import (
 )
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem
 from orthomvp.engine.grid_choice import (
+    MAX_TILES,
     Box,
     check_grid_size,
     check_plan,
@@ -35,6 +36,7 @@ from orthomvp.engine.grid_choice import (
     choose_grid,
     grid_spacing,
     read_source,
+    tile_count,
 )
 from orthomvp.engine.halo import TileSamples, ToDem, footprint, tile_runs
 from orthomvp.engine.images import ImageSource, image_source
@@ -46,6 +48,7 @@ from orthomvp.engine.tiling import (
     SMALL_TILE,
     TILE,
     TILE_BYTES,
+    TILE_STEP,
     VIEW_BYTES,
     WINDOW_BYTES,
     auto_tile,
@@ -461,18 +464,23 @@ def tile_grid(
     ``bounds``, ``crs``: :func:`~orthomvp.engine.grid_choice.choose_grid`), checked for size
     (with the free space of ``output_dir``), and its tiles of ``tile`` posts (None:
     :func:`auto_tile`, from ``smallest`` to ``largest``, for a mosaic of ``stack`` bands at most
-    :func:`mosaic_tile` of the views that see a tile), each with ``margin`` posts around it,
-    its DEM window (with the occluder halo when ``occlusion``) and its image boxes
-    (:func:`_jobs`), checked (:func:`check_plan`)."""
+    :func:`mosaic_tile` of the views that see a tile, which may be smaller, grown again where
+    the grid would need more than :data:`~orthomvp.engine.grid_choice.MAX_TILES` of them), each
+    with ``margin`` posts around it, its DEM window (with the occluder halo when
+    ``occlusion``) and its image boxes (:func:`_jobs`), checked (:func:`check_plan`)."""
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     out = choose_grid(source, sources, grid=grid, res=res, bounds=bounds, crs=crs)
     check_grid_size(out, source, sources, output_dir)
     check_tile_count(out, largest if tile is None else tile)
     to_dem = grid_to_dem(out, source)
     found = ViewIndex(source, to_dem, out.shape, sources, 0.5 + IMAGE_MARGIN)
-    if tile is None and stack:
-        largest = min(largest, mosaic_tile(found.most(margin), stack, margin))
-    tile = auto_tile(out.shape, largest=largest, smallest=smallest) if tile is None else tile
+    if tile is None:
+        widest = largest
+        if stack:
+            largest = min(largest, mosaic_tile(found.most(margin), stack, margin))
+        tile = auto_tile(out.shape, largest=largest, smallest=smallest)
+        while tile < widest and tile_count(out, tile) > MAX_TILES:  # (many views, a huge grid)
+            tile = min(tile + TILE_STEP, widest)
     check_tile_count(out, tile)
     windows = out.tiles(tile)
     jobs, boxes, reach, elevation = _jobs(

@@ -18,8 +18,9 @@ TILE = 1024
 """Default tile side, posts."""
 
 SMALL_TILE = 256
-"""Smallest tile side :func:`auto_tile` chooses, posts: below it a tile's fixed costs (its mesh
-over the occluder halo, the mosaic's margin) outweigh the cores it keeps busy."""
+"""Smallest tile side :func:`auto_tile` chooses, posts, unless its ``largest`` is smaller (a
+mosaic whose tiles many views see: :data:`MOSAIC_SMALL_TILE`): below it a tile's fixed costs
+(its mesh over the occluder halo, the mosaic's margin) outweigh the cores it keeps busy."""
 
 SINGLE_VIEW_TILE = 512
 """Smallest tile side :func:`auto_tile` chooses for an orthophoto of one view, posts: a grid
@@ -87,7 +88,7 @@ def auto_tile(
     """The default tile side for a grid of ``shape`` (rows, cols): ``largest`` (default
     :data:`TILE`), or on a grid too small to give each of the ``cores`` (default: this
     machine's) a tile, its longer side split among them, rounded up to a multiple of
-    :data:`TILE_STEP` and at least ``smallest`` posts."""
+    :data:`TILE_STEP` and at least ``smallest`` posts (at most ``largest`` even so)."""
     cores = cores or os.cpu_count() or 1
     split = math.ceil(max(shape) / cores / TILE_STEP) * TILE_STEP
     return min(largest, max(smallest, split))

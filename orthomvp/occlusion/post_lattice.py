@@ -27,7 +27,9 @@ cell (a cubic's error vanishes at the midpoint). The posts of units that fail bo
 lattice of half the step (:data:`LATTICE_STEPS`), and past the finest to the exact values. A
 grid's units are first tried on the coarsest lattice whose unit around a probe (the centre of
 the RPC's domain) passes, the same for all its tiles (:func:`_first_lattice`): where every unit
-of a lattice would halve, none is checked on it. A
+of a lattice would halve, none is checked on it (the same values as checking them all); where
+some would pass it but the probe's fails, they are served by the finer lattice, within the same
+bound. A
 unit none of whose checks is imaged (beyond an RPC's domain, a line scanner's lines), or all of
 whose checks' pixels have a bounding box more than a pixel off the image, is taken as not
 imaged, its values NaN: an image would have to fit between checks half a cell apart to be
@@ -365,7 +367,7 @@ def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rows, inverse = np.empty_like(a), np.empty(len(a), np.int64)
     m = unique_table(a, _TABLE_MOST, rows, inverse)
     if m >= 0:
-        return rows[:m], inverse
+        return rows[:m].copy(), inverse  # (not a view holding every row's slot)
     rows, inverse = np.unique(a, axis=0, return_inverse=True)  # (a tile of extreme relief)
     return rows, inverse.ravel()
 
