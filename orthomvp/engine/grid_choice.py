@@ -46,6 +46,7 @@ from orthomvp.engine.grid import (
     scan_dem,
 )
 from orthomvp.engine.grid import with_world as dem_with_world
+from orthomvp.engine.halo import Box
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.units import check_res, clean_metres, parse_res, to_units, unit_scale
@@ -55,9 +56,6 @@ from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
 from orthomvp.geometry.world import check_cameras_above, detect_world
 from orthomvp.io.preflight import count_text, size_text
-
-Box = tuple[float, float, float, float]
-"""Where a tile can appear in an image: (c0, c1, r0, r1) in pixels."""
 
 GRIDS = ("camera", "dem")
 """The output grids a plan can choose by default: the cameras' footprint, or the DEM's own."""

@@ -58,6 +58,7 @@ views, boxes and halos: 1.7-2.1 s of CPU in runs of 2^12 to 2^14 posts, 7-9 s in
 
 ToDem = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 Box = tuple[float, float, float, float]
+"""Where a tile can appear in an image: (c0, c1, r0, r1) in pixels (:func:`image_box`)."""
 
 
 @dataclass(frozen=True)
@@ -156,9 +157,7 @@ def footprint(dem: DemSource, to_dem: ToDem, tile: WindowT, on_dem: bool) -> Win
     )
 
 
-def image_box(
-    dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera
-) -> tuple[float, float, float, float] | None:
+def image_box(dem: DemSource, to_dem: ToDem, tile: WindowT, camera: Camera) -> Box | None:
     """Where the tile can appear in the image: the bounding box (c0, c1, r0, r1) in pixels of
     the projections of its perimeter and a 9 x 9 lattice of its posts at the DEM's lowest and
     highest values, or None when the camera sees none of them in front of it.

@@ -29,7 +29,6 @@ from orthomvp.engine.arguments import (
 from orthomvp.engine.grid import DemSource, OutputGrid, WindowT, grid_to_dem
 from orthomvp.engine.grid_choice import (
     MAX_TILES,
-    Box,
     check_grid_size,
     check_plan,
     check_tile_count,
@@ -38,7 +37,7 @@ from orthomvp.engine.grid_choice import (
     read_source,
     tile_count,
 )
-from orthomvp.engine.halo import TileSamples, ToDem, footprint, tile_runs
+from orthomvp.engine.halo import Box, TileSamples, ToDem, footprint, tile_runs
 from orthomvp.engine.images import ImageSource, image_source
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.tiling import (

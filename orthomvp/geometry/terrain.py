@@ -325,13 +325,15 @@ class Terrain:
 
         Body frame: on a sphere ``x = (R + height) e(lon, lat)`` (eqs. 3-4); with radius values
         ``x = value * e``; on an ellipsoid, geodetic height through pyproj (radius values then
-        use the planetocentric direction). Map frame: ``(easting, northing, value)``.
-        """
-        value = np.asarray(value, dtype=np.float64)
+        use the planetocentric direction). Map frame: ``(easting, northing, value)``."""
         if self.world == WorldFrame.MAP:
             x, y = self.pixel_to_crs(c, r)
-            return np.stack(np.broadcast_arrays(x, y, value), axis=-1)
-        lon, lat = self.pixel_to_lonlat(c, r, wrap=False)
+            return np.stack(np.broadcast_arrays(x, y, np.asarray(value, np.float64)), axis=-1)
+        return self.lonlat_to_world(*self.pixel_to_lonlat(c, r, wrap=False), value)
+
+    def lonlat_to_world(self, lon: np.ndarray, lat: np.ndarray, value: np.ndarray) -> np.ndarray:
+        """:meth:`to_world` in a body frame, from body (lon, lat) in radians."""
+        value = np.asarray(value, dtype=np.float64)
         if self.radius_values:
             return value[..., None] * unit_vector(lon, lat)
         if self.is_sphere:

@@ -52,7 +52,6 @@ import numpy as np
 
 from orthomvp.camera import Camera, RpcCamera
 from orthomvp.codes import WorldFrame
-from orthomvp.geometry.crs import geocentric_transformer
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.occlusion.post_geometry import PostGeometry, tile_block
@@ -311,20 +310,19 @@ def _exact_at(
     cs: slice,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The world points (n, 3) of lattice ``points`` (n, 3: global row and column in quarter
-    steps of ``step`` posts, height in half levels) and the camera's exact values there. On an
-    ellipsoid in the body frame each of their distinct places (a point's row and column; most
-    are taken at three heights or more) is mapped to longitude and latitude once, then every
-    point goes to body-fixed coordinates: :meth:`Terrain.to_world`'s operations, its values."""
+    steps of ``step`` posts, height in half levels) and the camera's exact values there. In a
+    body frame each of their distinct places (a point's row and column; most are taken at three
+    heights or more) is mapped to longitude and latitude once, then every point to the world
+    (:meth:`Terrain.lonlat_to_world`): :meth:`Terrain.to_world`'s values."""
     places, at = _unique_rows(np.column_stack([points[:, :2], np.zeros(len(points), np.int64)]))
     rows = places[:, 0] / 4.0 * step - origin[0] + rs.start  # the terrain's rows and columns
     cols = places[:, 1] / 4.0 * step - origin[1] + cs.start
     height = points[:, 2] / 2.0 * LEVEL_SPACING
-    if terrain.world == WorldFrame.MAP or terrain.radius_values or terrain.is_sphere:
+    if terrain.world == WorldFrame.MAP:
         xyz = terrain.to_world(cols[at], rows[at], height)
     else:
         lon, lat = terrain.pixel_to_lonlat(cols, rows, wrap=False)
-        to_body = geocentric_transformer(terrain.crs, terrain.radii)  # (Terrain's own)
-        xyz = np.stack(to_body.transform(np.degrees(lon)[at], np.degrees(lat)[at], height), -1)
+        xyz = terrain.lonlat_to_world(lon[at], lat[at], height)
     return xyz, fast_values(camera, xyz)
 
 

@@ -299,10 +299,10 @@ def mosaic(
         out = np.zeros(posts.shape, bool)
         for k, (_, camera) in enumerate(views):
             vis = visibilities[k]
+            samples = window_samples(vis.uv, vis.gsd)
             out[k] = support_blocked(
-                terrain, whole, camera, window_samples(vis.uv, vis.gsd), vis.emission, posts[k],
-                caster,
-            )  # fmt: skip
+                terrain, whole, camera, samples, vis.emission, posts[k], caster
+            )
         return out
 
     def resample(posts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
