@@ -74,21 +74,27 @@ def dask_client(
         with scratch_dir as scratch, dask.config.set({"temporary-directory": scratch}):
             try:
                 # the worker processes print to a log of their own (a Ctrl-C while one starts,
-                # before its preload ignores it, would print its traceback here)
+                # before its preload ignores it, would print its traceback here), also while a
+                # cluster cut short as it starts is forgotten (its loop may still be starting a
+                # process, which then inherits this process's stderr)
                 with _stderr_to(os.path.join(scratch, "workers.log")):
-                    cluster = distributed.LocalCluster(
-                        n_workers=workers or os.cpu_count() or 1,
-                        threads_per_worker=1,
-                        processes=True,
-                        dashboard_address=None,
-                        silence_logs=logging.CRITICAL,
-                        local_directory=scratch,
-                        preload=[LOCAL_PRELOAD],
-                    )
+                    try:
+                        cluster = distributed.LocalCluster(
+                            n_workers=workers or os.cpu_count() or 1,
+                            threads_per_worker=1,
+                            processes=True,
+                            dashboard_address=None,
+                            silence_logs=logging.CRITICAL,
+                            local_directory=scratch,
+                            preload=[LOCAL_PRELOAD],
+                        )
+                    except BaseException:
+                        _forget_clusters()
+                        raise
                 with cluster, distributed.Client(cluster) as client:
                     _warm_up(client, "the local cluster")
                     yield client
-            except BaseException:  # Ctrl-C, SIGTERM or an error while it starts or stops
+            except BaseException:  # Ctrl-C, SIGTERM or an error while it runs or stops
                 _forget_clusters()
                 raise
 
