@@ -13,10 +13,10 @@ import numpy as np
 import pvl
 import pytest
 import rasterio
-from conftest import shared
+from conftest import SHARED_DATA, shared
 
 from orthomvp.errors import FormatError, InputError
-from orthomvp.io.isis import parse_label, read_cube, read_label
+from orthomvp.io.isis import label_text, parse_label, read_cube, read_label
 from orthomvp.io.raster import read_image
 
 # ISIS special pixels (SpecialPixel.h): each type's NULL, LRS, LIS, HIS, HRS raw values, and the
@@ -248,3 +248,71 @@ def test_parse_label_errors_name_the_line(tmp_path: Path) -> None:
         with pytest.raises(FormatError) as info:
             parse_label(tmp_path / "x.cub", text)
         assert info.value.line == line
+
+
+DATES = """Object = IsisCube
+  Group = Instrument
+    StartTime = 1971-08-01T11:41:16.865Z
+    StopTime = 1971-213T11:41:17
+    Day = 1971-08-01
+    Clock = 12:00:01.5
+    Compact = 19710801T114116
+    Offset = 1971-08-01T11:41:16+07:00
+    Word = Tile
+    Number = 2024
+    Signed = -12:00
+    Mixed = (1971-08-01, Lsb, 3.5, 12:00)
+  End_Group
+End_Object
+End
+"""
+
+
+def _flat(node: object, prefix: str = "") -> list[tuple]:
+    """Every keyword of a parsed label with the type and value it decoded to."""
+    out = []
+    for key, value in node.items():
+        if isinstance(value, (pvl.PVLModule, pvl.PVLGroup, pvl.PVLObject)):
+            out += [(prefix + key, type(value).__name__), *_flat(value, prefix + key + "/")]
+        else:
+            out.append((prefix + key, type(value).__name__, repr(value)))
+    return out
+
+
+def test_labels_decode_as_pvls_own_parser_does() -> None:
+    """The label parser refuses a value as a date at once unless it starts with a digit; every
+    value still decodes as pvl's OmniParser decodes it (dates, times, words, numbers)."""
+    from pvl.parser import OmniParser
+
+    texts = [DATES]
+    for parts in (("as15-hadley", "AS15-M-1134-hadley.cub"),
+                  ("isis", "M143947267L.cal.echo.crop.cub")):  # fmt: skip
+        path = SHARED_DATA.joinpath(*parts)
+        if path.exists():
+            texts.append(label_text(path))
+    for text in texts:
+        ours = _flat(parse_label("x.cub", text))
+        assert ours == _flat(pvl.loads(text, parser=OmniParser()))
+    decoded = dict((k, v) for k, *v in _flat(parse_label("x.cub", DATES)))
+    assert decoded["IsisCube/Instrument/StartTime"][0] == "datetime"
+    assert decoded["IsisCube/Instrument/Day"][0] == "date"
+    assert decoded["IsisCube/Instrument/Clock"][0] == "time"
+    assert decoded["IsisCube/Instrument/Word"] == ["str", "'Tile'"]
+
+
+def test_a_cubes_layout_is_parsed_once_per_label(tmp_path: Path, monkeypatch) -> None:
+    """Tiles read a cube's pixels window by window; its label is parsed once, and again only
+    when the file's label changes."""
+    from orthomvp.io import isis
+
+    raw = (np.arange(20 * 30) % 200 + 1).astype(np.uint8).reshape(1, 20, 30)
+    path = tmp_path / "a.cub"
+    write_cube(path, raw, "UnsignedByte", "Lsb", None)
+    truth = isis.cube_layout(path, read_label(path))
+    parsed = []
+    monkeypatch.setattr(isis, "parse_label", lambda p, t: parsed.append(p) or parse_label(p, t))
+    first = isis.read_layout(path)
+    assert isis.read_layout(path) is first and len(parsed) == 1
+    assert first == truth
+    write_cube(path, np.concatenate([raw, raw]), "UnsignedByte", "Lsb", None)
+    assert isis.read_layout(path).bands == 2 and len(parsed) == 2

@@ -49,9 +49,9 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     header alone: no pixel is read."""
     path = Path(image)
     if path.suffix.lower() == ".cub":
-        from orthomvp.io.isis import cube_layout, read_label  # pvl, only for cubes
+        from orthomvp.io.isis import read_layout  # pvl, only for cubes
 
-        layout = cube_layout(path, read_label(path))
+        layout = read_layout(path)
         bands, rows, cols = layout.bands, layout.lines, layout.samples
     else:
         with open_raster(path) as src:
@@ -96,9 +96,9 @@ def _read_cube_window(
     """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
     map of its pixels (see :func:`orthomvp.io.isis.read_cube` for the layout and the special
     pixels)."""
-    from orthomvp.io.isis import cube_layout, cube_values, read_label
+    from orthomvp.io.isis import cube_values, read_layout
 
-    layout = cube_layout(path, read_label(path))
+    layout = read_layout(path)
     r0, r1, c0, c1 = window
     ts, tl = layout.tile_samples, layout.tile_lines
     across, down = -(-layout.samples // ts), -(-layout.lines // tl)
