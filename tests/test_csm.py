@@ -328,3 +328,49 @@ def test_csm_cameras_through_the_command_line(name: str, tmp_path: Path) -> None
     camera = read_camera(isd).with_image_size(cols, rows)
     checked = ramp_ortho_checks(tmp_path, camera, isd, truth, rows=rows, cols=cols, radius=1e6)
     assert checked >= 25
+
+
+@pytest.mark.parametrize(
+    ("model", "coefficients", "way"),
+    [
+        ("kaguyalism", [0.01, 1e-4, -2e-5, 3e-6, 0, -0.02, 2e-4, 1e-5, -4e-6, 0], "distort"),
+        ("dawnfc", [9.2e-6], "undistort"),
+        ("lrolrocnac", [1.8e-5], "distort"),
+        ("apollometric", None, "distort"),
+    ],
+)
+def test_iterated_lenses_leave_nan_points_out_of_their_steps(
+    model: str, coefficients: list | None, way: str, monkeypatch
+) -> None:
+    """A lens inverted by iteration gives every finite point the value it has without NaN
+    points beside it, a NaN coordinate comes back NaN, and the NaN points do not keep the
+    others iterating to the step limit (counted where the model's terms are a function)."""
+    from orthomvp.camera.csm import distortion as csm_distortion
+    from orthomvp.camera.isis.apollo_metric import ApolloMetricDistortion
+
+    calls: list = []
+    if model == "apollometric":  # Apollo 15's published coefficients (ISIS's kernel)
+        k = (-1.3361854e-06, 5.2261757e-10, -5.0728336e-14)
+        lens = ApolloMetricDistortion(-0.006, -0.002, *k, -5.4958195e-07, -4.608942e-11, 2.965907)
+        real = ApolloMetricDistortion._shift
+        monkeypatch.setattr(
+            ApolloMetricDistortion, "_shift", lambda *a: calls.append(1) or real(*a)
+        )
+    else:
+        lens = csm_distortion.CsmDistortion(model, np.array(coefficients))
+        real = csm_distortion._kaguya_terms
+        monkeypatch.setattr(csm_distortion, "_kaguya_terms", lambda *a: calls.append(1) or real(*a))
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-30, 30, 400), rng.uniform(-30, 30, 400)
+    clean = getattr(lens, way)(x, y, 100.0)
+    steps = len(calls)
+    x[::7], y[3::11] = np.nan, np.nan
+    out = getattr(lens, way)(x, y, 100.0)
+    bad = np.isnan(x) | np.isnan(y)
+    for a, b in zip(out, clean, strict=True):
+        np.testing.assert_array_equal(a[~bad], b[~bad])
+    iterated = out[1:] if model == "lrolrocnac" else out  # (its x passes through)
+    for a, b in zip(iterated, (x, y)[-len(iterated) :], strict=True):
+        assert np.isnan(a[np.isnan(b)]).all()
+    if model in ("apollometric", "kaguyalism"):
+        assert 0 < steps < 10 and len(calls) - steps == steps  # not the limit's 50

@@ -201,7 +201,8 @@ def _kaguya_terms(x, y, c):
 def _apply_kaguya(x, y, c, focal):
     xt, yt = x - c[0], y - c[5]
     prev_x, prev_y = np.full_like(x, 1e6), np.full_like(y, 1e6)
-    done = np.zeros(x.shape, dtype=bool)
+    finite = np.isfinite(x) & np.isfinite(y)
+    done = ~finite  # (left as they are, as when NaN ran all 50 steps)
     for _ in range(50):
         drx, dry = _kaguya_terms(xt, yt, c)
         nx, ny = np.where(done, xt, x - drx - c[0]), np.where(done, yt, y - dry - c[5])
@@ -209,6 +210,7 @@ def _apply_kaguya(x, y, c, focal):
         prev_x, prev_y, xt, yt = nx, ny, nx, ny
         if done.all():
             break
+    done &= finite
     return np.where(done, xt, x), np.where(done, yt, y)
 
 
@@ -225,7 +227,7 @@ def _apply_dawn(x, y, c, focal):
 def _remove_dawn(x, y, c, focal):
     r2 = x * x + y * y
     ux, uy = x, y
-    done = np.zeros(x.shape, dtype=bool)
+    done = ~(np.isfinite(x) & np.isfinite(y))  # (left as they are, as after all 19 steps)
     for _ in range(19):
         gx, gy = x / (1.0 + c[0] * r2), y / (1.0 + c[0] * r2)
         r2 = np.where(done, r2, gx * gx + gy * gy)
@@ -242,7 +244,7 @@ def _apply_lronac(x, y, c, focal):
     dk1 = c[0]
     yt = y.copy()
     prev = np.full_like(y, 1e6)
-    done = np.zeros(y.shape, dtype=bool)
+    done = ~np.isfinite(y)  # (left as it is, as after all 50 steps)
     for _ in range(50):
         new = np.where(done, yt, y * (1.0 + dk1 * yt * yt))
         done |= np.abs(new - prev) <= 1e-10

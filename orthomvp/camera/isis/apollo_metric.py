@@ -71,17 +71,19 @@ class ApolloMetricDistortion:
         """Distorted focal-plane (x, y), mm, of undistorted ones (ISIS
         ``SetUndistortedFocalPlane``: fixed-point iteration, at most 50 steps to 1e-6 mm);
         NaN where it does not converge."""
-        ux, uy = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        ux, uy = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
         xt, yt = ux.copy(), uy.copy()
-        done = np.zeros(np.broadcast(ux, uy).shape, dtype=bool)
+        finite = np.isfinite(ux) & np.isfinite(uy)
+        done = ~finite  # (NaN never converges: without this every call took 50 steps)
         for _ in range(_ITERATIONS):
+            if done.all():
+                break
             sx, sy = self._shift(xt, yt)
             nx, ny = ux - sx, uy - sy
             converged = (np.abs(nx - xt) <= _TOLERANCE) & (np.abs(ny - yt) <= _TOLERANCE)
             xt, yt = np.where(done, xt, nx), np.where(done, yt, ny)
             done = done | converged
-            if done.all():
-                break
+        done &= finite
         return np.where(done, xt + self.xp, np.nan), np.where(done, yt + self.yp, np.nan)
 
 
