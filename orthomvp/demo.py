@@ -61,11 +61,11 @@ views whose window lies inside the image, so with 6 the outermost posts were unr
 EXAGGERATION = 1.5
 """Vertical exaggeration of the relief snapshots (the height-error ones have none)."""
 TIMING = (
-    "measured on 2 cores shared with other work: a first run, which compiles numba's kernels "
-    "into the user's cache folder, 61-108 s (29-34 s of CPU), later runs 36-38 s (13-15 s of CPU)"
+    "measured on 2 cores: a first run, which compiles numba's kernels into the user's cache "
+    "folder, about 21-27 s (29 s of CPU), later runs 10-12 s (13 s of CPU)"
 )
-"""What the demo takes, as measured: 4 runs with a fresh numba cache (``XDG_CACHE_HOME`` a new
-folder) and 4 with the cache they filled, load average 8-14 on 2 cores."""
+"""What the demo takes, as measured on 2 cores: with a fresh numba cache (``NUMBA_CACHE_DIR``
+a new folder; CI's first run in a fresh venv took 21 s) and with the cache it filled."""
 
 
 def run_demo(outdir: str | Path, quiet: bool = False) -> dict:

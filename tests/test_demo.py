@@ -167,3 +167,20 @@ def test_index_page_loads_every_picture_in_a_browser(
     (broken / "snap-mosaic.png").unlink()
     bad = [src for src, ok in image_report(broken / "index.html") if not ok]
     assert bad == ["snap-mosaic.png"]
+
+
+def test_a_second_demo_refreshes_the_first_ones_folder(demo: tuple[Path, str]) -> None:
+    """The README's demo run again into the same folder refreshes it (it failed once on its
+    own ``scene/`` folder: 'directory not empty')."""
+    out, _ = demo
+    before = (out / "summary.json").stat().st_mtime_ns
+    proc = subprocess.run(
+        [sys.executable, "-m", "orthomvp", "-q", "demo", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "summary.json").stat().st_mtime_ns > before
+    assert json.loads((out / "summary.json").read_text())
+    assert sorted(p.name for p in out.parent.iterdir()) == ["out"]  # no temporary left

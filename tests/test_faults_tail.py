@@ -168,6 +168,29 @@ def test_a_temporary_directory_is_removed_where_its_parent_went(tmp_path: Path) 
     assert list(moved.iterdir()) == [] and tmp_path.is_dir()
 
 
+def test_a_directory_written_again_merges_its_folders(tmp_path: Path) -> None:
+    """:func:`orthomvp.io.outputs.atomic_dir` into a directory that holds an earlier run's
+    files and folders (the demo's ``scene/``): files are replaced, folders merge (a rename
+    cannot replace a folder that holds files: the demo run twice failed 'directory not
+    empty'), and what else is there stays."""
+    from orthomvp.io.outputs import atomic_dir
+
+    out = tmp_path / "out"
+    for text in ("first", "second"):
+        with atomic_dir(out) as tmp:
+            (tmp / "index.html").write_text(text)
+            (tmp / "scene" / "deep").mkdir(parents=True)
+            (tmp / "scene" / "dem.tif").write_text(text)
+            (tmp / "scene" / "deep" / "a.txt").write_text(text)
+        if text == "first":
+            (out / "scene" / "notes.txt").write_text("mine")
+    assert (out / "index.html").read_text() == "second"
+    assert (out / "scene" / "dem.tif").read_text() == "second"
+    assert (out / "scene" / "deep" / "a.txt").read_text() == "second"
+    assert (out / "scene" / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary left
+
+
 # -------------------------------------------------------------- 11: standard streams
 def _closed(fd: int) -> None:
     os.close(fd)

@@ -28,8 +28,8 @@ DEMO_MARKS = ("index.html", "summary.json")
 def demo(outdir: Path, overwrite: bool) -> None:
     """Make the synthetic crater scene, mesh it, and write every output into OUTDIR, then
     print a summary. The first run also compiles numba's kernels into the user's cache folder:
-    measured on 2 busy cores, 61-108 s the first time and 36-38 s after (29-34 s and 13-15 s of
-    CPU time)."""
+    measured on 2 cores, about 21-27 s the first time and 10-12 s after (29 s and 13 s of CPU
+    time)."""
     from orthomvp.demo import run_demo
 
     check_outdir(outdir, "OUTDIR", overwrite=overwrite, refresh=DEMO_MARKS)

@@ -262,9 +262,23 @@ def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
             _drop(tmp)
 
 
+def _move_into(source: Path, target: Path) -> None:
+    """Move the items of directory ``source`` into directory ``target``: a file replaces the
+    file of its name, a folder merges into the folder of its name (a rename cannot replace a
+    folder that holds files); what else ``target`` holds stays."""
+    for item in source.iterdir():
+        there = target / item.name
+        if item.is_dir() and not item.is_symlink() and there.is_dir() and not there.is_symlink():
+            _move_into(item, there)
+            item.rmdir()
+        else:
+            os.replace(item, there)
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary directory beside ``path``; on success move its files into ``path``.
+    """Yield a temporary directory beside ``path``; on success move its files into ``path``
+    (its folders merge into those of their names there).
 
     On failure (SIGINT, SIGTERM and SIGHUP too) the temporary directory is removed and ``path`` is
     left as it was; errors name the files under ``path``, not under the temporary directory.
@@ -286,8 +300,7 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
                 yield tmp
             os.chmod(tmp, 0o777 & ~_umask())
             if path.exists():
-                for item in tmp.iterdir():
-                    os.replace(item, path / item.name)
+                _move_into(tmp, path)
             else:
                 os.replace(tmp, path)
             written.append(path)
