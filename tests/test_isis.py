@@ -316,3 +316,22 @@ def test_a_cubes_layout_is_parsed_once_per_label(tmp_path: Path, monkeypatch) ->
     assert first == truth
     write_cube(path, np.concatenate([raw, raw]), "UnsignedByte", "Lsb", None)
     assert isis.read_layout(path).bands == 2 and len(parsed) == 2
+
+
+@pytest.mark.realdata
+def test_a_cube_that_is_its_own_camera_is_parsed_once(tmp_path: Path, monkeypatch) -> None:
+    """The README's cube ortho reads the cube as its camera and as its image: one label parse,
+    and the same layout as from a fresh parse of the file."""
+    from orthomvp.camera import read_camera
+    from orthomvp.engine.images import image_source
+    from orthomvp.io import isis
+
+    cube = tmp_path / "hadley.cub"  # a path no earlier test has read
+    cube.write_bytes(shared("as15-hadley", "AS15-M-1134-hadley.cub").read_bytes())
+    truth = isis.cube_layout(cube, read_label(cube))
+    parsed = []
+    monkeypatch.setattr(isis, "parse_label", lambda p, t: parsed.append(p) or parse_label(p, t))
+    camera = read_camera(cube)
+    source = image_source(cube, camera)
+    assert len(parsed) == 1
+    assert isis.read_layout(cube) == truth and (source.width, source.height) == (750, 750)

@@ -207,7 +207,20 @@ def read_layout(path: str | Path) -> CubeLayout:
 @functools.lru_cache(maxsize=16)
 def _layout(path: str, text: str) -> CubeLayout:
     """:func:`cube_layout` of the label ``text`` of the cube at ``path``."""
-    return cube_layout(path, parse_label(path, text))
+    return cube_layout(path, cached_label(path, text))
+
+
+def cached_label(path: str | Path, text: str) -> PVLModule:
+    """:func:`parse_label` of ``text``, the label of the cube at ``path``, parsed once per
+    process for the same path and text: a cube that is its own camera is read as a camera and
+    as an image (about 0.2 s a parse). The module is shared: read it, never change it."""
+    return _parsed(str(path), text)
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed(path: str, text: str) -> PVLModule:
+    """:func:`parse_label` of ``text`` for :func:`cached_label`."""
+    return parse_label(path, text)
 
 
 def label_text(path: str | Path) -> str:
