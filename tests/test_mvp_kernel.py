@@ -183,7 +183,6 @@ def test_typed_images_compile_nothing_in_a_new_process() -> None:
     import subprocess
     import sys
 
-    from orthomvp.mvp.kernel import fused_evaluate  # noqa: F401 (the module the list is for)
     from orthomvp.mvp.patches import ViewStack
 
     images = [np.arange(60.0, dtype=np.float32).reshape(4, 5, 3), np.ones((2, 3, 3), np.float32)]

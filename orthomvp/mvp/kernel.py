@@ -388,7 +388,7 @@ _typed_list = cached_jit(_typed_list)
 def typed_images(images: list[np.ndarray]) -> List:
     """``images`` as the numba typed List of C-order float32 arrays that :func:`_kernel`
     takes, built by a compiled function cached on disk: numba's own ``List(images)`` compiles
-    the list's methods again in every process (0.25-0.55 s, an eighth of the README's fit)."""
+    the list's methods again in every process (0.25-0.6 s of the README's fit)."""
     arrays = tuple(np.ascontiguousarray(img, np.float32) for img in images)
     return _typed_list(arrays) if arrays else List(arrays)
 
