@@ -316,3 +316,63 @@ def test_a_cubes_layout_is_parsed_once_per_label(tmp_path: Path, monkeypatch) ->
     assert first == truth
     write_cube(path, np.concatenate([raw, raw]), "UnsignedByte", "Lsb", None)
     assert isis.read_layout(path).bands == 2 and len(parsed) == 2
+
+
+@pytest.mark.realdata
+def test_a_cube_that_is_its_own_camera_is_parsed_once(tmp_path: Path, monkeypatch) -> None:
+    """The README's cube ortho reads the cube as its camera and as its image: one label parse,
+    and the same layout as from a fresh parse of the file."""
+    from orthomvp.camera import read_camera
+    from orthomvp.engine.images import image_source
+    from orthomvp.io import isis
+
+    cube = tmp_path / "hadley.cub"  # a path no earlier test has read
+    cube.write_bytes(shared("as15-hadley", "AS15-M-1134-hadley.cub").read_bytes())
+    truth = isis.cube_layout(cube, read_label(cube))
+    parsed = []
+    monkeypatch.setattr(isis, "parse_label", lambda p, t: parsed.append(p) or parse_label(p, t))
+    camera = read_camera(cube)
+    source = image_source(cube, camera)
+    assert len(parsed) == 1
+    assert isis.read_layout(cube) == truth and (source.width, source.height) == (750, 750)
+
+
+@pytest.mark.realdata
+def test_a_worker_reads_a_cube_with_the_layout_of_the_plan(tmp_path: Path, monkeypatch) -> None:
+    """A worker process gets the image with its layout (pickled with the plan) and parses no
+    label of its own while the file's label is unchanged; its pixels are the cube's own (its
+    float32 GeoTIFF conversion)."""
+    import functools
+    import pickle
+
+    from orthomvp.camera import read_camera
+    from orthomvp.engine.images import image_source
+    from orthomvp.io import isis
+
+    cube = tmp_path / "hadley.cub"
+    cube.write_bytes(shared("as15-hadley", "AS15-M-1134-hadley.cub").read_bytes())
+    source = pickle.loads(pickle.dumps(image_source(cube, read_camera(cube))))
+    for name in ("_parsed", "_layout"):  # a new process: nothing parsed yet
+        monkeypatch.setattr(isis, name, functools.lru_cache(16)(getattr(isis, name).__wrapped__))
+    parsed = []
+    monkeypatch.setattr(isis, "parse_label", lambda p, t: parsed.append(p) or parse_label(p, t))
+    pixels = source.read((100, 164, 200, 300))
+    assert parsed == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(shared("as15-hadley", "AS15-M-1134-hadley.tif")) as src:
+            truth = src.read(window=((100, 164), (200, 300)))
+    np.testing.assert_array_equal(pixels, truth)
+
+
+def test_a_cube_whose_label_changed_is_read_with_its_new_layout(tmp_path: Path) -> None:
+    """A layout read before is used only while the label is the text it was read from."""
+    from orthomvp.io import isis
+
+    raw = (np.arange(20 * 30) % 200 + 1).astype(np.uint8).reshape(1, 20, 30)
+    path = tmp_path / "a.cub"
+    write_cube(path, raw, "UnsignedByte", "Lsb", None)
+    known = isis.read_layout(path)
+    assert isis.read_layout(path, known=known) is known and known.bands == 1
+    write_cube(path, np.concatenate([raw, raw]), "UnsignedByte", "Lsb", None)
+    assert isis.read_layout(path, known=known).bands == 2

@@ -173,3 +173,33 @@ def test_no_threading_warning_after_open3d() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0 and out.stderr == "", out.stderr[-500:]
     assert out.stdout.split()[-1] in ("omp", "tbb", "workqueue")
+
+
+def test_typed_images_compile_nothing_in_a_new_process() -> None:
+    """The kernel's typed List of a stack's images comes from a function compiled once and
+    cached on disk: a fresh process compiles none of numba's list methods (``List(images)``
+    compiles them in every process, 0.25-0.55 s), and the list holds the images as they are."""
+    import json
+    import subprocess
+    import sys
+
+    from orthomvp.mvp.patches import ViewStack
+
+    images = [np.arange(60.0, dtype=np.float32).reshape(4, 5, 3), np.ones((2, 3, 3), np.float32)]
+    stack = ViewStack([images], np.zeros((2, 3, 4)), [[(5, 4), (3, 2)]], [np.zeros(2)])
+    typed = stack.typed_levels(0)
+    assert len(typed) == 2 and stack.typed_levels(0) is typed
+    for got, image in zip(typed, images, strict=True):
+        assert got.dtype == np.float32 and got.flags.c_contiguous
+        np.testing.assert_array_equal(got, image)
+    code = (
+        "import json, numpy as np; import numba.typed.typedlist as t; "
+        "from orthomvp.mvp.patches import ViewStack; "
+        "ViewStack([[np.ones((4, 5, 3), np.float32)] * 3], None, None, None).typed_levels(0); "
+        "print(json.dumps({n: len(getattr(t, n).overloads) for n in dir(t) "
+        "if hasattr(getattr(t, n), 'overloads')}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-500:]
+    compiled = {name: n for name, n in json.loads(out.stdout.split("\n")[-2]).items() if n}
+    assert compiled == {}

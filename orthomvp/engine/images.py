@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rasterio.enums import Interleaving
@@ -18,6 +19,9 @@ from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.errors import InputError
 from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
+if TYPE_CHECKING:
+    from orthomvp.io.isis import CubeLayout  # (pvl, imported only for cubes)
+
 
 @dataclass(frozen=True)
 class ImageSource:
@@ -28,12 +32,13 @@ class ImageSource:
     height: int
     bands: int
     camera: Camera
+    layout: CubeLayout | None = None  # an ISIS3 cube's, read while planning
 
     def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
         """Pixels of ``window`` (clipped to the image by the caller), every band or only
         ``band`` (1-based; still (1, rows, cols))."""
         if self.path.suffix.lower() == ".cub":
-            return _read_cube_window(self.path, window, band)
+            return _read_cube_window(self.path, window, band, self.layout)
         r0, r1, c0, c1 = window
         indexes = None if band is None else [band]
         with held_raster(self.path) as src:
@@ -54,13 +59,15 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
         layout = read_layout(path)
         bands, rows, cols = layout.bands, layout.lines, layout.samples
     else:
+        layout = None
         with open_raster(path) as src:
             bands, rows, cols = src.count, src.height, src.width
             check_blocks(src, path)
     if not isinstance(camera, Camera):
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
-    return ImageSource(path, cols, rows, bands, check_image(shape_only, camera, str(path)))
+    camera = check_image(shape_only, camera, str(path))
+    return ImageSource(path, cols, rows, bands, camera, layout)
 
 
 def check_blocks(src: DatasetReader, path: Path) -> None:
@@ -91,14 +98,17 @@ def check_blocks(src: DatasetReader, path: Path) -> None:
 
 
 def _read_cube_window(
-    path: Path, window: tuple[int, int, int, int], band: int | None = None
+    path: Path,
+    window: tuple[int, int, int, int],
+    band: int | None = None,
+    known: CubeLayout | None = None,
 ) -> np.ndarray:
     """A window of an ISIS3 cube (every band, or only ``band``, 1-based), through a memory
     map of its pixels (see :func:`orthomvp.io.isis.read_cube` for the layout and the special
-    pixels)."""
+    pixels); ``known``: its layout as read before, while its label is unchanged."""
     from orthomvp.io.isis import cube_values, read_layout
 
-    layout = read_layout(path)
+    layout = read_layout(path, known=known)
     r0, r1, c0, c1 = window
     ts, tl = layout.tile_samples, layout.tile_lines
     across, down = -(-layout.samples // ts), -(-layout.lines // tl)

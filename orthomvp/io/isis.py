@@ -24,7 +24,7 @@ import re
 import sys
 import warnings
 from collections.abc import Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -183,6 +183,7 @@ class CubeLayout:
     valid: tuple[float, float]
     base: float
     multiplier: float
+    text: str = field(default="", compare=False, repr=False)  # the label it was read from
 
     @property
     def nbytes(self) -> int:
@@ -198,16 +199,34 @@ def read_label(path: str | Path) -> PVLModule:
     return parse_label(path, label_text(path))
 
 
-def read_layout(path: str | Path) -> CubeLayout:
+def read_layout(path: str | Path, *, known: CubeLayout | None = None) -> CubeLayout:
     """The pixel layout of the ISIS3 cube at ``path`` (:func:`cube_layout`), its label parsed
-    once per process for the same path and text: a run reads a cube's pixels tile by tile."""
-    return _layout(str(path), label_text(path))
+    once per process for the same path and text: a run reads a cube's pixels tile by tile.
+    ``known``: a layout read before (in the planning process, say), taken as it is while the
+    file's label is still the text it was read from (a worker process parses no label)."""
+    text = label_text(path)
+    if known is not None and known.text == text:
+        return known
+    return _layout(str(path), text)
 
 
 @functools.lru_cache(maxsize=16)
 def _layout(path: str, text: str) -> CubeLayout:
     """:func:`cube_layout` of the label ``text`` of the cube at ``path``."""
-    return cube_layout(path, parse_label(path, text))
+    return replace(cube_layout(path, cached_label(path, text)), text=text)
+
+
+def cached_label(path: str | Path, text: str) -> PVLModule:
+    """:func:`parse_label` of ``text``, the label of the cube at ``path``, parsed once per
+    process for the same path and text: a cube that is its own camera is read as a camera and
+    as an image (about 0.2 s a parse). The module is shared: read it, never change it."""
+    return _parsed(str(path), text)
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed(path: str, text: str) -> PVLModule:
+    """:func:`parse_label` of ``text`` for :func:`cached_label`."""
+    return parse_label(path, text)
 
 
 def label_text(path: str | Path) -> str:

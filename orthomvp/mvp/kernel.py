@@ -26,7 +26,7 @@ from numba.typed import List
 from orthomvp.jit import cached_jit
 from orthomvp.mvp.window import Window
 
-__all__ = ["KernelResult", "compile_seconds", "fused_evaluate"]
+__all__ = ["KernelResult", "compile_seconds", "fused_evaluate", "typed_images"]
 
 _COMPILE_S: float | None = None
 
@@ -374,6 +374,25 @@ class KernelResult:
     box: np.ndarray
 
 
+def _typed_list(arrays: tuple) -> List:
+    """The arrays of a tuple of same-typed arrays as a numba typed List."""
+    out = List()
+    for a in arrays:
+        out.append(a)
+    return out
+
+
+_typed_list = cached_jit(_typed_list)
+
+
+def typed_images(images: list[np.ndarray]) -> List:
+    """``images`` as the numba typed List of C-order float32 arrays that :func:`_kernel`
+    takes, built by a compiled function cached on disk: numba's own ``List(images)`` compiles
+    the list's methods again in every process (0.25-0.6 s of the README's fit)."""
+    arrays = tuple(np.ascontiguousarray(img, np.float32) for img in images)
+    return _typed_list(arrays) if arrays else List(arrays)
+
+
 def fused_evaluate(
     images: list[np.ndarray],
     origins: np.ndarray,
@@ -397,7 +416,7 @@ def fused_evaluate(
         raise ValueError(f"the kernel fits 3 plane parameters, dH is {dH.shape}")
     P = 3
     if not hasattr(images, "_numba_type_"):  # C order: _sample indexes them flat
-        images = List([np.ascontiguousarray(img, np.float32) for img in images])
+        images = typed_images(images)
     out = KernelResult(
         cost=np.empty(B),
         used=np.empty((B, K), bool),

@@ -130,13 +130,13 @@ class ViewStack:
     def typed_levels(self, level: int) -> object:
         """The images of ``level`` as a numba typed List (made once; :mod:`orthomvp.mvp.kernel`
         takes them so)."""
-        from numba.typed import List
+        from orthomvp.mvp.kernel import typed_images
 
         with self._lock:
             if self._typed is None:
                 self._typed = [None] * len(self.levels)
             if self._typed[level] is None:
-                self._typed[level] = List(self.levels[level])
+                self._typed[level] = typed_images(self.levels[level])
             return self._typed[level]
 
     def _track(self, level: int, box: np.ndarray) -> None:

@@ -44,6 +44,7 @@ size and focal length.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -315,9 +316,12 @@ def _reconstruction(path: Path, text: str, crs: object) -> dict[str, PinholeCame
     return out
 
 
-def _shots(path: Path, text: str, interior: str | Path | None) -> dict[str, PinholeCamera]:
+def _shots(
+    path: Path, text: str, interior: str | Path | None, interior_data: bytes | None = None
+) -> dict[str, PinholeCamera]:
     """The cameras of the ODM shots file ``path`` holding ``text`` (see
-    :func:`read_odm_shots`)."""
+    :func:`read_odm_shots`); ``interior_data``: the bytes of its ``cameras.json`` if read
+    already."""
     doc = _object(path, "the file", _load(path, text))
     if doc.get("type") != "FeatureCollection":
         raise FormatError(path, "expected a GeoJSON FeatureCollection", 1)
@@ -325,7 +329,9 @@ def _shots(path: Path, text: str, interior: str | Path | None) -> dict[str, Pinh
     if not isinstance(features, list):
         raise FormatError(path, "features: expected a list")
     found = _find_cameras_json(path) if interior is None else Path(interior)
-    interior_text = decode_text(found, read_bytes(found, "ODM cameras.json"))
+    if interior_data is None:
+        interior_data = read_bytes(found, "ODM cameras.json")
+    interior_text = decode_text(found, interior_data)
     cameras = _interiors(found, _load(found, interior_text), "cameras")
     out: dict[str, PinholeCamera] = {}
     for n, feature in enumerate(features):
@@ -400,13 +406,37 @@ def _pick(path: Path, cameras: dict[str, PinholeCamera], image: str | Path | Non
 def read_reconstruction(file: CameraFile) -> PinholeCamera:
     """The camera of ``file.image`` in a ``reconstruction.json`` (see
     :func:`orthomvp.camera.read_camera`), in the default map frame."""
-    return _pick(file.path, _reconstruction(file.path, file.text, None), file.image)
+    return _pick(file.path, _file_reconstruction(file.path, file.text), file.image)
 
 
 def read_shots(file: CameraFile) -> PinholeCamera:
     """The camera of ``file.image`` in ODM's ``shots.geojson``, with ``file.interior`` or the
     ``cameras.json`` found by :func:`read_odm_shots`."""
-    return _pick(file.path, _shots(file.path, file.text, file.interior), file.image)
+    interior = file.interior
+    try:
+        found = _find_cameras_json(file.path) if interior is None else Path(interior)
+        interior_data = read_bytes(found, "ODM cameras.json")
+    except InputError:  # no cameras.json to read: _shots says so, after the shots' own errors
+        return _pick(file.path, _shots(file.path, file.text, interior), file.image)
+    return _pick(file.path, _file_shots(file.path, file.text, interior, interior_data), file.image)
+
+
+@functools.lru_cache(maxsize=4)
+def _file_reconstruction(path: Path, text: str) -> dict[str, PinholeCamera]:
+    """:func:`_reconstruction` of ``text`` in the default map frame, built once per process for
+    the same file and contents: a mosaic's images pick their cameras from one file, and
+    building them all for each image made its planning grow as the square of their number.
+    Cameras are immutable; the dict is shared: read it, never change it."""
+    return _reconstruction(path, text, None)
+
+
+@functools.lru_cache(maxsize=4)
+def _file_shots(
+    path: Path, text: str, interior: str | Path | None, interior_data: bytes
+) -> dict[str, PinholeCamera]:
+    """:func:`_shots` of ``text`` with ``interior`` and the bytes of its ``cameras.json``, built
+    once per process for the same files and contents, as :func:`_file_reconstruction`."""
+    return _shots(path, text, interior, interior_data)
 
 
 def refuse_cameras_json(file: CameraFile) -> PinholeCamera:

@@ -20,6 +20,7 @@ missing key, a wrong number of coefficients or a value that is not a number.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import warnings
@@ -176,6 +177,16 @@ def read_rpb(file: CameraFile) -> RpcCamera:
     return RpcCamera(_build(path, values, _RPB_NAMES, lines))
 
 
+@functools.lru_cache(maxsize=4)
+def _yaml_document(text: str) -> object:
+    """``yaml.safe_load(text)``, loaded once per process for the same text: a mosaic's images
+    pick their RPCs from one file, and loading it for each image made its planning grow as the
+    square of their number. The document is shared: read it, never change it."""
+    import yaml
+
+    return yaml.safe_load(text)
+
+
 def read_orthority_rpc(file: CameraFile) -> RpcCamera:
     """The RPC camera of ``file.image`` (by stem) in Orthority's RPC parameter YAML file;
     without an image, the file must hold one camera."""
@@ -183,7 +194,7 @@ def read_orthority_rpc(file: CameraFile) -> RpcCamera:
 
     path = file.path
     try:
-        root = yaml.safe_load(file.text)
+        root = _yaml_document(file.text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise FormatError(

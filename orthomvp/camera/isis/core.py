@@ -28,7 +28,7 @@ from typing import Any
 from orthomvp.camera.isis.tables import NO_SPICE, TableReader, _item
 from orthomvp.camera.isis.times import utc_to_et
 from orthomvp.errors import FormatError
-from orthomvp.io.isis import label_text, parse_label
+from orthomvp.io.isis import cached_label, label_text
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,7 @@ class SpiceCube(TableReader):
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.text = label_text(self.path)
-        self.label = parse_label(self.path, self.text)
+        self.label = cached_label(self.path, self.text)
         cube = _item(self.label, "IsisCube", dict)
         if cube is None:
             raise self.error("the label has no Object = IsisCube")
