@@ -191,6 +191,37 @@ def test_a_directory_written_again_merges_its_folders(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary left
 
 
+def test_a_directory_written_again_refuses_a_clash_before_moving_anything(
+    tmp_path: Path,
+) -> None:
+    """A new run's folder where the earlier directory holds a file of its name (or a link to
+    a folder elsewhere), or the reverse: one OutputError naming it, and nothing moved."""
+    from orthomvp.errors import OutputError
+    from orthomvp.io.outputs import atomic_dir
+
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    for clash in ("file", "link", "folder"):
+        out = tmp_path / clash
+        (out / "scene").mkdir(parents=True)
+        if clash == "file":
+            (out / "scene" / "deep").write_text("mine")
+        elif clash == "link":
+            (out / "scene" / "deep").symlink_to(outside, target_is_directory=True)
+        else:
+            (out / "scene" / "dem.tif").mkdir()
+        before = sorted(str(p.relative_to(tmp_path)) for p in out.rglob("*"))
+        with pytest.raises(OutputError, match="scene/(deep|dem.tif)"):
+            with atomic_dir(out) as tmp:
+                (tmp / "index.html").write_text("new")
+                (tmp / "scene" / "deep").mkdir(parents=True)
+                (tmp / "scene" / "deep" / "a.txt").write_text("new")
+                (tmp / "scene" / "dem.tif").write_text("new")
+        assert sorted(str(p.relative_to(tmp_path)) for p in out.rglob("*")) == before
+    assert list(outside.iterdir()) == []  # nothing followed the link out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder", "link", "outside"]
+
+
 # -------------------------------------------------------------- 11: standard streams
 def _closed(fd: int) -> None:
     os.close(fd)

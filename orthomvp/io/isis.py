@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import re
+import string
 import sys
 import warnings
 from collections.abc import Generator
@@ -61,16 +62,19 @@ class _BlockError(LexerError):
     """A group or object that does not close with its own end statement."""
 
 
+_SIGNS = "+-" + string.whitespace  # (dateutil 2.7-2.9 read "--5" and " 1:00" as times)
+
+
 class _LabelDecoder(OmniDecoder):
     """pvl's permissive decoder, except that a value that does not start with a digit (after
-    an optional sign) is refused as a date or time at once: every form pvl tries (its
+    any signs and spaces) is refused as a date or time at once: every form pvl tries (its
     grammar's strptime formats, dateutil's ISO 8601 and a bare time-zone offset) starts so,
     and trying them on every word of a label took three quarters of a cube label's parse
     (0.2 s)."""
 
     def decode_datetime(self, value: str) -> Any:
         """A date, time or datetime, as OmniDecoder decodes ``value``; ValueError otherwise."""
-        if not value.removeprefix("+").removeprefix("-")[:1].isdigit():
+        if not value.lstrip(_SIGNS)[:1].isdigit():
             raise ValueError(f"not a date or time: {value}")
         return super().decode_datetime(value)
 

@@ -262,14 +262,42 @@ def scratch_path(path: str | Path, tag: str) -> Iterator[Path]:
             _drop(tmp)
 
 
+def _folder(path: Path) -> bool:
+    """Whether ``path`` is a folder itself (not a link to one)."""
+    return path.is_dir() and not path.is_symlink()
+
+
+def _clashes(source: Path, target: Path) -> None:
+    """OutputError naming the first item of ``source`` whose place in ``target`` holds a
+    folder where the item is none, or the reverse (links count as files): found before
+    anything moves, so that such a clash leaves ``target`` as it was."""
+    for item in source.iterdir():
+        there = target / item.name
+        if not there.exists() and not there.is_symlink():
+            continue
+        if _folder(item) != _folder(there):
+            what = "a folder" if _folder(there) else "not a folder"
+            raise OutputError(f"{there}: cannot write it: it is {what} already; move it away")
+        if _folder(item):
+            _clashes(item, there)
+
+
 def _move_into(source: Path, target: Path) -> None:
     """Move the items of directory ``source`` into directory ``target``: a file replaces the
     file of its name, a folder merges into the folder of its name (a rename cannot replace a
-    folder that holds files); what else ``target`` holds stays."""
+    folder that holds files); what else ``target`` holds stays. A folder meeting a file, or
+    the reverse, is refused before anything moves (:func:`_clashes`); only a failing rename
+    (a full disk, no permission) can leave part of ``source`` moved."""
+    _clashes(source, target)
+    _merge(source, target)
+
+
+def _merge(source: Path, target: Path) -> None:
+    """:func:`_move_into` once its clashes are ruled out."""
     for item in source.iterdir():
         there = target / item.name
-        if item.is_dir() and not item.is_symlink() and there.is_dir() and not there.is_symlink():
-            _move_into(item, there)
+        if _folder(item) and _folder(there):
+            _merge(item, there)
             item.rmdir()
         else:
             os.replace(item, there)
