@@ -538,7 +538,8 @@ def test_the_preflight_counts_each_worker_process_as_measured(crater_dir: Path) 
     each within :data:`WORKER_BYTES` and above half of it (the figure is neither low nor
     padded), and the plan's peak memory counts one per local worker."""
     from orthomvp.engine import dask_client, plan_ortho
-    from orthomvp.engine.run import executor, local_processes, results
+    from orthomvp.engine.run import executor, results
+    from orthomvp.engine.schedule import local_processes
     from orthomvp.engine.tile import run_tile
     from orthomvp.engine.tiling import WORKER_BYTES
 

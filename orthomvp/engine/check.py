@@ -8,7 +8,9 @@ does not depend on the tiles or on what ran them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -16,10 +18,12 @@ import numpy as np
 from orthomvp.codes import Code, classify
 from orthomvp.engine import heap
 from orthomvp.engine.check_plan import CheckPlan
+from orthomvp.engine.copies import image_copies, release_after
 from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, NccTally, check_row, local_ncc
 from orthomvp.engine.plan import grow
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
+    all_local,
     check_memory,
     check_views,
     executor,
@@ -223,6 +227,14 @@ def check_rows(
     return out
 
 
+@contextlib.contextmanager
+def _copies(plan: CheckPlan, client: Any) -> Iterator[CheckPlan]:
+    """``plan`` with its images' copies (:func:`~orthomvp.engine.copies.image_copies`, in the
+    temporary folder: a check writes no file) for the block."""
+    with image_copies(plan.base, None, local=all_local(client)) as base:
+        yield replace(plan, base=base)
+
+
 def run_check(
     plan: CheckPlan,
     *,
@@ -252,11 +264,15 @@ def run_check(
     inside, seen = [0] * n, [0] * n
     overlap: dict[tuple[int, int], int] = {}
     tallies: dict[Key, NccTally] = {}
-    pool = executor(plan, run_check_tile, workers, processes, client)
-    with Progress("checking tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
+    with (
+        _copies(plan, client) as plan,
+        Progress("checking tiles", progress, len(plan.tiles)) as bar,
+        executor(plan, run_check_tile, workers, processes, client) as (submit, wait),
+    ):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))
-        for result in results(submit, wait, jobs, (inner,), sched.limit):
+        done = release_after(plan, jobs)
+        for result in results(submit, wait, jobs, (inner,), sched.limit, done):
             inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
             seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
             for pair, count in result.overlap.items():

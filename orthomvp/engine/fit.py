@@ -20,6 +20,7 @@ from rasterio.enums import Resampling
 
 from orthomvp.codes import Code
 from orthomvp.engine import heap
+from orthomvp.engine.copies import image_copies, release_after
 from orthomvp.engine.fit_plan import (
     RETRIES,
     FitJob,
@@ -30,6 +31,7 @@ from orthomvp.engine.grid import GDAL_CACHE, WindowT
 from orthomvp.engine.median import Median
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.run import (
+    all_local,
     check_memory,
     check_views,
     executor,
@@ -392,12 +394,12 @@ def run_fit(
     report = FitReport(posts=rows * cols)
     inside, seen = [0] * len(plan.views), [0] * len(plan.views)
     squares = 0.0
-    pool = executor(plan, run_fit_tile, workers, processes, client)
     folder = Path(outputs.heights).parent
     heights_grid = replace(plan.grid, crs=plan.dem.heights_crs())  # the heights' vertical datum
     with (
+        image_copies(plan, Path(outputs.heights), local=all_local(client)) as plan,
         Progress("fitting tiles", progress, len(plan.tiles)) as bar,
-        pool as (submit, wait),
+        executor(plan, run_fit_tile, workers, processes, client) as (submit, wait),
         Median(folder=folder) as shifts,
         Median(folder=folder) as sigmas,
     ):
@@ -413,7 +415,8 @@ def run_fit(
                     writer.write(empty_tile(plan, job))
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(submit, wait, jobs, args, sched.limit):
+            done = release_after(plan, jobs)
+            for result in results(submit, wait, jobs, args, sched.limit, done):
                 t0 = time.perf_counter()
                 writer.write(result)
                 report.phases["write"] = report.phases.get("write", 0.0) + (

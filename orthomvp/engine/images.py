@@ -16,6 +16,7 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
+from orthomvp.engine.copies import Copy, copied
 from orthomvp.errors import InputError
 from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
@@ -25,7 +26,9 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class ImageSource:
-    """One view: the image file, its size and band count, and its camera (carrying the size)."""
+    """One view: the image file, its size and band count, and its camera (carrying the size);
+    GDAL's driver and the widest band's data type (None for a cube), and in a run the
+    :class:`~orthomvp.engine.copies.Copy` it is read from (see :mod:`orthomvp.engine.copies`)."""
 
     path: Path
     width: int
@@ -33,6 +36,9 @@ class ImageSource:
     bands: int
     camera: Camera
     layout: CubeLayout | None = None  # an ISIS3 cube's, read while planning
+    driver: str | None = None
+    dtype: str | None = None
+    copy: Copy | None = None
 
     def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
         """Pixels of ``window`` (clipped to the image by the caller), every band or only
@@ -41,7 +47,9 @@ class ImageSource:
             return _read_cube_window(self.path, window, band, self.layout)
         r0, r1, c0, c1 = window
         indexes = None if band is None else [band]
-        with held_raster(self.path) as src:
+        path = self.path if self.copy is None else copied(self.path, self.copy)
+        # (a copy is read once per tile: opening it is cheaper than holding a file removed)
+        with held_raster(path) if path == self.path else open_raster(path) as src:
             try:
                 return read_values(src, indexes, Window(c0, r0, c1 - c0, r1 - r0), np.float32)
             except RasterioError as exc:
@@ -53,6 +61,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     its row in multi-camera files; or a camera), checked against each other from the image's
     header alone: no pixel is read."""
     path = Path(image)
+    driver = dtype = None
     if path.suffix.lower() == ".cub":
         from orthomvp.io.isis import read_layout  # pvl, only for cubes
 
@@ -62,12 +71,13 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
         layout = None
         with open_raster(path) as src:
             bands, rows, cols = src.count, src.height, src.width
+            driver, dtype = src.driver, max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
             check_blocks(src, path)
     if not isinstance(camera, Camera):
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     camera = check_image(shape_only, camera, str(path))
-    return ImageSource(path, cols, rows, bands, camera, layout)
+    return ImageSource(path, cols, rows, bands, camera, layout, driver, dtype)
 
 
 def check_blocks(src: DatasetReader, path: Path) -> None:

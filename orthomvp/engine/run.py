@@ -15,7 +15,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,17 +30,19 @@ from orthomvp.engine.cluster import (
     identity,
     tile_result,
 )
+from orthomvp.engine.copies import image_copies, release_after
 from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
+from orthomvp.engine.schedule import Schedule, all_local, schedule
 from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
-from orthomvp.engine.writer import Outputs, output_set, plan_inputs
+from orthomvp.engine.writer import Outputs, output_bytes, output_set, plan_inputs
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.io.raster import held_rasters
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.holes import FLAGS
-from orthomvp.validate import number, of_type
+from orthomvp.validate import of_type
 
 
 @dataclass
@@ -217,23 +219,32 @@ def executor(
 
 
 def results(
-    submit: Submit, wait: Callable, jobs: list[int], args: tuple, limit: int
+    submit: Submit,
+    wait: Callable,
+    jobs: list[int],
+    args: tuple,
+    limit: int,
+    finished: Callable[[int], None] | None = None,
 ) -> Iterator[Any]:
     """Run tiles ``jobs`` (indices, first ones first) with ``submit(index, *args)``, at most
     ``limit`` running or waiting to run at a time, and yield their results as they finish;
     WorkerError (one line) when a worker dies under a tile, any other exception of a tile as
-    it is. The next tiles are submitted before the finished ones are handed over, so workers
+    it is; ``finished(index)`` is called as each tile's result is taken, before it is
+    yielded. The next tiles are submitted before the finished ones are handed over, so workers
     do not wait while the caller writes; the finished tiles being written are the only others
     in memory. With ``limit`` = the workers, a Dask cluster gets no task beyond one per
     worker thread: a second one per worker would go where the plan it depends on lies, pile
     onto one worker and wait there for work stealing (measured: a worker idle for a second
     between 3-second tiles)."""
-    queue, pending = list(reversed(jobs)), set()
+    queue, pending, index_of = list(reversed(jobs)), set(), {}
 
     def top_up() -> None:
         while queue and len(pending) < limit:
+            index = queue.pop()
             with _worker_deaths():  # a broken pool refuses new work
-                pending.add(submit(queue.pop(), *args))
+                future = submit(index, *args)
+            pending.add(future)
+            index_of[future] = index
 
     top_up()
     while pending:  # empty only once the queue is (top_up refills it up to the limit)
@@ -244,6 +255,9 @@ def results(
         for future in done:
             with _worker_deaths():
                 result = tile_result(future)
+            index = index_of.pop(future)
+            if finished is not None:
+                finished(index)
             yield result
 
 
@@ -267,86 +281,12 @@ def _worker_deaths() -> Iterator[None]:
         ) from None
 
 
-def workers_of(threads: int | None, processes: int | None, client: Any) -> int:
-    """Tiles that can run at once: threads (default one per core), processes, or the Dask
-    client's worker threads; InputError for several of them or counts under 1."""
-    if sum(x is not None for x in (threads, processes, client)) > 1:
-        raise InputError("give threads, processes or a Dask client, not several")
-    for name, value in (("threads", threads), ("processes", processes)):
-        if value is not None:
-            number(value, name, minimum=1, integer=True)
-            if not isinstance(value, int | np.integer):  # 2.0: pools want an int
-                raise InputError(f"{name} must be an integer, got float {value!r}")
-    if client is not None:
-        if not callable(getattr(client, "nthreads", None)):
-            raise InputError(
-                f"client must be a dask.distributed Client (see dask_client), got "
-                f"{type(client).__name__}"
-            )
-        return max(sum(client.nthreads().values()), 1)
-    return processes or threads or os.cpu_count() or 1
-
-
 def _died(exc: BaseException) -> bool:
     """Whether ``exc`` says that a worker died under a tile (Dask's KilledWorker after its
     retries, or a future cancelled because the data it needed died with a worker)."""
     if isinstance(exc, cf.BrokenExecutor):  # a process pool whose worker died
         return True
     return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")
-
-
-@dataclass(frozen=True)
-class Schedule:
-    """How a run's tiles are spread: ``workers`` that can run a tile at once, the ``jobs``
-    (indices of the tiles some view sees), ``at_once`` tiles in memory together, ``inner``
-    threads per tile (a plain threads run with fewer tiles than threads shares them out), the
-    ``limit`` of tiles running or waiting to run (:func:`results`) and the worker
-    ``processes`` on this machine besides this one (:func:`local_processes`)."""
-
-    workers: int
-    jobs: list[int]
-    at_once: int
-    inner: int
-    limit: int
-    processes: int = 0
-
-
-def schedule(
-    tiles: Sequence[Any],
-    threads: int | None,
-    processes: int | None,
-    client: Any,
-    inflight: int | None,
-) -> Schedule:
-    """The :class:`Schedule` of ``tiles`` (with their ``index`` and ``views``) on ``threads``,
-    ``processes`` or the Dask ``client``, at most ``inflight`` in flight (default the workers);
-    InputError for a count under 1 or several of the three."""
-    workers = workers_of(threads, processes, client)
-    if inflight is not None:
-        inflight = number(inflight, "inflight", minimum=1, integer=True)
-    jobs = [job.index for job in tiles if job.views]
-    local = client is None and not processes
-    inner = max(1, workers // max(len(jobs), 1)) if local else 1
-    at_once = min(workers, max(len(jobs), 1))
-    here = local_processes(processes, client)
-    return Schedule(workers, jobs, at_once, inner, inflight or workers, here)
-
-
-def local_processes(processes: int | None, client: Any) -> int:
-    """Worker processes that run on this machine besides this one: the ``processes`` of a pool,
-    or the Dask ``client``'s workers whose address is a loopback or this host's (0 for
-    threads). Their memory counts in the preflight (:func:`~orthomvp.engine.tiling.peak_bytes`)."""
-    if client is None:
-        return processes or 0
-    import socket
-
-    from distributed.comm import get_address_host
-
-    here = {"localhost", socket.gethostname()}
-    with contextlib.suppress(OSError):
-        here.update(socket.gethostbyname_ex(socket.gethostname())[2])
-    hosts = [get_address_host(address) for address in client.nthreads()]
-    return sum(host in here or host.startswith("127.") or host == "::1" for host in hosts)
 
 
 def run_plan(
@@ -381,18 +321,40 @@ def run_plan(
     of_type(progress, (bool, type(None)), "progress")
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
-    workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
     kinds = frozenset(outputs.paths())
-    peak = preflight(plan, at_once, sched.processes, bool(kinds - {"visibility"}))
+    peak = preflight(plan, sched.at_once, sched.processes, bool(kinds - {"visibility"}))
     start = time.perf_counter()
+    near = next(iter(outputs.paths().values()))
+    copies = image_copies(plan, near, local=all_local(client), reserve=output_bytes(plan, outputs))
+    with copies as plan:
+        report = _run(plan, outputs, kinds, sched, processes, client, progress, peak)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _run(
+    plan: Plan,
+    outputs: Outputs,
+    kinds: frozenset[str],
+    sched: Schedule,
+    processes: int | None,
+    client: Any,
+    progress: bool,
+    peak: int,
+) -> RunReport:
+    """:func:`run_plan` after its checks: the survey (when the mosaic needs one), then every
+    tile, each image's copy (:mod:`~orthomvp.engine.copies`) removed once no tile still to run
+    reads it."""
+    workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
     if plan.mosaic is not None and kinds - {"visibility"}:
         if plan.mosaic.balance is not None or plan.mosaic.blend:
 
             def run_survey(
                 coarse: Plan, todo: list[int], kinds: frozenset[str]
             ) -> Iterator[TileResult]:
+                done = release_after(coarse, todo)
                 with executor(coarse, run_tile, workers, processes, client) as (submit, wait):
-                    yield from results(submit, wait, todo, (kinds, 1), workers)
+                    yield from results(submit, wait, todo, (kinds, 1), workers, done)
 
             plan = survey(plan, run_survey)
     n = len(plan.views)
@@ -411,7 +373,8 @@ def run_plan(
                     _add_counts(report, empty)
                     report.tiles_skipped += 1
                     bar.update()
-            for result in results(submit, wait, jobs, (kinds, sched.inner), sched.limit):
+            done = release_after(plan, jobs)
+            for result in results(submit, wait, jobs, (kinds, sched.inner), sched.limit, done):
                 t0 = time.perf_counter()
                 writer.write(result)
                 _account(report, result, time.perf_counter() - t0)
@@ -422,7 +385,6 @@ def run_plan(
                 check_filled(plan.views, report)
             t0 = time.perf_counter()
         report.phases["write"] = report.phases.get("write", 0.0) + time.perf_counter() - t0
-    report.seconds = time.perf_counter() - start
     return report
 
 

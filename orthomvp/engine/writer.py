@@ -256,6 +256,11 @@ def _size(layer: Layer, grid: OutputGrid, outputs: Any) -> int:
     return 2 * size if outputs.format == "cog" else size
 
 
+def output_bytes(plan: Plan, outputs: Outputs) -> int:
+    """Bytes the outputs of ``plan`` take on disk at most while they are written (``_size``)."""
+    return sum(_size(layer, plan.grid, outputs) for layer in ortho_layers(plan, outputs))
+
+
 LEVEL_WINDOW = 1024
 """Side (posts of the level before) of the windows in which the overview levels that no
 tile could make are made at the end."""

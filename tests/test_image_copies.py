@@ -1,0 +1,299 @@
+"""Images in formats that decode only from the top (JPEG, PNG) are read in a run from a copy
+made once (:mod:`orthomvp.engine.copies`): the copy reads exactly as the image does, runs give
+the same outputs with and without copies on threads and processes, each copy is made once and
+removed as soon as no tile still needs it, and an image is read directly when its copy cannot
+be made."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import rasterio
+import rasterio.shutil
+from rasterio.errors import NotGeoreferencedWarning
+
+import orthomvp.engine.copies as copies
+from orthomvp.engine import (
+    FitOutputs,
+    Outputs,
+    plan_check,
+    plan_fit,
+    plan_ortho,
+    run_check,
+    run_plan,
+)
+from orthomvp.engine.copies import Copy, copied, image_copies, release_after
+from orthomvp.engine.fit import run_fit
+from orthomvp.engine.images import ImageSource
+from orthomvp.engine.schedule import all_local
+from orthomvp.errors import InputError
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.mvp import FitOptions
+
+pytestmark = pytest.mark.filterwarnings("ignore", category=NotGeoreferencedWarning)
+
+
+def as_format(source: Path, target: Path, driver: str, **options: object) -> Path:
+    """``source`` (a GeoTIFF) written by GDAL's ``driver`` (its own CreateCopy)."""
+    rasterio.shutil.copy(source, target, driver=driver, **options)
+    return target
+
+
+def windows(rng: np.random.Generator, rows: int, cols: int, n: int) -> list[tuple]:
+    """``n`` random windows of a rows x cols image, from the bottom up half of the time, with
+    its edges among them."""
+    out = [(0, rows, 0, cols), (rows - 1, rows, cols - 1, cols)]
+    for _ in range(n):
+        r0, c0 = int(rng.integers(0, rows - 1)), int(rng.integers(0, cols - 1))
+        out.append(
+            (r0, int(rng.integers(r0 + 1, rows + 1)), c0, int(rng.integers(c0 + 1, cols + 1)))
+        )
+    return out
+
+
+def sources(tmp_path: Path) -> dict[str, Path]:
+    """A JPEG with GDAL's internal mask, an RGBA PNG, and a 16-bit PNG with a nodata value and a
+    scale and offset (in its .aux.xml), made from GeoTIFFs."""
+    rng = np.random.default_rng(1)
+    rows, cols = 233, 171
+    rgb = rng.integers(0, 256, (3, rows, cols), dtype=np.uint8)
+    mask = np.full((rows, cols), 255, np.uint8)
+    mask[40:90, 30:100] = 0
+    profile = {"driver": "GTiff", "height": rows, "width": cols, "dtype": "uint8"}
+    with rasterio.open(tmp_path / "masked.tif", "w", count=3, **profile) as dst:
+        dst.write(rgb)
+        dst.write_mask(mask)
+    rgba = np.concatenate([rgb, mask[None]])
+    with rasterio.open(tmp_path / "rgba.tif", "w", count=4, **profile) as dst:
+        dst.write(rgba)
+        dst.colorinterp = [*dst.colorinterp[:3], rasterio.enums.ColorInterp.alpha]
+    gray = rng.integers(0, 4000, (1, rows, cols), dtype=np.uint16)
+    gray[0, 100:120] = 7
+    profile.update(dtype="uint16", nodata=7)
+    with rasterio.open(tmp_path / "gray.tif", "w", count=1, **profile) as dst:
+        dst.write(gray)
+        dst.scales, dst.offsets = (0.25,), (-3.0,)
+    return {
+        "jpeg with mask": as_format(tmp_path / "masked.tif", tmp_path / "masked.jpg", "JPEG"),
+        "png with alpha": as_format(tmp_path / "rgba.tif", tmp_path / "rgba.png", "PNG"),
+        "png 16-bit, nodata, scale": as_format(tmp_path / "gray.tif", tmp_path / "gray.png", "PNG"),
+    }
+
+
+def test_a_copy_reads_as_its_image_reads(tmp_path: Path) -> None:
+    """Every window of every band, and of one band, of a copy equals the image's own read, NaN
+    (mask, alpha, nodata) and scaled values included; the copy is an uncompressed tiled
+    GeoTIFF."""
+    for name, path in sources(tmp_path).items():
+        with rasterio.open(path) as src:
+            assert src.driver in copies.SEQUENTIAL, name
+            rows, cols, bands = src.height, src.width, src.count
+        direct = ImageSource(path, cols, rows, bands, None)  # type: ignore[arg-type]
+        copy = Copy(tmp_path / f"{path.stem}.copy.tif", 0, 0)
+        via = ImageSource(path, cols, rows, bands, None, copy=copy)  # type: ignore[arg-type]
+        rng = np.random.default_rng(2)
+        for window in windows(rng, rows, cols, 30):
+            a, b = direct.read(window), via.read(window)
+            np.testing.assert_array_equal(b, a, err_msg=name)
+            np.testing.assert_array_equal(via.read(window, band=bands), a[-1:], err_msg=name)
+        whole = direct.read((0, rows, 0, cols))
+        assert np.isnan(whole).any() and np.isfinite(whole).any(), name
+        with rasterio.open(copy.path) as src:
+            assert src.driver == "GTiff" and src.block_shapes[0] == (256, 256), name
+            assert src.compression is None, name
+
+
+def crater_as(crater_dir: Path, folder: Path, driver: str) -> list[tuple[Path, Path]]:
+    """The crater scene's oblique and nadir views with their images as 8-bit ``driver`` files
+    (the radiance times 300, rounded)."""
+    folder.mkdir()
+    views = []
+    for name in ("oblique", "nadir"):
+        with rasterio.open(crater_dir / f"{name}.tif") as src:
+            values = np.round(src.read() * 300).clip(0, 255).astype(np.uint8)
+        byte = folder / f"{name}.tif"
+        with rasterio.open(
+            byte, "w", driver="GTiff", height=values.shape[1], width=values.shape[2], count=1,
+            dtype="uint8",
+        ) as dst:  # fmt: skip
+            dst.write(values)
+        suffix = {"PNG": ".png", "JPEG": ".jpg"}[driver]
+        image = as_format(byte, folder / f"{name}{suffix}", driver)
+        views.append((image, crater_dir / f"{name}.tsai"))
+    return views
+
+
+@pytest.mark.parametrize("driver", ["PNG", "JPEG"])
+def test_runs_with_copies_equal_direct_reads(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, driver: str
+) -> None:
+    """An orthophoto and a mosaic of PNG or JPEG images in 16-post tiles, on 2 threads and on
+    2 processes, equal the same runs reading the images directly; on threads each image is
+    copied once; no copy or folder of copies is left. The PNG mosaic also equals that of its
+    pixels as GeoTIFFs."""
+    views = crater_as(crater_dir, tmp_path / "images", driver)
+    made: list[Path] = []
+    real_copy = copies._copy
+
+    def counted(image: Path, part: Path) -> None:
+        made.append(image)
+        real_copy(image, part)
+
+    monkeypatch.setattr(copies, "_copy", counted)
+
+    def run(name: str, run_views: list, every: int, **kw: object) -> dict[str, np.ndarray]:
+        monkeypatch.setattr(copies, "COPY_PIXELS", every)
+        plan = plan_ortho(tmp_path / "dem.tif", run_views, tile=16, progress=False, grid="dem")
+        outputs = Outputs(ortho=tmp_path / f"{name}.tif", source=tmp_path / f"{name}-s.tif")
+        run_plan(plan, outputs, progress=False, **kw)
+        out = {}
+        for kind, path in outputs.paths().items():
+            with rasterio.open(path) as src:
+                out[kind] = src.read()
+        return out
+
+    shutil.copy(crater_dir / "dem.tif", tmp_path / "dem.tif")
+    for k, kw in enumerate([{"threads": 2}, {"processes": 2}]):
+        for views_run in (views[:1], views):
+            direct = run(f"direct{k}{len(views_run)}", views_run, 1 << 40, **kw)
+            made.clear()
+            via = run(f"copies{k}{len(views_run)}", views_run, 0, **kw)
+            for kind in direct:
+                np.testing.assert_array_equal(via[kind], direct[kind], err_msg=f"{kind} {kw}")
+            if "threads" in kw:
+                assert sorted(made) == sorted(image for image, _ in views_run)
+    if driver == "PNG":
+        tiffs = [(image.with_suffix(".tif"), camera) for image, camera in views]
+        np.testing.assert_array_equal(run("tiff", tiffs, 0, threads=2)["ortho"], via["ortho"])
+    leftovers = [p for p in tmp_path.rglob("*") if "orthomvp-copies" in str(p)]
+    assert leftovers == []
+
+
+def test_check_with_copies_equals_direct_reads(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The truth-free check of two PNG views gives the same rows with and without copies."""
+    views = crater_as(crater_dir, tmp_path / "images", "PNG")
+    rows = []
+    for every in (1 << 40, 0):
+        monkeypatch.setattr(copies, "COPY_PIXELS", every)
+        plan = plan_check(crater_dir / "dem.tif", views, names=["o", "n"], tile=16, progress=False)
+        rows.append(run_check(plan, threads=2, progress=False))
+    assert [str(r) for r in rows[0].rows] == [str(r) for r in rows[1].rows]
+    assert any(r["scored"] for r in rows[0].rows)
+
+
+def test_a_copy_is_removed_after_the_last_tile_that_reads_it(tmp_path: Path) -> None:
+    """release_after removes a view's copy when the last of the jobs reading it finishes, in
+    any order of finishing, and never one of a view with no copy."""
+    files = [tmp_path / f"{k}.tif" for k in range(3)]
+    for path in files:
+        path.write_bytes(b"x")
+    views = [SimpleNamespace(copy=Copy(files[0], 1, 0)), SimpleNamespace(copy=Copy(files[1], 1, 0))]
+    views.append(SimpleNamespace(copy=None))
+    tiles = [
+        SimpleNamespace(index=i, views=v) for i, v in enumerate([(0,), (0, 1), (1, 2), (2,), (0,)])
+    ]
+    plan = SimpleNamespace(views=views, tiles=tiles)
+    finished = release_after(plan, [4, 1, 2, 3])  # (tile 0 is not run here)
+    finished(2)
+    assert files[0].exists() and files[1].exists()
+    finished(4)
+    assert files[0].exists() and files[1].exists()
+    finished(1)
+    assert not files[0].exists() and not files[1].exists()
+    finished(3)
+    assert files[2].exists()
+
+
+def test_an_image_is_read_directly_when_its_copy_cannot_be_made(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without room on the disk, without the copies' folder, or when the copy fails (then
+    once: later readers are told), the image itself is read and no partial copy stays; a truncated PNG fails a run as it does
+    without copies, naming the image."""
+    views = crater_as(crater_dir, tmp_path / "images", "PNG")
+    image = views[0][0]
+    copy = Copy(tmp_path / "c.tif", 10**6, 0)
+    real_usage = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=10**6 - 1))
+    assert copied(image, copy) == image and not copy.path.exists()
+    monkeypatch.setattr(shutil, "disk_usage", real_usage)
+    assert copied(image, Copy(tmp_path / "gone" / "c.tif", 1, 0)) == image
+    calls = []
+
+    def failing(image: Path, part: Path) -> None:
+        calls.append(part)
+        part.write_bytes(b"half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(copies, "_copy", failing)
+    assert copied(image, copy) == image and copied(image, copy) == image
+    assert len(calls) == 1 and not calls[0].exists() and not copy.path.exists()
+    monkeypatch.undo()
+
+    broken = tmp_path / "broken.png"
+    broken.write_bytes(image.read_bytes()[: image.stat().st_size // 2])
+    messages = []
+    for every in (1 << 40, 0):
+        monkeypatch.setattr(copies, "COPY_PIXELS", every)
+        plan = plan_ortho(crater_dir / "dem.tif", [(broken, views[0][1])], tile=16, progress=False)
+        with pytest.raises(InputError, match="corrupt or truncated") as info:
+            run_plan(plan, Outputs(ortho=tmp_path / f"o{every}.tif"), threads=2, progress=False)
+        messages.append(str(info.value))
+        assert not (tmp_path / f"o{every}.tif").exists()
+    assert messages[0] == messages[1] and str(broken) in messages[0]
+
+
+@dataclass(frozen=True)
+class Views:
+    views: tuple[ImageSource, ...]
+
+
+def test_no_copies_for_remote_workers_or_small_images(tmp_path: Path) -> None:
+    """A Dask client with a worker on another machine gets no copies (it cannot read this
+    machine's folder), one with local workers does; neither does an image under
+    COPY_PIXELS, or a GeoTIFF."""
+    remote = SimpleNamespace(
+        nthreads=lambda: {"tcp://127.0.0.1:4000": 1, "tcp://192.0.2.7:4000": 1}
+    )
+    local = SimpleNamespace(nthreads=lambda: {"tcp://127.0.0.1:4000": 1, "tcp://127.0.0.1:4001": 2})
+    assert not all_local(remote) and all_local(local) and all_local(None)
+    big = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, driver="JPEG", dtype="uint8")  # type: ignore[arg-type]
+    small = replace(big, height=2047)
+    tiff = ImageSource(tmp_path / "a.tif", 4096, 4096, 3, None, driver="GTiff", dtype="uint8")  # type: ignore[arg-type]
+    plan = Views((big, small, tiff))
+    with image_copies(plan, tmp_path / "out.tif", local=False) as same:
+        assert same is plan
+    with image_copies(plan, tmp_path / "out.tif", local=True) as got:
+        assert [v.copy is not None for v in got.views] == [True, False, False]
+        assert got.views[0].copy.path.parent.parent == tmp_path
+        assert got.views[0].copy.nbytes == 2048 * 2048 * 3
+        folder = got.views[0].copy.path.parent
+        assert folder.is_dir()
+    assert not folder.exists()
+
+
+def test_fit_with_copies_equals_direct_reads(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tiled MVP fit of two PNG views gives the same heights with and without copies."""
+    views = crater_as(crater_dir, tmp_path / "images", "PNG")
+    terrain = Terrain.read(crater_dir / "dem.tif")
+    terrain.write(tmp_path / "start.tif", terrain.values + 10.0)
+    heights = []
+    for every in (1 << 40, 0):
+        monkeypatch.setattr(copies, "COPY_PIXELS", every)
+        options = FitOptions(hwin=4, reject_below=None)
+        plan = plan_fit(tmp_path / "start.tif", views, options, tile=16, progress=False)
+        out = tmp_path / f"h{every}.tif"
+        report = run_fit(plan, FitOutputs(out), threads=2, progress=False)
+        with rasterio.open(out) as src:
+            heights.append(src.read())
+        assert report.fitted > 1000
+    np.testing.assert_array_equal(heights[1], heights[0])
