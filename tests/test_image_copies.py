@@ -27,7 +27,7 @@ from orthomvp.engine import (
     run_check,
     run_plan,
 )
-from orthomvp.engine.copies import Copy, copied, image_copies, release_after
+from orthomvp.engine.copies import Copies, Copy, copied, decodes_from_top, image_copies
 from orthomvp.engine.fit import run_fit
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.schedule import all_local
@@ -78,7 +78,16 @@ def sources(tmp_path: Path) -> dict[str, Path]:
     with rasterio.open(tmp_path / "gray.tif", "w", count=1, **profile) as dst:
         dst.write(gray)
         dst.scales, dst.offsets = (0.25,), (-3.0,)
+    strip = rng.integers(0, 256, (2, 2100, 150), dtype=np.uint8)  # (GDAL reads one strip
+    strip[:, 1500:1600] = 9  # of 2,001 lines or more a line at a time)
+    with rasterio.open(
+        tmp_path / "strip.tif", "w", driver="GTiff", height=2100, width=150, count=2,
+        dtype="uint8", nodata=9, compress="deflate", blockysize=2100,
+    ) as dst:  # fmt: skip
+        dst.write(strip)
+        dst.scales, dst.offsets = (2.0, 0.5), (1.0, -1.0)
     return {
+        "geotiff of one strip": tmp_path / "strip.tif",
         "jpeg with mask": as_format(tmp_path / "masked.tif", tmp_path / "masked.jpg", "JPEG"),
         "png with alpha": as_format(tmp_path / "rgba.tif", tmp_path / "rgba.png", "PNG"),
         "png 16-bit, nodata, scale": as_format(tmp_path / "gray.tif", tmp_path / "gray.png", "PNG"),
@@ -91,7 +100,7 @@ def test_a_copy_reads_as_its_image_reads(tmp_path: Path) -> None:
     GeoTIFF."""
     for name, path in sources(tmp_path).items():
         with rasterio.open(path) as src:
-            assert src.driver in copies.SEQUENTIAL, name
+            assert decodes_from_top(src), name
             rows, cols, bands = src.height, src.width, src.count
         direct = ImageSource(path, cols, rows, bands, None)  # type: ignore[arg-type]
         copy = Copy(tmp_path / f"{path.stem}.copy.tif", 0, 0)
@@ -106,6 +115,45 @@ def test_a_copy_reads_as_its_image_reads(tmp_path: Path) -> None:
         with rasterio.open(copy.path) as src:
             assert src.driver == "GTiff" and src.block_shapes[0] == (256, 256), name
             assert src.compression is None, name
+
+
+def test_what_decodes_from_the_top(tmp_path: Path) -> None:
+    """JPEG, PNG, a GeoTIFF of one compressed 8-bit strip of 2,100 lines and one of a 16 MiB
+    block decode from the top; tiled GeoTIFFs, GeoTIFFs of many strips, of one uncompressed
+    strip (GDAL reads its lines directly) and of a block under 16 MiB do not."""
+    data = np.random.default_rng(3).integers(0, 256, (1, 2100, 200), dtype=np.uint8)
+    base = tmp_path / "base.tif"
+    with rasterio.open(
+        base, "w", driver="GTiff", height=2100, width=200, count=1, dtype="uint8"
+    ) as dst:
+        dst.write(data)
+    forms = {
+        "jpg": ("JPEG", {}, True),
+        "png": ("PNG", {}, True),
+        "strip.tif": ("GTiff", {"compress": "lzw", "blockysize": 2100}, True),
+        "tiled.tif": (
+            "GTiff",
+            {"compress": "deflate", "tiled": True, "blockxsize": 64, "blockysize": 64},
+            False,
+        ),
+        "strips.tif": ("GTiff", {"compress": "deflate", "blockysize": 16}, False),
+        "raw.tif": ("GTiff", {"blockysize": 2100}, False),
+    }
+    for suffix, (driver, options, expected) in forms.items():
+        path = as_format(base, tmp_path / f"a.{suffix}", driver, **options)
+        with rasterio.open(path) as src:
+            assert decodes_from_top(src) == expected, suffix
+    # 16-bit single strips are one block for GDAL: copied from BLOCK_BYTES
+    for side, expected in ((2900, True), (2800, False)):  # (16.0 and 15.0 MiB)
+        path = tmp_path / f"u16-{side}.tif"
+        with rasterio.open(
+            path, "w", driver="GTiff", height=side, width=side, count=1, dtype="uint16",
+            compress="deflate", blockysize=side,
+        ) as dst:  # fmt: skip
+            dst.write(np.zeros((1, side, side), np.uint16))
+        with rasterio.open(path) as src:
+            assert src.block_shapes[0] == (side, side)
+            assert decodes_from_top(src) == expected, side
 
 
 def crater_as(crater_dir: Path, folder: Path, driver: str) -> list[tuple[Path, Path]]:
@@ -132,10 +180,10 @@ def crater_as(crater_dir: Path, folder: Path, driver: str) -> list[tuple[Path, P
 def test_runs_with_copies_equal_direct_reads(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, driver: str
 ) -> None:
-    """An orthophoto and a mosaic of PNG or JPEG images in 16-post tiles, on 2 threads and on
-    2 processes, equal the same runs reading the images directly; on threads each image is
-    copied once; no copy or folder of copies is left. The PNG mosaic also equals that of its
-    pixels as GeoTIFFs."""
+    """An orthophoto and a mosaic of PNG or JPEG images in 16-post tiles,
+    on 2 threads and on 2 processes, equal the same runs reading the images directly; on
+    threads each image is copied once; no copy or folder of copies is left. The lossless
+    PNG mosaic also equals that of its pixels as GeoTIFFs."""
     views = crater_as(crater_dir, tmp_path / "images", driver)
     made: list[Path] = []
     real_copy = copies._copy
@@ -167,8 +215,10 @@ def test_runs_with_copies_equal_direct_reads(
                 np.testing.assert_array_equal(via[kind], direct[kind], err_msg=f"{kind} {kw}")
             if "threads" in kw:
                 assert sorted(made) == sorted(image for image, _ in views_run)
-    if driver == "PNG":
-        tiffs = [(image.with_suffix(".tif"), camera) for image, camera in views]
+    if driver in ("PNG", "strip"):
+        tiffs = [
+            (image.with_name(f"{image.stem.split('-')[0]}.tif"), camera) for image, camera in views
+        ]
         np.testing.assert_array_equal(run("tiff", tiffs, 0, threads=2)["ortho"], via["ortho"])
     leftovers = [p for p in tmp_path.rglob("*") if "orthomvp-copies" in str(p)]
     assert leftovers == []
@@ -188,35 +238,55 @@ def test_check_with_copies_equals_direct_reads(
     assert any(r["scored"] for r in rows[0].rows)
 
 
-def test_a_copy_is_removed_after_the_last_tile_that_reads_it(tmp_path: Path) -> None:
-    """release_after removes a view's copy when the last of the jobs reading it finishes, in
-    any order of finishing, and never one of a view with no copy."""
+def test_a_copy_is_made_ahead_and_removed_after_the_last_tile_that_reads_it(
+    tmp_path: Path,
+) -> None:
+    """Copies removes a view's copy when the last of the jobs reading it finishes, in any
+    order of finishing, and never a file of a view with no copy; a tile submitted starts the
+    copies of its views in the background, once each; a copy that no tile needs any more by
+    the time its turn comes is not made."""
+    image = tmp_path / "image.png"
+    with rasterio.open(
+        image, "w", driver="PNG", height=40, width=30, count=1, dtype="uint8"
+    ) as dst:  # fmt: skip
+        dst.write(np.full((1, 40, 30), 7, np.uint8))
     files = [tmp_path / f"{k}.tif" for k in range(3)]
-    for path in files:
-        path.write_bytes(b"x")
-    views = [SimpleNamespace(copy=Copy(files[0], 1, 0)), SimpleNamespace(copy=Copy(files[1], 1, 0))]
-    views.append(SimpleNamespace(copy=None))
-    tiles = [
-        SimpleNamespace(index=i, views=v) for i, v in enumerate([(0,), (0, 1), (1, 2), (2,), (0,)])
-    ]
+    views = [SimpleNamespace(path=image, copy=Copy(files[k], 1, 0)) for k in range(2)]
+    views.append(SimpleNamespace(path=image, copy=None))
+    files[2].write_bytes(b"x")
+    reads = [(0,), (0, 1), (1, 2), (2,), (0,)]
+    tiles = [SimpleNamespace(index=i, views=v) for i, v in enumerate(reads)]
     plan = SimpleNamespace(views=views, tiles=tiles)
-    finished = release_after(plan, [4, 1, 2, 3])  # (tile 0 is not run here)
-    finished(2)
+    copies = Copies(plan, [4, 1, 2, 3])  # (tile 0 is not run here)
+    copies.started(4)
+    copies.started(1)
+    copies.started(2)
+    copies.pool.submit(lambda: None).result()  # (one thread: the copies before are made)
     assert files[0].exists() and files[1].exists()
-    finished(4)
+    with rasterio.open(files[0]) as src:
+        assert (src.read() == 7).all()
+    copies.finished(2)
     assert files[0].exists() and files[1].exists()
-    finished(1)
+    copies.finished(4)
+    assert files[0].exists() and files[1].exists()
+    copies.finished(1)
     assert not files[0].exists() and not files[1].exists()
-    finished(3)
+    copies.finished(3)
     assert files[2].exists()
+    late = Copies(plan, [1])
+    late.finished(1)  # (done before its copies' turn)
+    late._ahead(0)
+    late._ahead(1)
+    assert not files[0].exists() and not files[1].exists()
+    copies.close()
 
 
 def test_an_image_is_read_directly_when_its_copy_cannot_be_made(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Without room on the disk, without the copies' folder, or when the copy fails (then
-    once: later readers are told), the image itself is read and no partial copy stays; a truncated PNG fails a run as it does
-    without copies, naming the image."""
+    once: later readers are told), the image itself is read and no partial copy stays; a
+    truncated PNG fails a run as it does without copies, naming the image."""
     views = crater_as(crater_dir, tmp_path / "images", "PNG")
     image = views[0][0]
     copy = Copy(tmp_path / "c.tif", 10**6, 0)
@@ -264,9 +334,9 @@ def test_no_copies_for_remote_workers_or_small_images(tmp_path: Path) -> None:
     )
     local = SimpleNamespace(nthreads=lambda: {"tcp://127.0.0.1:4000": 1, "tcp://127.0.0.1:4001": 2})
     assert not all_local(remote) and all_local(local) and all_local(None)
-    big = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, driver="JPEG", dtype="uint8")  # type: ignore[arg-type]
+    big = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
     small = replace(big, height=2047)
-    tiff = ImageSource(tmp_path / "a.tif", 4096, 4096, 3, None, driver="GTiff", dtype="uint8")  # type: ignore[arg-type]
+    tiff = ImageSource(tmp_path / "a.tif", 4096, 4096, 3, None, dtype="uint8")  # type: ignore[arg-type]
     plan = Views((big, small, tiff))
     with image_copies(plan, tmp_path / "out.tif", local=False) as same:
         assert same is plan

@@ -126,6 +126,15 @@ def peer_data_default() -> Path | None:
     "10 on the demo's crater scene and, with --peer-data, the ngi-aerial mosaic",
 )
 @click.option(
+    "--formats",
+    is_flag=True,
+    help="only the image-format benchmark: one frame (from --peer-data, else synthetic) "
+    "enlarged to 2560 x 4608 px and stored as a tiled GeoTIFF, a JPEG, a PNG and a GeoTIFF "
+    "of one strip; orthomvp "
+    "ortho of each at 2 m with default tiles and with --tile 128, whole processes, best of "
+    "--peer-repeat; time over the GeoTIFF's",
+)
+@click.option(
     "--mosaic-scale",
     "mosaic_counts",
     cls=Variadic,
@@ -179,6 +188,7 @@ def bench(
     scale_sizes: tuple[int, ...],
     scale_dask: int | None,
     view: bool,
+    formats: bool,
     mosaic_counts: tuple[int, ...],
     mosaic_res: tuple[float, ...],
     mosaic_fixed: float,
@@ -200,14 +210,15 @@ def bench(
     -rpc -to RPC_DEM (when on PATH) and by orthomvp at 24, 6 and 2 m, whole processes, with
     peak memory and the agreement of the two orthophotos. --scale runs instead the engine's
     scale benchmark (threads = cores). --mosaic-scale runs instead the mosaic benchmark
-    (threads = cores). --view runs instead the viewer benchmark."""
+    (threads = cores). --view runs instead the viewer benchmark. --formats runs instead the
+    image-format benchmark."""
     from orthomvp import bench as b
     from orthomvp.bench.workload import check_ortho_memory, check_raycast_memory
     from orthomvp.io.outputs import atomic_path
     from orthomvp.synthetic.scene import check_scene_memory
 
     check_outputs([Output("--json", json_path, ())], overwrite=overwrite)
-    if not peer and not view:  # every check before the first benchmark runs
+    if not peer and not view and not formats:  # every check before the first benchmark runs
         check_raycast_memory(size, rays, "choose a smaller --size or fewer --rays")
         if ortho_size:
             check_ortho_memory(ortho_size, "choose a smaller --ortho-size (0 skips)")
@@ -217,6 +228,8 @@ def bench(
             check_scene_memory(mvp_size, 0.8, "choose a smaller --mvp-size (0 skips)")
     if view:
         results = {"view": bench_view(peer_data)}
+    elif formats:
+        results = {"formats": bench_formats(peer_data, peer_repeat)}
     elif peer == "gdal":
         results = {"gdal": bench_gdal_peer(peer_data, peer_res, peer_repeat)}
     elif peer:
@@ -261,6 +274,19 @@ def bench_view(data: Path | None) -> list[dict]:
         for case in cases:
             rows.append(v.bench_view(case))
             print(v.format_view(rows[-1]), flush=True)
+    return rows
+
+
+def bench_formats(data: Path | None, repeat: int) -> list[dict]:
+    """``bench --formats``: :mod:`orthomvp.bench.formats` on the ngi-aerial frame in ``data``
+    (a synthetic frame without it), printed."""
+    from orthomvp.bench import formats as f
+
+    if not (data is not None and (data / "dem.tif").is_file()):
+        print("orthomvp: no ngi-aerial data given: using a synthetic aerial frame")
+    with tempfile.TemporaryDirectory(prefix="orthomvp-formats-") as tmp:
+        rows = f.bench_formats(data, Path(tmp), repeat=repeat)
+    print(f.format_formats(rows))
     return rows
 
 

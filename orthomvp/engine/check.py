@@ -18,7 +18,7 @@ import numpy as np
 from orthomvp.codes import Code, classify
 from orthomvp.engine import heap
 from orthomvp.engine.check_plan import CheckPlan
-from orthomvp.engine.copies import image_copies, release_after
+from orthomvp.engine.copies import copies_for, image_copies
 from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, NccTally, check_row, local_ncc
 from orthomvp.engine.plan import grow
 from orthomvp.engine.progress import Progress
@@ -232,7 +232,7 @@ def _copies(plan: CheckPlan, client: Any) -> Iterator[CheckPlan]:
     """``plan`` with its images' copies (:func:`~orthomvp.engine.copies.image_copies`, in the
     temporary folder: a check writes no file) for the block."""
     with image_copies(plan.base, None, local=all_local(client)) as base:
-        yield replace(plan, base=base)
+        yield plan if base is plan.base else replace(plan, base=base)
 
 
 def run_check(
@@ -268,11 +268,11 @@ def run_check(
         _copies(plan, client) as plan,
         Progress("checking tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_check_tile, workers, processes, client) as (submit, wait),
+        copies_for(plan, jobs) as copies,
     ):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))
-        done = release_after(plan, jobs)
-        for result in results(submit, wait, jobs, (inner,), sched.limit, done):
+        for result in results(submit, wait, jobs, (inner,), sched.limit, copies):
             inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
             seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
             for pair, count in result.overlap.items():

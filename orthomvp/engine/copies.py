@@ -1,14 +1,17 @@
-"""Images in formats that decode only from the top (JPEG, PNG), copied once per run into
-uncompressed tiled GeoTIFFs that the tiles read window by window.
+"""Images in formats that decode only from the top (JPEG, PNG, GeoTIFFs of one compressed
+strip), copied once per run into uncompressed tiled GeoTIFFs that the tiles read window by
+window.
 
-GDAL's JPEG and PNG drivers read an image a line at a time and keep no line they passed: a
-window above the last one read decodes the file again from its first line. A run reads each
-image in windows, tile after tile and from several threads, so a large JPEG would be decoded
-from the top many times over (a 2,560 x 4,608 JPEG under 128-post tiles: 19.8 s against 4.0 s
-for the same pixels as a tiled GeoTIFF). A run therefore copies each such image once, with
-GDAL's own ``CreateCopy`` (the values, masks, nodata, scale and offset as GDAL reads them),
-when a tile first needs it, and removes the copy as soon as no tile still to run needs it: the
-disk holds the copies of the images that the tiles in flight and those between them need, not
+GDAL's JPEG and PNG drivers read an image a line at a time and keep no line they passed, and
+so does its GeoTIFF driver for a compressed strip that holds the whole image: a window above
+the last one read decodes the file again from its first line. A run reads each image in
+windows, tile after tile and from several threads, so a large JPEG was decoded from the top
+many times over (a 2,560 x 4,608 px JPEG under 128-post tiles: 10.4 s against 4.2 s for the
+same pixels as a tiled GeoTIFF, ``orthomvp bench --formats``). A run therefore copies each
+such image once, with GDAL's own ``CreateCopy`` (the values, masks, nodata, scale and offset as
+GDAL reads them), in a background thread as soon as the first tile that reads it is
+submitted (a worker that needs it sooner waits for it), and removes the copy as soon as no
+tile still to run reads it: the disk holds the copies that the tiles in flight need, not one
 of every image.
 
 Copies go into a hidden folder beside the run's first output (the disk the user chose for
@@ -25,12 +28,14 @@ import os
 import shutil
 import tempfile
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rasterio.enums import Interleaving
 
 SEQUENTIAL = frozenset({"JPEG", "PNG"})
 """GDAL drivers that decode from the top of the file for a window above the last one read."""
@@ -38,6 +43,9 @@ SEQUENTIAL = frozenset({"JPEG", "PNG"})
 COPY_PIXELS = 1 << 22
 """Pixels (per band) from which such an image is copied; a smaller one decodes in a few tens of
 milliseconds and is read directly."""
+
+BLOCK_BYTES = 16 << 20
+"""Bytes of a compressed GeoTIFF block (decoded) from which its image is copied."""
 
 RESERVE = 1 << 30
 """Bytes that a copy must leave free on its disk, besides the outputs' own size."""
@@ -124,9 +132,26 @@ def _locked(path: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def wanted(driver: str | None, width: int, height: int) -> bool:
-    """Whether an image read by GDAL's ``driver`` with ``width`` x ``height`` pixels is copied."""
-    return driver in SEQUENTIAL and width * height >= COPY_PIXELS
+def decodes_from_top(src: Any) -> bool:
+    """Whether GDAL decodes the open dataset ``src`` from its top, or decodes far more than a
+    window, for a window above the last one read: a JPEG or PNG file, or a compressed GeoTIFF
+    whose strip GDAL reads a line at a time (one 8-bit strip of over 2,000 lines for the whole
+    image: GDAL's blocks are then one line high) or whose blocks hold :data:`BLOCK_BYTES` or
+    more (each thread's dataset would keep its own in GDAL's cache)."""
+    if src.driver in SEQUENTIAL:
+        return True
+    if src.driver != "GTiff" or src.compression is None or not src.block_shapes:
+        return False
+    lines, width = src.block_shapes[0]
+    size = lines * width * np.dtype(src.dtypes[0]).itemsize
+    size *= src.count if src.interleaving == Interleaving.pixel else 1
+    return lines == 1 < src.height or size >= BLOCK_BYTES
+
+
+def wanted(view: Any) -> bool:
+    """Whether ``view`` (an :class:`~orthomvp.engine.images.ImageSource`) is copied: it
+    :func:`decodes_from_top` and has :data:`COPY_PIXELS` or more."""
+    return view.from_top and view.width * view.height >= COPY_PIXELS
 
 
 @contextlib.contextmanager
@@ -136,7 +161,7 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
     hidden folder beside ``near`` (a file; the temporary folder when None or that folder cannot
     be made), removed with every copy at the end of the block. ``reserve``: bytes the outputs
     still need on that disk."""
-    if not local or not any(wanted(v.driver, v.width, v.height) for v in plan.views):
+    if not local or not any(wanted(v) for v in plan.views):
         yield plan
         return
     folder = None
@@ -149,7 +174,7 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
         return
     views = tuple(
         replace(view, copy=Copy(folder / f"{k}.tif", _nbytes(view), RESERVE + reserve))
-        if wanted(view.driver, view.width, view.height)
+        if wanted(view)
         else view
         for k, view in enumerate(plan.views)
     )
@@ -164,25 +189,67 @@ def _nbytes(view: Any) -> int:
     return view.width * view.height * view.bands * np.dtype(view.dtype or "float64").itemsize
 
 
-def release_after(plan: Any, jobs: Sequence[int]) -> Callable[[int], None]:
-    """``finished(index)``, to be called as each of the tiles ``jobs`` of ``plan`` is done: it
-    removes the copy of each view that no tile of ``jobs`` still to finish reads."""
-    views = {job.index: job.views for job in plan.tiles}
-    left: dict[int, int] = {}
-    for index in jobs:
-        for k in views[index]:
-            if plan.views[k].copy is not None:
-                left[k] = left.get(k, 0) + 1
-    lock = threading.Lock()
+class Copies:
+    """The copies that the tiles ``jobs`` of ``plan`` read: each made ahead, in one background
+    thread of this process, as the first tile reading it is submitted (:meth:`started`; a
+    worker that needs it sooner waits for it on its lock), and removed when the last tile
+    reading it finishes (:meth:`finished`). :meth:`close` waits for the thread."""
 
-    def finished(index: int) -> None:
-        for k in views[index]:
-            with lock:
-                if k not in left:
+    def __init__(self, plan: Any, jobs: Sequence[int]) -> None:
+        self.plan = plan
+        self.views = {job.index: job.views for job in plan.tiles}
+        self.left: dict[int, int] = {}
+        for index in jobs:
+            for k in self.views[index]:
+                if plan.views[k].copy is not None:
+                    self.left[k] = self.left.get(k, 0) + 1
+        self.lock = threading.Lock()
+        self.queued: set[int] = set()
+        self.pool: ThreadPoolExecutor | None = None
+
+    def started(self, index: int) -> None:
+        """Tile ``index`` is submitted: start the copies of its views not started yet."""
+        for k in self.views[index]:
+            if k in self.left and k not in self.queued:
+                self.queued.add(k)
+                if self.pool is None:
+                    self.pool = ThreadPoolExecutor(1, thread_name_prefix="orthomvp-copy")
+                self.pool.submit(self._ahead, k)
+
+    def _ahead(self, k: int) -> None:
+        """Make view ``k``'s copy unless no tile needs it any more (and remove it when the last
+        tile finished meanwhile)."""
+        view = self.plan.views[k]
+        with self.lock:
+            if not self.left[k]:
+                return
+        copied(view.path, view.copy)
+        with self.lock:
+            if not self.left[k]:
+                view.copy.path.unlink(missing_ok=True)
+
+    def finished(self, index: int) -> None:
+        """Tile ``index`` is done: remove the copy of each view that no tile still reads."""
+        for k in self.views[index]:
+            with self.lock:
+                if k not in self.left:
                     continue
-                left[k] -= 1
-                done = not left[k]
-            if done:
-                plan.views[k].copy.path.unlink(missing_ok=True)
+                self.left[k] -= 1
+                if not self.left[k]:
+                    self.plan.views[k].copy.path.unlink(missing_ok=True)
 
-    return finished
+    def close(self) -> None:
+        """Wait for the copy under way, start no other."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+@contextlib.contextmanager
+def copies_for(plan: Any, jobs: Sequence[int]) -> Iterator[Copies]:
+    """:class:`Copies` of ``plan``'s tiles ``jobs`` (none when the tiles read no pixels),
+    closed at the end of the block."""
+    copies = Copies(plan, jobs)
+    try:
+        yield copies
+    finally:
+        copies.close()

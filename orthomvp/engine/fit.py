@@ -20,7 +20,7 @@ from rasterio.enums import Resampling
 
 from orthomvp.codes import Code
 from orthomvp.engine import heap
-from orthomvp.engine.copies import image_copies, release_after
+from orthomvp.engine.copies import copies_for, image_copies
 from orthomvp.engine.fit_plan import (
     RETRIES,
     FitJob,
@@ -400,6 +400,7 @@ def run_fit(
         image_copies(plan, Path(outputs.heights), local=all_local(client)) as plan,
         Progress("fitting tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_fit_tile, workers, processes, client) as (submit, wait),
+        copies_for(plan, jobs) as copies,
         Median(folder=folder) as shifts,
         Median(folder=folder) as sigmas,
     ):
@@ -415,8 +416,7 @@ def run_fit(
                     writer.write(empty_tile(plan, job))
                     report.tiles_skipped += 1
                     bar.update()
-            done = release_after(plan, jobs)
-            for result in results(submit, wait, jobs, args, sched.limit, done):
+            for result in results(submit, wait, jobs, args, sched.limit, copies):
                 t0 = time.perf_counter()
                 writer.write(result)
                 report.phases["write"] = report.phases.get("write", 0.0) + (

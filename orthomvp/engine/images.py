@@ -16,7 +16,7 @@ from rasterio.io import DatasetReader
 from rasterio.windows import Window
 
 from orthomvp.camera import Camera, check_image, read_camera
-from orthomvp.engine.copies import Copy, copied
+from orthomvp.engine.copies import Copy, copied, decodes_from_top
 from orthomvp.errors import InputError
 from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
 
@@ -27,7 +27,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class ImageSource:
     """One view: the image file, its size and band count, and its camera (carrying the size);
-    GDAL's driver and the widest band's data type (None for a cube), and in a run the
+    whether GDAL decodes it from its top (:func:`~orthomvp.engine.copies.decodes_from_top`), the
+    widest band's data type (None for a cube), and in a run the
     :class:`~orthomvp.engine.copies.Copy` it is read from (see :mod:`orthomvp.engine.copies`)."""
 
     path: Path
@@ -36,7 +37,7 @@ class ImageSource:
     bands: int
     camera: Camera
     layout: CubeLayout | None = None  # an ISIS3 cube's, read while planning
-    driver: str | None = None
+    from_top: bool = False
     dtype: str | None = None
     copy: Copy | None = None
 
@@ -61,7 +62,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     its row in multi-camera files; or a camera), checked against each other from the image's
     header alone: no pixel is read."""
     path = Path(image)
-    driver = dtype = None
+    from_top, dtype = False, None
     if path.suffix.lower() == ".cub":
         from orthomvp.io.isis import read_layout  # pvl, only for cubes
 
@@ -71,13 +72,14 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
         layout = None
         with open_raster(path) as src:
             bands, rows, cols = src.count, src.height, src.width
-            driver, dtype = src.driver, max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
+            from_top = decodes_from_top(src)
+            dtype = max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
             check_blocks(src, path)
     if not isinstance(camera, Camera):
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     camera = check_image(shape_only, camera, str(path))
-    return ImageSource(path, cols, rows, bands, camera, layout, driver, dtype)
+    return ImageSource(path, cols, rows, bands, camera, layout, from_top, dtype)
 
 
 def check_blocks(src: DatasetReader, path: Path) -> None:

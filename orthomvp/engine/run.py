@@ -30,7 +30,7 @@ from orthomvp.engine.cluster import (
     identity,
     tile_result,
 )
-from orthomvp.engine.copies import image_copies, release_after
+from orthomvp.engine.copies import Copies, copies_for, image_copies
 from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
@@ -224,23 +224,25 @@ def results(
     jobs: list[int],
     args: tuple,
     limit: int,
-    finished: Callable[[int], None] | None = None,
+    copies: Copies | None = None,
 ) -> Iterator[Any]:
     """Run tiles ``jobs`` (indices, first ones first) with ``submit(index, *args)``, at most
     ``limit`` running or waiting to run at a time, and yield their results as they finish;
     WorkerError (one line) when a worker dies under a tile, any other exception of a tile as
-    it is; ``finished(index)`` is called as each tile's result is taken, before it is
-    yielded. The next tiles are submitted before the finished ones are handed over, so workers
-    do not wait while the caller writes; the finished tiles being written are the only others
-    in memory. With ``limit`` = the workers, a Dask cluster gets no task beyond one per
-    worker thread: a second one per worker would go where the plan it depends on lies, pile
-    onto one worker and wait there for work stealing (measured: a worker idle for a second
-    between 3-second tiles)."""
+    it is; ``copies`` (of the images the tiles read) hears of each tile as it is submitted
+    and as its result is taken, before it is yielded. The next tiles are submitted before the
+    finished ones are handed over, so workers do not wait while the caller writes; the
+    finished tiles being written are the only others in memory. With ``limit`` = the
+    workers, a Dask cluster gets no task beyond one per worker thread: a second one per
+    worker would go where the plan it depends on lies, pile onto one worker and wait there
+    for work stealing (measured: a worker idle for a second between 3-second tiles)."""
     queue, pending, index_of = list(reversed(jobs)), set(), {}
 
     def top_up() -> None:
         while queue and len(pending) < limit:
             index = queue.pop()
+            if copies is not None:
+                copies.started(index)
             with _worker_deaths():  # a broken pool refuses new work
                 future = submit(index, *args)
             pending.add(future)
@@ -256,8 +258,8 @@ def results(
             with _worker_deaths():
                 result = tile_result(future)
             index = index_of.pop(future)
-            if finished is not None:
-                finished(index)
+            if copies is not None:
+                copies.finished(index)
             yield result
 
 
@@ -352,9 +354,11 @@ def _run(
             def run_survey(
                 coarse: Plan, todo: list[int], kinds: frozenset[str]
             ) -> Iterator[TileResult]:
-                done = release_after(coarse, todo)
-                with executor(coarse, run_tile, workers, processes, client) as (submit, wait):
-                    yield from results(submit, wait, todo, (kinds, 1), workers, done)
+                with (
+                    executor(coarse, run_tile, workers, processes, client) as (submit, wait),
+                    copies_for(coarse, todo if "stack" in kinds else []) as copies,
+                ):
+                    yield from results(submit, wait, todo, (kinds, 1), workers, copies)
 
             plan = survey(plan, run_survey)
     n = len(plan.views)
@@ -362,7 +366,11 @@ def _run(
     report.correction = plan.correction
     report.blend = plan.mosaic.blend if plan.mosaic is not None else None
     pool = executor(plan, run_tile, workers, processes, client)
-    with Progress("tiles", progress, len(plan.tiles)) as bar, pool as (submit, wait):
+    with (
+        Progress("tiles", progress, len(plan.tiles)) as bar,
+        pool as (submit, wait),
+        copies_for(plan, jobs if kinds - {"visibility"} else []) as copies,
+    ):
         bar.note(plan.summary(peak, at_once))
         seen = [0] * len(plan.views)
         with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE), output_set(plan, outputs) as writer:
@@ -373,8 +381,8 @@ def _run(
                     _add_counts(report, empty)
                     report.tiles_skipped += 1
                     bar.update()
-            done = release_after(plan, jobs)
-            for result in results(submit, wait, jobs, (kinds, sched.inner), sched.limit, done):
+            args = (kinds, sched.inner)
+            for result in results(submit, wait, jobs, args, sched.limit, copies):
                 t0 = time.perf_counter()
                 writer.write(result)
                 _account(report, result, time.perf_counter() - t0)
