@@ -6,6 +6,7 @@ be made."""
 
 from __future__ import annotations
 
+import os
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -367,3 +368,32 @@ def test_fit_with_copies_equals_direct_reads(
             heights.append(src.read())
         assert report.fitted > 1000
     np.testing.assert_array_equal(heights[1], heights[0])
+
+
+def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None:
+    """Folders of copies of this machine's processes that no longer run are removed when a run
+    makes its own beside them; those of running processes, of other machines (a host name
+    that only starts like this one's included) and other files stay."""
+    import socket
+    import subprocess
+    import sys
+
+    host = socket.gethostname()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+    names = {
+        f".orthomvp-copies-{host}-{dead}-ab_c1234": False,
+        f".orthomvp-copies-{host}-{os.getpid()}-ab_c1234": True,
+        f".orthomvp-copies-{host}-2-{dead}-ab_c1234": True,  # (host "HOST-2")
+        f".orthomvp-copies-other-{dead}-ab_c1234": True,
+        f".orthomvp-copies-{host}-x{dead}-ab_c1234": True,
+    }
+    for name in names:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "0.tif").write_bytes(b"x")
+    view = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
+    with image_copies(Views((view,)), tmp_path / "out.tif", local=True) as got:
+        mine = got.views[0].copy.path.parent.name
+        assert mine.startswith(f".orthomvp-copies-{host}-{os.getpid()}-")
+        for name, kept in names.items():
+            assert (tmp_path / name).exists() == kept, name

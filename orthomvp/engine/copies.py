@@ -16,7 +16,9 @@ of every image.
 
 Copies go into a hidden folder beside the run's first output (the disk the user chose for
 large files; a RAM-backed ``/tmp`` would take the copies from memory), or the temporary folder
-when there is no output, which the run removes at its end. An image is read directly, as it
+when there is no output, which the run removes at its end; a run also removes the folders
+that processes of this machine killed outright left there (the folder's name holds the host
+and the process id). An image is read directly, as it
 would be without copies, when its disk would be left with less than the reserve free, when the
 copy fails for any reason, and on a Dask cluster with workers on other machines (they cannot
 see this machine's folder)."""
@@ -24,8 +26,10 @@ see this machine's folder)."""
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import shutil
+import socket
 import tempfile
 import threading
 from collections.abc import Iterator, Sequence
@@ -167,7 +171,8 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
     folder = None
     for parent in ([near.parent] if near is not None else []) + [Path(tempfile.gettempdir())]:
         with contextlib.suppress(OSError):
-            folder = Path(tempfile.mkdtemp(prefix=".orthomvp-copies-", dir=parent))
+            folder = Path(tempfile.mkdtemp(prefix=_prefix(os.getpid()), dir=parent))
+            _remove_stale(parent)
             break
     if folder is None:
         yield plan
@@ -182,6 +187,28 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
         yield replace(plan, views=views)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _prefix(pid: int) -> str:
+    """The start of the name of a folder of copies made by process ``pid`` of this machine."""
+    return f".orthomvp-copies-{socket.gethostname()}-{pid}-"
+
+
+def _remove_stale(parent: Path) -> None:
+    """Remove the folders of copies in ``parent`` that a process of this machine that no longer
+    runs left behind (killed outright, it could not remove them); those of other machines, of
+    running processes and anything else stay."""
+    start = _prefix(0)[:-2]  # (".orthomvp-copies-HOST-")
+    for folder in parent.glob(f"{glob.escape(start)}*"):
+        pid, _, rest = folder.name[len(start) :].partition("-")  # (rest: mkdtemp's, no "-")
+        if not pid.isdigit() or "-" in rest or not folder.is_dir() or folder.is_symlink():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except (PermissionError, OverflowError):  # (another user's live process; no such pid)
+            continue
 
 
 def _nbytes(view: Any) -> int:
