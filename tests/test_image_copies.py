@@ -397,3 +397,38 @@ def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None
         assert mine.startswith(f".orthomvp-copies-{host}-{os.getpid()}-")
         for name, kept in names.items():
             assert (tmp_path / name).exists() == kept, name
+
+
+def test_a_copy_that_would_read_otherwise_is_not_used(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A JPEG's mask is kept in the copy even where GDAL is told to write GeoTIFF masks beside
+    the file (the default before GDAL 3.9: renaming the copy would leave its mask behind); a
+    nodata value on one band of three would not survive the copy (a GeoTIFF has one for all
+    bands): that image is read directly. Both read as they do without copies."""
+    rng = np.random.default_rng(4)
+    rows, cols = 120, 90
+    rgb = rng.integers(0, 40, (3, rows, cols), dtype=np.uint8)
+    mask = np.full((rows, cols), 255, np.uint8)
+    mask[10:50, 20:70] = 0
+    profile = {"driver": "GTiff", "height": rows, "width": cols, "dtype": "uint8", "count": 3}
+    with rasterio.open(tmp_path / "masked.tif", "w", **profile) as dst:
+        dst.write(rgb)
+        dst.write_mask(mask)
+    masked = as_format(tmp_path / "masked.tif", tmp_path / "masked.jpg", "JPEG")
+    with rasterio.open(tmp_path / "plain.tif", "w", **profile) as dst:
+        dst.write(rgb)
+    one = as_format(tmp_path / "plain.tif", tmp_path / "one.png", "PNG")
+    (tmp_path / "one.png.aux.xml").write_text(
+        '<PAMDataset><PAMRasterBand band="1"><NoDataValue>7</NoDataValue></PAMRasterBand>'
+        "</PAMDataset>"
+    )
+    monkeypatch.setenv("GDAL_TIFF_INTERNAL_MASK", "NO")
+    for path in (masked, one):
+        direct = ImageSource(path, cols, rows, 3, None)  # type: ignore[arg-type]
+        copy = Copy(tmp_path / f"{path.stem}.copy.tif", 0, 0)
+        via = ImageSource(path, cols, rows, 3, None, copy=copy)  # type: ignore[arg-type]
+        a = direct.read((0, rows, 0, cols))
+        assert np.isnan(a).any() and not np.isnan(a).all(), path.name
+        np.testing.assert_array_equal(via.read((0, rows, 0, cols)), a, err_msg=path.name)
+        assert copy.path.exists() == (path == masked), path.name

@@ -41,6 +41,8 @@ from typing import Any
 import numpy as np
 from rasterio.enums import Interleaving
 
+from orthomvp.io.raster import open_raster
+
 SEQUENTIAL = frozenset({"JPEG", "PNG"})
 """GDAL drivers that decode from the top of the file for a window above the last one read."""
 
@@ -104,18 +106,37 @@ def _make(image: Path, copy: Copy, failed: Path) -> None:
 
 def _copy(image: Path, part: Path) -> None:
     """``image`` as an uncompressed GeoTIFF of 256-pixel tiles at ``part`` (GDAL's CreateCopy:
-    one pass down the image; its masks, nodata, scale and offset kept)."""
+    one pass down the image; its masks, nodata, scale and offset kept, the mask inside the
+    file whatever ``GDAL_TIFF_INTERNAL_MASK`` says); ValueError when ``part`` would not read
+    as ``image`` does: a sidecar file beside it (which renaming ``part`` would leave behind),
+    or another nodata, mask, scale or offset of a band (a GeoTIFF has one nodata value for
+    all its bands)."""
+    import rasterio
     import rasterio.shutil
 
-    rasterio.shutil.copy(
-        os.fspath(image),
-        os.fspath(part),
-        driver="GTiff",
-        tiled=True,
-        blockxsize=256,
-        blockysize=256,
-        bigtiff="IF_SAFER",
-    )
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        rasterio.shutil.copy(
+            os.fspath(image),
+            os.fspath(part),
+            driver="GTiff",
+            tiled=True,
+            blockxsize=256,
+            blockysize=256,
+            bigtiff="IF_SAFER",
+        )
+    if any(part.parent.glob(f"{glob.escape(part.name)}.*")):
+        raise ValueError(f"{part}: GDAL wrote a sidecar file")
+    with open_raster(image) as src, open_raster(part) as dst:
+        if _reading(src) != _reading(dst):
+            raise ValueError(f"{part}: the copy does not read as {image} does")
+
+
+def _reading(src: Any) -> tuple:
+    """What GDAL's reading of the open dataset ``src`` depends on besides its pixels: its
+    bands' data types, nodata values, mask flags, scales and offsets."""
+    nodata = tuple(repr(value) for value in src.nodatavals)  # (NaN equals NaN)
+    flags = tuple(tuple(band) for band in src.mask_flag_enums)
+    return src.count, src.dtypes, nodata, flags, src.scales, src.offsets
 
 
 @contextlib.contextmanager
