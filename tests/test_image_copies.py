@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -28,7 +29,7 @@ from orthomvp.engine import (
     run_check,
     run_plan,
 )
-from orthomvp.engine.copies import Copies, Copy, copied, decodes_from_top, image_copies
+from orthomvp.engine.copies import Copies, Copy, copied, decodes_from_top, image_copies, reread
 from orthomvp.engine.fit import run_fit
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.schedule import all_local
@@ -120,8 +121,9 @@ def test_a_copy_reads_as_its_image_reads(tmp_path: Path) -> None:
 
 def test_what_decodes_from_the_top(tmp_path: Path) -> None:
     """JPEG, PNG, a GeoTIFF of one compressed 8-bit strip of 2,100 lines and one of a 16 MiB
-    block decode from the top; tiled GeoTIFFs, GeoTIFFs of many strips, of one uncompressed
-    strip (GDAL reads its lines directly) and of a block under 16 MiB do not."""
+    block decode from the top; tiled GeoTIFFs, GeoTIFFs of many strips (also of one line
+    each), of one uncompressed strip (GDAL reads its lines directly) and of a block under
+    16 MiB do not."""
     data = np.random.default_rng(3).integers(0, 256, (1, 2100, 200), dtype=np.uint8)
     base = tmp_path / "base.tif"
     with rasterio.open(
@@ -139,6 +141,7 @@ def test_what_decodes_from_the_top(tmp_path: Path) -> None:
         ),
         "strips.tif": ("GTiff", {"compress": "deflate", "blockysize": 16}, False),
         "raw.tif": ("GTiff", {"blockysize": 2100}, False),
+        "lines.tif": ("GTiff", {"compress": "deflate", "blockysize": 1}, False),
     }
     for suffix, (driver, options, expected) in forms.items():
         path = as_format(base, tmp_path / f"a.{suffix}", driver, **options)
@@ -177,6 +180,19 @@ def crater_as(crater_dir: Path, folder: Path, driver: str) -> list[tuple[Path, P
     return views
 
 
+def counting(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
+    """The images copied in this process from now on (in order), as a list that grows."""
+    made: list[Path] = []
+    real_copy = copies._copy
+
+    def counted(image: Path, part: Path) -> None:
+        made.append(image)
+        real_copy(image, part)
+
+    monkeypatch.setattr(copies, "_copy", counted)
+    return made
+
+
 @pytest.mark.parametrize("driver", ["PNG", "JPEG"])
 def test_runs_with_copies_equal_direct_reads(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, driver: str
@@ -186,14 +202,7 @@ def test_runs_with_copies_equal_direct_reads(
     threads each image is copied once; no copy or folder of copies is left. The lossless
     PNG mosaic also equals that of its pixels as GeoTIFFs."""
     views = crater_as(crater_dir, tmp_path / "images", driver)
-    made: list[Path] = []
-    real_copy = copies._copy
-
-    def counted(image: Path, part: Path) -> None:
-        made.append(image)
-        real_copy(image, part)
-
-    monkeypatch.setattr(copies, "_copy", counted)
+    made = counting(monkeypatch)
 
     def run(name: str, run_views: list, every: int, **kw: object) -> dict[str, np.ndarray]:
         monkeypatch.setattr(copies, "COPY_PIXELS", every)
@@ -216,7 +225,7 @@ def test_runs_with_copies_equal_direct_reads(
                 np.testing.assert_array_equal(via[kind], direct[kind], err_msg=f"{kind} {kw}")
             if "threads" in kw:
                 assert sorted(made) == sorted(image for image, _ in views_run)
-    if driver in ("PNG", "strip"):
+    if driver == "PNG":
         tiffs = [
             (image.with_name(f"{image.stem.split('-')[0]}.tif"), camera) for image, camera in views
         ]
@@ -230,11 +239,13 @@ def test_check_with_copies_equals_direct_reads(
 ) -> None:
     """The truth-free check of two PNG views gives the same rows with and without copies."""
     views = crater_as(crater_dir, tmp_path / "images", "PNG")
+    made = counting(monkeypatch)
     rows = []
     for every in (1 << 40, 0):
         monkeypatch.setattr(copies, "COPY_PIXELS", every)
         plan = plan_check(crater_dir / "dem.tif", views, names=["o", "n"], tile=16, progress=False)
         rows.append(run_check(plan, threads=2, progress=False))
+        assert sorted(made) == ([] if every else sorted(image for image, _ in views))
     assert [str(r) for r in rows[0].rows] == [str(r) for r in rows[1].rows]
     assert any(r["scored"] for r in rows[0].rows)
 
@@ -323,13 +334,24 @@ def test_an_image_is_read_directly_when_its_copy_cannot_be_made(
 
 @dataclass(frozen=True)
 class Views:
+    """A plan's views and tiles (each with its ``index`` and the ``views`` it reads)."""
+
     views: tuple[ImageSource, ...]
+    tiles: tuple = ()
 
 
-def test_no_copies_for_remote_workers_or_small_images(tmp_path: Path) -> None:
+def tiles_reading(*reads: tuple[int, ...]) -> tuple:
+    """Tiles 0, 1, ... reading the views ``reads[i]``."""
+    return tuple(SimpleNamespace(index=i, views=v) for i, v in enumerate(reads))
+
+
+def test_no_copies_for_remote_workers_or_small_images(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A Dask client with a worker on another machine gets no copies (it cannot read this
     machine's folder), one with local workers does; neither does an image under
-    COPY_PIXELS, or a GeoTIFF."""
+    COPY_PIXELS, a GeoTIFF, or an image that only one of the run's tiles reads (nor, in a
+    survey, one that only one of its tiles reads); the folder is absolute."""
     remote = SimpleNamespace(
         nthreads=lambda: {"tcp://127.0.0.1:4000": 1, "tcp://192.0.2.7:4000": 1}
     )
@@ -338,16 +360,48 @@ def test_no_copies_for_remote_workers_or_small_images(tmp_path: Path) -> None:
     big = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
     small = replace(big, height=2047)
     tiff = ImageSource(tmp_path / "a.tif", 4096, 4096, 3, None, dtype="uint8")  # type: ignore[arg-type]
-    plan = Views((big, small, tiff))
-    with image_copies(plan, tmp_path / "out.tif", local=False) as same:
+    once = replace(big, path=tmp_path / "b.jpg")
+    plan = Views((big, small, tiff, once), tiles_reading((0, 1, 2), (0, 1, 2, 3), (0,)))
+    with image_copies(plan, tmp_path / "out.tif", local=False, jobs=[0, 1, 2]) as same:
         assert same is plan
-    with image_copies(plan, tmp_path / "out.tif", local=True) as got:
-        assert [v.copy is not None for v in got.views] == [True, False, False]
-        assert got.views[0].copy.path.parent.parent == tmp_path
+    with image_copies(plan, tmp_path / "out.tif", local=True, jobs=[2]) as same:
+        assert same is plan  # (view 0: one tile)
+    monkeypatch.chdir(tmp_path)
+    with image_copies(plan, Path("out.tif"), local=True, jobs=[0, 1, 2]) as got:
+        assert [v.copy is not None for v in got.views] == [True, False, False, False]
+        assert got.views[0].copy.path.parent.parent == tmp_path.resolve()
+        assert got.views[0].copy.path.is_absolute()
         assert got.views[0].copy.nbytes == 2048 * 2048 * 3
         folder = got.views[0].copy.path.parent
         assert folder.is_dir()
+        survey = replace(got, tiles=tiles_reading((0,), (1,), (0,)))
+        assert reread(survey, [0, 1, 2]) is survey
+        assert reread(survey, [0, 1]).views[0].copy is None
     assert not folder.exists()
+
+
+def test_copies_never_go_to_a_folder_in_memory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Beside an output in a tmpfs (/dev/shm, as `stat -f` tells), and with the temporary
+    folder there too, nothing is copied; with the temporary folder on disk, copies go there."""
+    import subprocess
+
+    shm = Path("/dev/shm")
+    kind = subprocess.run(["stat", "-f", "-c", "%T", str(shm)], capture_output=True, text=True)
+    if not shm.is_dir() or kind.stdout.strip() != "tmpfs":
+        pytest.skip("no tmpfs at /dev/shm here")
+    disk = subprocess.run(["stat", "-f", "-c", "%T", str(tmp_path)], capture_output=True, text=True)
+    if disk.stdout.strip() in ("tmpfs", "ramfs"):
+        pytest.skip(f"{tmp_path} is in memory here")
+    view = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
+    plan = Views((view,), tiles_reading((0,), (0,)))
+    monkeypatch.setattr(tempfile, "tempdir", str(shm))
+    with image_copies(plan, shm / "out.tif", local=True, jobs=[0, 1]) as got:
+        assert got is plan
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with image_copies(plan, shm / "out.tif", local=True, jobs=[0, 1]) as got:
+        assert got.views[0].copy.path.parent.parent == tmp_path.resolve()
 
 
 def test_fit_with_copies_equals_direct_reads(
@@ -357,6 +411,7 @@ def test_fit_with_copies_equals_direct_reads(
     views = crater_as(crater_dir, tmp_path / "images", "PNG")
     terrain = Terrain.read(crater_dir / "dem.tif")
     terrain.write(tmp_path / "start.tif", terrain.values + 10.0)
+    made = counting(monkeypatch)
     heights = []
     for every in (1 << 40, 0):
         monkeypatch.setattr(copies, "COPY_PIXELS", every)
@@ -367,6 +422,7 @@ def test_fit_with_copies_equals_direct_reads(
         with rasterio.open(out) as src:
             heights.append(src.read())
         assert report.fitted > 1000
+        assert sorted(made) == ([] if every else sorted(image for image, _ in views))
     np.testing.assert_array_equal(heights[1], heights[0])
 
 
@@ -392,7 +448,8 @@ def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None
         (tmp_path / name).mkdir()
         (tmp_path / name / "0.tif").write_bytes(b"x")
     view = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
-    with image_copies(Views((view,)), tmp_path / "out.tif", local=True) as got:
+    plan = Views((view,), tiles_reading((0,), (0,)))
+    with image_copies(plan, tmp_path / "out.tif", local=True, jobs=[0, 1]) as got:
         mine = got.views[0].copy.path.parent.name
         assert mine.startswith(f".orthomvp-copies-{host}-{os.getpid()}-")
         for name, kept in names.items():

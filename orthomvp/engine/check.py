@@ -228,10 +228,12 @@ def check_rows(
 
 
 @contextlib.contextmanager
-def _copies(plan: CheckPlan, client: Any) -> Iterator[CheckPlan]:
-    """``plan`` with its images' copies (:func:`~orthomvp.engine.copies.image_copies`, in the
-    temporary folder: a check writes no file) for the block."""
-    with image_copies(plan.base, None, local=all_local(client)) as base:
+def _copies(plan: CheckPlan, client: Any, jobs: list[int]) -> Iterator[CheckPlan]:
+    """``plan`` with the copies of the images its tiles ``jobs`` read again
+    (:func:`~orthomvp.engine.copies.image_copies`; beside the first image, as a check writes
+    no raster) for the block."""
+    near = plan.views[0].path
+    with image_copies(plan.base, near, local=all_local(client), jobs=jobs) as base:
         yield plan if base is plan.base else replace(plan, base=base)
 
 
@@ -265,7 +267,7 @@ def run_check(
     overlap: dict[tuple[int, int], int] = {}
     tallies: dict[Key, NccTally] = {}
     with (
-        _copies(plan, client) as plan,
+        _copies(plan, client, jobs) as plan,
         Progress("checking tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_check_tile, workers, processes, client) as (submit, wait),
         copies_for(plan, jobs) as copies,

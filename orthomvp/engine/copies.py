@@ -14,14 +14,15 @@ submitted (a worker that needs it sooner waits for it), and removes the copy as 
 tile still to run reads it: the disk holds the copies that the tiles in flight need, not one
 of every image.
 
-Copies go into a hidden folder beside the run's first output (the disk the user chose for
-large files; a RAM-backed ``/tmp`` would take the copies from memory), or the temporary folder
-when there is no output, which the run removes at its end; a run also removes the folders
-that processes of this machine killed outright left there (the folder's name holds the host
-and the process id). An image is read directly, as it
-would be without copies, when its disk would be left with less than the reserve free, when the
-copy fails for any reason, and on a Dask cluster with workers on other machines (they cannot
-see this machine's folder)."""
+Only an image that two tiles or more of the run read is copied (one tile reads its window
+once, as cheaply as the copy would). Copies go into a hidden folder beside the run's first
+output (the disk the user chose for large files; for ``check``, beside the first image), else
+the temporary folder, never a folder in memory (a RAM-backed ``/tmp`` would take the copies
+from memory). The run removes its folder at its end, and the folders that processes of this
+machine killed outright left there (the folder's name holds the host and the process id). An
+image is read directly, as it would be without copies, when its disk would be left with less
+than the reserve free, when the copy fails or would not read as the image does, and on a Dask
+cluster with workers on other machines (they cannot see this machine's folder)."""
 
 from __future__ import annotations
 
@@ -98,6 +99,8 @@ def _make(image: Path, copy: Copy, failed: Path) -> None:
         os.replace(part, target)
     except Exception:  # (any failure: the direct read is the answer)
         with contextlib.suppress(OSError):
+            part.unlink(missing_ok=True)  # (first: room for the mark on a full disk)
+        with contextlib.suppress(OSError):
             failed.touch()
     finally:
         with contextlib.suppress(OSError):
@@ -170,7 +173,9 @@ def decodes_from_top(src: Any) -> bool:
     lines, width = src.block_shapes[0]
     size = lines * width * np.dtype(src.dtypes[0]).itemsize
     size *= src.count if src.interleaving == Interleaving.pixel else 1
-    return lines == 1 < src.height or size >= BLOCK_BYTES
+    # (a strip GDAL splits into lines has no offset of its own: strips of one line do)
+    split = lines == 1 < src.height and not src.get_tag_item("BLOCK_OFFSET_0_1", "TIFF", bidx=1)
+    return split or size >= BLOCK_BYTES
 
 
 def wanted(view: Any) -> bool:
@@ -179,18 +184,31 @@ def wanted(view: Any) -> bool:
     return view.from_top and view.width * view.height >= COPY_PIXELS
 
 
+REREADS = 2
+"""Tiles of a run (or of a survey) that must read an image for it to be copied: one tile
+reads its window once, as cheaply as the copy would."""
+
+
 @contextlib.contextmanager
-def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0) -> Iterator[Any]:
+def image_copies(
+    plan: Any, near: Path | None, *, local: bool, jobs: Sequence[int], reserve: int = 0
+) -> Iterator[Any]:
     """``plan`` (any plan whose ``views`` are :class:`~orthomvp.engine.images.ImageSource`) with
-    a :class:`Copy` for each view :func:`wanted` (none unless every worker is ``local``), in a
-    hidden folder beside ``near`` (a file; the temporary folder when None or that folder cannot
-    be made), removed with every copy at the end of the block. ``reserve``: bytes the outputs
-    still need on that disk."""
-    if not local or not any(wanted(v) for v in plan.views):
+    a :class:`Copy` for each view :func:`wanted` that :data:`REREADS` or more of the tiles
+    ``jobs`` read (none unless every worker is ``local``), in a hidden folder beside ``near``
+    (a file; the temporary folder when None or that folder cannot be made; never a folder in
+    memory, such as a ``tmpfs``), removed with every copy at the end of the block; the same
+    plan when no view is copied. ``reserve``: bytes the outputs still need on that disk."""
+    reads = _reads(plan, jobs)
+    chosen = [wanted(v) and n >= REREADS for v, n in zip(plan.views, reads, strict=True)]
+    if not local or not any(chosen):
         yield plan
         return
     folder = None
-    for parent in ([near.parent] if near is not None else []) + [Path(tempfile.gettempdir())]:
+    parents = [near.parent] if near is not None else []
+    for parent in [Path(p).resolve() for p in [*parents, tempfile.gettempdir()]]:
+        if _in_memory(parent):
+            continue
         with contextlib.suppress(OSError):
             folder = Path(tempfile.mkdtemp(prefix=_prefix(os.getpid()), dir=parent))
             _remove_stale(parent)
@@ -200,7 +218,7 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
         return
     views = tuple(
         replace(view, copy=Copy(folder / f"{k}.tif", _nbytes(view), RESERVE + reserve))
-        if wanted(view)
+        if chosen[k]
         else view
         for k, view in enumerate(plan.views)
     )
@@ -208,6 +226,46 @@ def image_copies(plan: Any, near: Path | None, *, local: bool, reserve: int = 0)
         yield replace(plan, views=views)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def reread(plan: Any, jobs: Sequence[int]) -> Any:
+    """``plan`` without the copies of the views that fewer than :data:`REREADS` of its tiles
+    ``jobs`` read (a survey's plan: the same plan when none is dropped)."""
+    reads = _reads(plan, jobs)
+    if all(v.copy is None or n >= REREADS for v, n in zip(plan.views, reads, strict=True)):
+        return plan
+    views = tuple(
+        v if n >= REREADS else replace(v, copy=None) for v, n in zip(plan.views, reads, strict=True)
+    )
+    return replace(plan, views=views)
+
+
+def _reads(plan: Any, jobs: Sequence[int]) -> list[int]:
+    """Per view of ``plan``, how many of its tiles ``jobs`` read it."""
+    views = {job.index: job.views for job in plan.tiles}
+    reads = [0] * len(plan.views)
+    for index in jobs:
+        for k in views[index]:
+            reads[k] += 1
+    return reads
+
+
+def _in_memory(folder: Path) -> bool:
+    """Whether ``folder`` lies on a file system held in memory (``tmpfs``, ``ramfs``: Linux's
+    ``/proc/mounts``; False where it cannot be told)."""
+    try:
+        with open("/proc/mounts", encoding="utf-8", errors="replace") as handle:
+            mounts = [line.split()[1:3] for line in handle if len(line.split()) > 2]
+    except OSError:
+        return False
+    path = os.fspath(folder)
+    best, kind = "", ""
+    for point, fstype in mounts:
+        point = point.replace("\\040", " ")
+        inside = path == point or path.startswith(point.rstrip("/") + "/")
+        if inside and len(point) > len(best):
+            best, kind = point, fstype
+    return kind in ("tmpfs", "ramfs")
 
 
 def _prefix(pid: int) -> str:

@@ -397,7 +397,7 @@ def run_fit(
     folder = Path(outputs.heights).parent
     heights_grid = replace(plan.grid, crs=plan.dem.heights_crs())  # the heights' vertical datum
     with (
-        image_copies(plan, Path(outputs.heights), local=all_local(client)) as plan,
+        image_copies(plan, Path(outputs.heights), local=all_local(client), jobs=jobs) as plan,
         Progress("fitting tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_fit_tile, workers, processes, client) as (submit, wait),
         copies_for(plan, jobs) as copies,

@@ -30,7 +30,7 @@ from orthomvp.engine.cluster import (
     identity,
     tile_result,
 )
-from orthomvp.engine.copies import Copies, copies_for, image_copies
+from orthomvp.engine.copies import Copies, copies_for, image_copies, reread
 from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
@@ -327,7 +327,8 @@ def run_plan(
     peak = preflight(plan, sched.at_once, sched.processes, bool(kinds - {"visibility"}))
     start = time.perf_counter()
     near = next(iter(outputs.paths().values()))
-    copies = image_copies(plan, near, local=all_local(client), reserve=output_bytes(plan, outputs))
+    local, reserve = all_local(client), output_bytes(plan, outputs)
+    copies = image_copies(plan, near, local=local, jobs=sched.jobs, reserve=reserve)
     with copies as plan:
         report = _run(plan, outputs, kinds, sched, processes, client, progress, peak)
     report.seconds = time.perf_counter() - start
@@ -354,9 +355,11 @@ def _run(
             def run_survey(
                 coarse: Plan, todo: list[int], kinds: frozenset[str]
             ) -> Iterator[TileResult]:
+                reads = todo if "stack" in kinds else []  # (the codes alone read no pixel)
+                coarse = reread(coarse, reads)
                 with (
                     executor(coarse, run_tile, workers, processes, client) as (submit, wait),
-                    copies_for(coarse, todo if "stack" in kinds else []) as copies,
+                    copies_for(coarse, reads) as copies,
                 ):
                     yield from results(submit, wait, todo, (kinds, 1), workers, copies)
 
