@@ -33,7 +33,7 @@ from orthomvp.engine.copies import Copies, Copy, copied, decodes_from_top, image
 from orthomvp.engine.fit import run_fit
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.schedule import all_local
-from orthomvp.errors import InputError
+from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.mvp import FitOptions
 
@@ -296,15 +296,20 @@ def test_a_copy_is_made_ahead_and_removed_after_the_last_tile_that_reads_it(
 def test_an_image_is_read_directly_when_its_copy_cannot_be_made(
     crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Without room on the disk, without the copies' folder, or when the copy fails (then
-    once: later readers are told), the image itself is read and no partial copy stays; a
-    truncated PNG fails a run as it does without copies, naming the image."""
+    """Without room on the disk (the copies made ahead warn), without the copies' folder, or
+    when the copy fails (then once: later readers are told), the image itself is read and no
+    partial copy stays; a truncated PNG fails a run as it does without copies, naming the
+    image."""
     views = crater_as(crater_dir, tmp_path / "images", "PNG")
     image = views[0][0]
     copy = Copy(tmp_path / "c.tif", 10**6, 0)
     real_usage = shutil.disk_usage
     monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=10**6 - 1))
     assert copied(image, copy) == image and not copy.path.exists()
+    plan = Views((SimpleNamespace(path=image, copy=copy),), tiles_reading((0,)))
+    with pytest.warns(OrthoMVPWarning, match="no room for its copy .* 977 KiB free"):
+        Copies(plan, [0])._ahead(0)  # (the copies made ahead say so)
+    assert not copy.path.exists()
     monkeypatch.setattr(shutil, "disk_usage", real_usage)
     assert copied(image, Copy(tmp_path / "gone" / "c.tif", 1, 0)) == image
     calls = []

@@ -33,6 +33,7 @@ import shutil
 import socket
 import tempfile
 import threading
+import warnings
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -42,6 +43,8 @@ from typing import Any
 import numpy as np
 from rasterio.enums import Interleaving
 
+from orthomvp.errors import OrthoMVPWarning
+from orthomvp.io.preflight import size_text
 from orthomvp.io.raster import open_raster
 
 SEQUENTIAL = frozenset({"JPEG", "PNG"})
@@ -91,7 +94,7 @@ def _make(image: Path, copy: Copy, failed: Path) -> None:
     """Copy ``image`` to ``copy.path`` (through a partial file, renamed when complete) when its
     disk keeps ``copy.reserve`` bytes free after it; on any failure, create ``failed``."""
     target = copy.path
-    if shutil.disk_usage(target.parent).free - copy.nbytes < copy.reserve:
+    if not _room(copy)[0]:
         return
     part = target.with_name(f"{target.name}.{os.getpid()}.{threading.get_ident()}.part")
     try:
@@ -105,6 +108,13 @@ def _make(image: Path, copy: Copy, failed: Path) -> None:
     finally:
         with contextlib.suppress(OSError):
             part.unlink(missing_ok=True)
+
+
+def _room(copy: Copy) -> tuple[bool, int]:
+    """Whether the disk of ``copy``'s folder keeps ``copy.reserve`` bytes free after it, and
+    its free bytes (OSError where the folder is gone)."""
+    free = shutil.disk_usage(copy.path.parent).free
+    return free - copy.nbytes >= copy.reserve, free
 
 
 def _copy(image: Path, part: Path) -> None:
@@ -324,11 +334,23 @@ class Copies:
 
     def _ahead(self, k: int) -> None:
         """Make view ``k``'s copy unless no tile needs it any more (and remove it when the last
-        tile finished meanwhile)."""
+        tile finished meanwhile); an :class:`~orthomvp.errors.OrthoMVPWarning` when its disk
+        has no room for it (the image is then read directly)."""
         view = self.plan.views[k]
         with self.lock:
             if not self.left[k]:
                 return
+        with contextlib.suppress(OSError):
+            room, free = _room(view.copy)
+            if not room:
+                warnings.warn(
+                    f"{view.path}: read directly, decoded again for every tile that reads it: "
+                    f"no room for its copy ({size_text(view.copy.nbytes)}, with "
+                    f"{size_text(view.copy.reserve)} kept free; {size_text(free)} "
+                    f"free in {view.copy.path.parent.parent})",
+                    OrthoMVPWarning,
+                    stacklevel=1,
+                )
         copied(view.path, view.copy)
         with self.lock:
             if not self.left[k]:
