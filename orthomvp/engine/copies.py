@@ -287,6 +287,8 @@ def _remove_stale(parent: Path) -> None:
     """Remove the folders of copies in ``parent`` that a process of this machine that no longer
     runs left behind (killed outright, it could not remove them); those of other machines, of
     running processes and anything else stay."""
+    if os.name != "posix":  # (os.kill(pid, 0) ends the process on Windows)
+        return
     start = _prefix(0)[:-2]  # (".orthomvp-copies-HOST-")
     for folder in parent.glob(f"{glob.escape(start)}*"):
         pid, _, rest = folder.name[len(start) :].partition("-")  # (rest: mkdtemp's, no "-")
