@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -494,3 +495,54 @@ def test_a_copy_that_would_read_otherwise_is_not_used(
         assert np.isnan(a).any() and not np.isnan(a).all(), path.name
         np.testing.assert_array_equal(via.read((0, rows, 0, cols)), a, err_msg=path.name)
         assert copy.path.exists() == (path == masked), path.name
+
+
+def test_a_visibility_run_copies_no_image(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A run that writes only visibility codes reads no pixel it needs: with more threads than
+    tiles (each tile then reads its image windows ahead, in a spare thread) no image is copied,
+    and no folder of copies is made."""
+    views = crater_as(crater_dir, tmp_path / "images", "JPEG")
+    made = counting(monkeypatch)
+    monkeypatch.setattr(copies, "COPY_PIXELS", 0)
+    plan = plan_ortho(crater_dir / "dem.tif", views[:1], tile=48, progress=False, grid="dem")
+    assert 2 <= len(plan.tiles) < 8
+    folders: list[str] = []
+    real_mkdtemp = tempfile.mkdtemp
+    monkeypatch.setattr(
+        tempfile, "mkdtemp", lambda **kw: folders.append(kw["prefix"]) or real_mkdtemp(**kw)
+    )
+    run_plan(plan, Outputs(visibility=tmp_path / "vis.tif"), threads=8, progress=False)
+    assert made == [] and not [f for f in folders if "orthomvp-copies" in f]
+
+
+def test_no_warning_for_a_copy_that_a_tile_made_first(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The copies made ahead warn of no room only when they find none: not when a tile made
+    the copy before their turn on a disk with room for it once (not twice)."""
+    image = crater_as(crater_dir, tmp_path / "images", "PNG")[0][0]
+    (tmp_path / "copies").mkdir()
+    with rasterio.open(image) as src:
+        nbytes = src.width * src.height * src.count
+    real_usage = shutil.disk_usage
+
+    def usage(path: Path) -> object:  # (a disk of 3 copies' bytes, less the files in it)
+        used = sum(f.stat().st_size for f in Path(path).iterdir() if f.is_file())
+        return real_usage(path)._replace(free=3 * nbytes - used)
+
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+    copy = Copy(tmp_path / "copies" / "0.tif", nbytes, 3 * nbytes // 2)
+    plan = Views((SimpleNamespace(path=image, copy=copy),), tiles_reading((0,), (0,)))
+    assert copied(image, copy) == copy.path  # (a tile's worker, first)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", OrthoMVPWarning)
+        Copies(plan, [0, 1])._ahead(0)
+    assert copy.path.exists()
+    copy.path.unlink()
+    tight = replace(copy, reserve=3 * nbytes)  # (no room for it even once)
+    plan = Views((SimpleNamespace(path=image, copy=tight),), tiles_reading((0,), (0,)))
+    with pytest.warns(OrthoMVPWarning, match="no room for its copy"):
+        Copies(plan, [0, 1])._ahead(0)
+    assert not copy.path.exists()

@@ -34,7 +34,7 @@ import socket
 import tempfile
 import threading
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -71,11 +71,12 @@ class Copy:
     reserve: int
 
 
-def copied(image: Path, copy: Copy) -> Path:
+def copied(image: Path, copy: Copy, full: Callable[[int], None] | None = None) -> Path:
     """The file to read ``image`` from: its copy, made now unless another thread or process of
     the run made it (a lock file beside it lets one copy at a time); ``image`` itself when the
-    disk lacks the room, the copies' folder is gone, or the copy failed (a corrupt image then
-    fails as the direct read reports it; a file beside the copy says so to the next readers)."""
+    disk lacks the room (then ``full(free bytes)`` is called), the copies' folder is gone, or
+    the copy failed (a corrupt image then fails as the direct read reports it; a file beside
+    the copy says so to the next readers)."""
     target, failed = copy.path, copy.path.with_name(copy.path.name + ".failed")
     if target.exists():
         return target
@@ -84,17 +85,21 @@ def copied(image: Path, copy: Copy) -> Path:
     try:
         with _locked(target.with_name(target.name + ".lock")):
             if not target.exists() and not failed.exists():
-                _make(image, copy, failed)
+                _make(image, copy, failed, full)
     except OSError:  # (the lock file cannot be made)
         return image
     return target if target.exists() else image
 
 
-def _make(image: Path, copy: Copy, failed: Path) -> None:
+def _make(image: Path, copy: Copy, failed: Path, full: Callable[[int], None] | None) -> None:
     """Copy ``image`` to ``copy.path`` (through a partial file, renamed when complete) when its
-    disk keeps ``copy.reserve`` bytes free after it; on any failure, create ``failed``."""
+    disk keeps ``copy.reserve`` bytes free after it (else ``full(free bytes)``, if given); on
+    any failure, create ``failed``."""
     target = copy.path
-    if not _room(copy)[0]:
+    room, free = _room(copy)
+    if not room:
+        if full is not None:
+            full(free)
         return
     part = target.with_name(f"{target.name}.{os.getpid()}.{threading.get_ident()}.part")
     try:
@@ -342,18 +347,18 @@ class Copies:
         with self.lock:
             if not self.left[k]:
                 return
-        with contextlib.suppress(OSError):
-            room, free = _room(view.copy)
-            if not room:
-                warnings.warn(
-                    f"{view.path}: read directly, decoded again for every tile that reads it: "
-                    f"no room for its copy ({size_text(view.copy.nbytes)}, with "
-                    f"{size_text(view.copy.reserve)} kept free; {size_text(free)} "
-                    f"free in {view.copy.path.parent.parent})",
-                    OrthoMVPWarning,
-                    stacklevel=1,
-                )
-        copied(view.path, view.copy)
+
+        def full(free: int) -> None:  # (when this thread found no room, not another's copy)
+            warnings.warn(
+                f"{view.path}: read directly, decoded again for every tile that reads it: "
+                f"no room for its copy ({size_text(view.copy.nbytes)}, with "
+                f"{size_text(view.copy.reserve)} kept free; {size_text(free)} "
+                f"free in {view.copy.path.parent.parent})",
+                OrthoMVPWarning,
+                stacklevel=1,
+            )
+
+        copied(view.path, view.copy, full)
         with self.lock:
             if not self.left[k]:
                 view.copy.path.unlink(missing_ok=True)

@@ -328,7 +328,8 @@ def run_plan(
     start = time.perf_counter()
     near = next(iter(outputs.paths().values()))
     local, reserve = all_local(client), output_bytes(plan, outputs)
-    copies = image_copies(plan, near, local=local, jobs=sched.jobs, reserve=reserve)
+    reads = sched.jobs if kinds - {"visibility"} else []  # (the codes alone read no pixel)
+    copies = image_copies(plan, near, local=local, jobs=reads, reserve=reserve)
     with copies as plan:
         report = _run(plan, outputs, kinds, sched, processes, client, progress, peak)
     report.seconds = time.perf_counter() - start
