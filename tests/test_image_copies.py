@@ -546,3 +546,58 @@ def test_no_warning_for_a_copy_that_a_tile_made_first(
     with pytest.warns(OrthoMVPWarning, match="no room for its copy"):
         Copies(plan, [0, 1])._ahead(0)
     assert not copy.path.exists()
+
+
+def test_stale_folders_of_odd_names_are_left_and_never_leak_a_run_s_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A folder whose process id is not ASCII digits, or that has no mkdtemp suffix (another
+    host's name, such as HOST for a host HOST-7, can make one look so), stays, and the run goes
+    on; a failure to look for stale folders leaves the run's own folder where it was made
+    (none left behind)."""
+    import socket
+
+    host = socket.gethostname()
+    odd = [
+        f".orthomvp-copies-{host}-\u00b2-ab_c1234",  # ("²".isdigit(), but int("²") fails)
+        f".orthomvp-copies-{host}-99999999",  # (HOST-99999999 of host HOST? no suffix)
+    ]
+    for name in odd:
+        (tmp_path / name).mkdir()
+    view = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
+    plan = Views((view,), tiles_reading((0,), (0,)))
+    with image_copies(plan, tmp_path / "out.tif", local=True, jobs=[0, 1]) as got:
+        assert got.views[0].copy.path.parent.parent == tmp_path.resolve()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(odd)
+
+    def failing(parent: Path) -> None:
+        raise OSError(116, "Stale file handle")
+
+    monkeypatch.setattr(copies, "_remove_stale", failing)
+    with image_copies(plan, tmp_path / "out.tif", local=True, jobs=[0, 1]) as got:
+        assert got.views[0].copy.path.parent.parent == tmp_path.resolve()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(odd)
+
+
+@pytest.mark.parametrize(
+    ("mounts", "path", "expected"),
+    [
+        ("tmpfs /a\\040b tmpfs rw 0 0", "/a b/x", True),
+        ("tmpfs /a\\011b tmpfs rw 0 0", "/a\tb/x", True),  # (a tab)
+        ("tmpfs /a\\134b tmpfs rw 0 0", "/a\\b/x", True),  # (a backslash)
+        ("tmpfs /tmp tmpfs rw 0 0", "/tmpx/y", False),
+        ("/dev/sdb1 /s ext4 rw 0 0\ntmpfs /s tmpfs rw 0 0", "/s/x", True),  # (mounted over)
+        ("tmpfs /s tmpfs rw 0 0\n/dev/sdb1 /s ext4 rw 0 0", "/s/x", False),
+    ],
+)
+def test_what_lies_in_memory(
+    monkeypatch: pytest.MonkeyPatch, mounts: str, path: str, expected: bool
+) -> None:
+    """/proc/mounts's octal escapes (space, tab, backslash) are read as such; a mount point
+    is not a mere prefix of the path's name; of two file systems mounted on one point, the
+    later one (the one seen) counts."""
+    import io
+
+    text = f"/dev/sda1 / ext4 rw 0 0\n{mounts}\n"
+    monkeypatch.setattr(copies, "open", lambda *a, **k: io.StringIO(text), raising=False)
+    assert copies._in_memory(Path(path)) == expected

@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import glob
 import os
+import re
 import shutil
 import socket
 import tempfile
@@ -226,7 +227,9 @@ def image_copies(
             continue
         with contextlib.suppress(OSError):
             folder = Path(tempfile.mkdtemp(prefix=_prefix(os.getpid()), dir=parent))
-            _remove_stale(parent)
+        if folder is not None:
+            with contextlib.suppress(OSError):  # (its own folder is made: it stays the one)
+                _remove_stale(parent)
             break
     if folder is None:
         yield plan
@@ -275,10 +278,10 @@ def _in_memory(folder: Path) -> bool:
         return False
     path = os.fspath(folder)
     best, kind = "", ""
-    for point, fstype in mounts:
-        point = point.replace("\\040", " ")
+    for point, fstype in mounts:  # (in mounting order: of two on one point, the later is seen)
+        point = re.sub(r"\\([0-7]{3})", lambda m: chr(int(m[1], 8)), point)  # (\040: " ")
         inside = path == point or path.startswith(point.rstrip("/") + "/")
-        if inside and len(point) > len(best):
+        if inside and len(point) >= len(best):
             best, kind = point, fstype
     return kind in ("tmpfs", "ramfs")
 
@@ -297,7 +300,9 @@ def _remove_stale(parent: Path) -> None:
     start = _prefix(0)[:-2]  # (".orthomvp-copies-HOST-")
     for folder in parent.glob(f"{glob.escape(start)}*"):
         pid, _, rest = folder.name[len(start) :].partition("-")  # (rest: mkdtemp's, no "-")
-        if not pid.isdigit() or "-" in rest or not folder.is_dir() or folder.is_symlink():
+        if not re.fullmatch("[0-9]+", pid) or not rest or "-" in rest:
+            continue
+        if not folder.is_dir() or folder.is_symlink():
             continue
         try:
             os.kill(int(pid), 0)
