@@ -507,7 +507,7 @@ def test_a_visibility_run_copies_no_image(
     made = counting(monkeypatch)
     monkeypatch.setattr(copies, "COPY_PIXELS", 0)
     plan = plan_ortho(crater_dir / "dem.tif", views[:1], tile=48, progress=False, grid="dem")
-    assert 2 <= len(plan.tiles) < 8
+    assert 2 <= len(plan.tiles) <= 4  # (8 threads: each tile has a spare one)
     folders: list[str] = []
     real_mkdtemp = tempfile.mkdtemp
     monkeypatch.setattr(
