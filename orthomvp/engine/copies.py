@@ -72,7 +72,7 @@ class Copy:
     reserve: int
 
 
-def copied(image: Path, copy: Copy, full: Callable[[int], None] | None = None) -> Path:
+def copied(image: Path, copy: Copy, *, full: Callable[[int], None] | None = None) -> Path:
     """The file to read ``image`` from: its copy, made now unless another thread or process of
     the run made it (a lock file beside it lets one copy at a time); ``image`` itself when the
     disk lacks the room (then ``full(free bytes)`` is called), the copies' folder is gone, or
@@ -363,7 +363,7 @@ class Copies:
                 stacklevel=1,
             )
 
-        copied(view.path, view.copy, full)
+        copied(view.path, view.copy, full=full)
         with self.lock:
             if not self.left[k]:
                 view.copy.path.unlink(missing_ok=True)
