@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+import time
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -435,7 +436,10 @@ def test_fit_with_copies_equals_direct_reads(
 def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None:
     """Folders of copies of this machine's processes that no longer run are removed when a run
     makes its own beside them; those of running processes, of other machines (a host name
-    that only starts like this one's included) and other files stay."""
+    that only starts like this one's included), those whose lock a run holds (a run in another
+    process-id namespace), those changed in the last minute and other files stay; a run holds
+    its own folder's lock."""
+    import fcntl
     import socket
     import subprocess
     import sys
@@ -449,10 +453,18 @@ def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None
         f".orthomvp-copies-{host}-2-{dead}-ab_c1234": True,  # (host "HOST-2")
         f".orthomvp-copies-other-{dead}-ab_c1234": True,
         f".orthomvp-copies-{host}-x{dead}-ab_c1234": True,
+        f".orthomvp-copies-{host}-{dead}-lockedxy": True,
+        f".orthomvp-copies-{host}-{dead}-recentxy": True,
     }
+    old = time.time() - 2 * copies.STALE_SECONDS
     for name in names:
         (tmp_path / name).mkdir()
         (tmp_path / name / "0.tif").write_bytes(b"x")
+        if "recent" not in name:
+            os.utime(tmp_path / name, (old, old))
+    held = open(tmp_path / f".orthomvp-copies-{host}-{dead}-lockedxy" / copies.IN_USE, "a")  # noqa: SIM115
+    fcntl.flock(held, fcntl.LOCK_EX)
+    os.utime(tmp_path / f".orthomvp-copies-{host}-{dead}-lockedxy", (old, old))
     view = ImageSource(tmp_path / "a.jpg", 2048, 2048, 3, None, from_top=True, dtype="uint8")  # type: ignore[arg-type]
     plan = Views((view,), tiles_reading((0,), (0,)))
     with image_copies(plan, tmp_path / "out.tif", local=True, jobs=[0, 1]) as got:
@@ -460,6 +472,10 @@ def test_a_run_removes_the_copies_that_a_killed_run_left(tmp_path: Path) -> None
         assert mine.startswith(f".orthomvp-copies-{host}-{os.getpid()}-")
         for name, kept in names.items():
             assert (tmp_path / name).exists() == kept, name
+        with open(tmp_path / mine / copies.IN_USE, "a") as other:
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    held.close()
 
 
 def test_a_copy_that_would_read_otherwise_is_not_used(

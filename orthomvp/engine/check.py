@@ -230,10 +230,9 @@ def check_rows(
 @contextlib.contextmanager
 def _copies(plan: CheckPlan, client: Any, jobs: list[int]) -> Iterator[CheckPlan]:
     """``plan`` with the copies of the images its tiles ``jobs`` read again
-    (:func:`~orthomvp.engine.copies.image_copies`; beside the first image, as a check writes
-    no raster) for the block."""
-    near = plan.views[0].path
-    with image_copies(plan.base, near, local=all_local(client), jobs=jobs) as base:
+    (:func:`~orthomvp.engine.copies.image_copies`; in the temporary folder unless it is in
+    memory, as a check writes no raster and the images' folder is the user's) for the block."""
+    with image_copies(plan.base, None, local=all_local(client), jobs=jobs) as base:
         yield plan if base is plan.base else replace(plan, base=base)
 
 

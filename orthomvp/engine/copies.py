@@ -16,13 +16,14 @@ of every image.
 
 Only an image that two tiles or more of the run read is copied (one tile reads its window
 once, as cheaply as the copy would). Copies go into a hidden folder beside the run's first
-output (the disk the user chose for large files; for ``check``, beside the first image), else
-the temporary folder, never a folder in memory (a RAM-backed ``/tmp`` would take the copies
-from memory). The run removes its folder at its end, and the folders that processes of this
-machine killed outright left there (the folder's name holds the host and the process id). An
-image is read directly, as it would be without copies, when its disk would be left with less
-than the reserve free, when the copy fails or would not read as the image does, and on a Dask
-cluster with workers on other machines (they cannot see this machine's folder)."""
+output (the disk the user chose for large files), else (and for ``check``, which writes no
+raster) the temporary folder, never a folder in memory (a RAM-backed ``/tmp`` would take the
+copies from memory). The run holds a lock in its folder while it lasts and removes the folder
+at its end; it also removes the folders there that runs of this machine killed outright left
+(the folder's name holds the host and the process id; its lock is free). An image is read
+directly, as it would be without copies, when its disk would be left with less than the
+reserve free (with a warning), when the copy fails or would not read as the image does, and on
+a Dask cluster with workers on other machines (they cannot see this machine's folder)."""
 
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ import shutil
 import socket
 import tempfile
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -200,6 +202,12 @@ def wanted(view: Any) -> bool:
     return view.from_top and view.width * view.height >= COPY_PIXELS
 
 
+IN_USE = "in-use.lock"
+"""The file in a folder of copies that its run holds locked (``flock``) while it lasts."""
+
+STALE_SECONDS = 60.0
+"""Seconds since a folder of copies last changed before another run may remove it."""
+
 REREADS = 2
 """Tiles of a run (or of a survey) that must read an image for it to be copied: one tile
 reads its window once, as cheaply as the copy would."""
@@ -240,10 +248,11 @@ def image_copies(
         else view
         for k, view in enumerate(plan.views)
     )
-    try:
+    with contextlib.ExitStack() as stack:
+        stack.callback(shutil.rmtree, folder, ignore_errors=True)
+        with contextlib.suppress(OSError):  # (held while the run lasts: the folder is in use)
+            stack.enter_context(_locked(folder / IN_USE))
         yield replace(plan, views=views)
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
 
 
 def reread(plan: Any, jobs: Sequence[int]) -> Any:
@@ -307,9 +316,25 @@ def _remove_stale(parent: Path) -> None:
         try:
             os.kill(int(pid), 0)
         except ProcessLookupError:
-            shutil.rmtree(folder, ignore_errors=True)
+            _remove_unused(folder)
         except (PermissionError, OverflowError):  # (another user's live process; no such pid)
             continue
+
+
+def _remove_unused(folder: Path) -> None:
+    """Remove ``folder`` (of copies, whose process id runs no process here) unless a run holds
+    its lock (a run in another process-id namespace of the same host, such as a container) or
+    it changed in the last :data:`STALE_SECONDS` (a run making it now)."""
+    import fcntl
+
+    if time.time() - folder.stat().st_mtime < STALE_SECONDS:
+        return
+    with open(folder / IN_USE, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _nbytes(view: Any) -> int:
