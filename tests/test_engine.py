@@ -154,16 +154,23 @@ def test_naive_builds_no_mesh(crater: dict, tmp_path: Path, monkeypatch) -> None
     same(got["ortho"], orthorectify(crater["terrain"], image, camera, occlusion=False).data)
 
 
-def test_visibility_alone_reads_no_image(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
-    def refuse(*args: object) -> None:
-        raise AssertionError("an image was read")
-
-    monkeypatch.setattr(ImageSource, "read", refuse)
+@pytest.mark.parametrize("threads", [None, 16])
+def test_visibility_alone_reads_no_image(
+    crater: dict,
+    tmp_path: Path,
+    monkeypatch,
+    threads: int | None,  # noqa: ANN001
+) -> None:
+    """Not even ahead, in a tile's spare thread (16 threads for a few tiles: they would)."""
+    reads = []
+    monkeypatch.setattr(ImageSource, "read", lambda *args, **kw: reads.append(args))
     view = crater["views"]["oblique"]
     plan = plan_ortho(crater["dem"], [view], tile=32, progress=False, grid="dem")
-    got = run(plan, tmp_path, "vis", kinds=("visibility",))
+    assert len(plan.tiles) < 16
+    got = run(plan, tmp_path, "vis", kinds=("visibility",), threads=threads)
     expected = compute_visibility(crater["terrain"], load_view(*view)[1])
     np.testing.assert_array_equal(got["visibility"][0], expected.codes)
+    assert reads == []
 
 
 def test_uncovered_tiles_are_skipped(crater: dict, tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001

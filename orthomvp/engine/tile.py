@@ -278,7 +278,8 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
     label = np.zeros(best.shape, np.int64)  # the 1-based view each post came from, 0 none
     many = len(job.views) > 1  # then each post takes the view of least emission angle
     fields = frozenset({"emission"} if many else ())
-    with _prefetch(plan, job, threads) as prefetched:
+    pixels = result.data is not None or result.source is not None  # (else none is read)
+    with _prefetch(plan, job, threads if pixels else 1) as prefetched:
         for k in job.views:
             view = plan.views[k]
             with _timed(seconds, "visibility"):
@@ -290,7 +291,7 @@ def _run_tile(plan: Plan, index: int, kinds: frozenset[str], threads: int) -> Ti
             keep = codes == Code.VISIBLE if plan.occlusion else finite_rows(uv)
             if many:
                 keep &= emission < best
-            if (result.data is not None or result.source is not None) and keep.any():
+            if pixels and keep.any():
                 with _timed(seconds, "sample"):
                     values = sample_grid(view, uv, keep, plan.interp, prefetched.get(k))
                 keep &= np.isfinite(values).all(axis=0)
