@@ -309,9 +309,13 @@ def test_an_image_is_read_directly_when_its_copy_cannot_be_made(
     monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=10**6 - 1))
     assert copied(image, copy) == image and not copy.path.exists()
     plan = Views((SimpleNamespace(path=image, copy=copy),), tiles_reading((0,)))
+    warned: set[Path] = set()
     with pytest.warns(OrthoMVPWarning, match="no room for its copy .* 977 KiB free"):
-        Copies(plan, [0])._ahead(0)  # (the copies made ahead say so)
-    assert not copy.path.exists()
+        Copies(plan, [0], warned)._ahead(0)  # (the copies made ahead say so)
+    assert not copy.path.exists() and warned == {image}
+    with warnings.catch_warnings():  # (once: a survey's, then the run's, say it once)
+        warnings.simplefilter("error")
+        Copies(plan, [0], warned)._ahead(0)
     monkeypatch.setattr(shutil, "disk_usage", real_usage)
     assert copied(image, Copy(tmp_path / "gone" / "c.tif", 1, 0)) == image
     calls = []

@@ -346,10 +346,12 @@ class Copies:
     """The copies that the tiles ``jobs`` of ``plan`` read: each made ahead, in one background
     thread of this process, as the first tile reading it is submitted (:meth:`started`; a
     worker that needs it sooner waits for it on its lock), and removed when the last tile
-    reading it finishes (:meth:`finished`). :meth:`close` waits for the thread."""
+    reading it finishes (:meth:`finished`). :meth:`close` waits for the thread. ``warned``:
+    the images already said to have no room for their copy (each is said once)."""
 
-    def __init__(self, plan: Any, jobs: Sequence[int]) -> None:
+    def __init__(self, plan: Any, jobs: Sequence[int], warned: set[Path] | None = None) -> None:
         self.plan = plan
+        self.warned = set() if warned is None else warned  # (images said to have no room)
         self.views = {job.index: job.views for job in plan.tiles}
         self.left: dict[int, int] = {}
         for index in jobs:
@@ -379,6 +381,9 @@ class Copies:
                 return
 
         def full(free: int) -> None:  # (when this thread found no room, not another's copy)
+            if view.path in self.warned:
+                return
+            self.warned.add(view.path)
             warnings.warn(
                 f"{view.path}: read directly, decoded again for every tile that reads it: "
                 f"no room for its copy ({size_text(view.copy.nbytes)}, with "
@@ -410,10 +415,11 @@ class Copies:
 
 
 @contextlib.contextmanager
-def copies_for(plan: Any, jobs: Sequence[int]) -> Iterator[Copies]:
+def copies_for(plan: Any, jobs: Sequence[int], warned: set[Path] | None = None) -> Iterator[Copies]:
     """:class:`Copies` of ``plan``'s tiles ``jobs`` (none when the tiles read no pixels),
-    closed at the end of the block."""
-    copies = Copies(plan, jobs)
+    closed at the end of the block; ``warned``: the images already said to have no room for
+    their copy (in a survey before; updated)."""
+    copies = Copies(plan, jobs, warned)
     try:
         yield copies
     finally:

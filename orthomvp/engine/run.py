@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -350,6 +351,7 @@ def _run(
     tile, each image's copy (:mod:`~orthomvp.engine.copies`) removed once no tile still to run
     reads it."""
     workers, jobs, at_once = sched.workers, sched.jobs, sched.at_once
+    warned: set[Path] = set()  # (images without room for a copy: said once, survey or not)
     if plan.mosaic is not None and kinds - {"visibility"}:
         if plan.mosaic.balance is not None or plan.mosaic.blend:
 
@@ -360,7 +362,7 @@ def _run(
                 coarse = reread(coarse, reads)
                 with (
                     executor(coarse, run_tile, workers, processes, client) as (submit, wait),
-                    copies_for(coarse, reads) as copies,
+                    copies_for(coarse, reads, warned) as copies,
                 ):
                     yield from results(submit, wait, todo, (kinds, 1), workers, copies)
 
@@ -373,7 +375,7 @@ def _run(
     with (
         Progress("tiles", progress, len(plan.tiles)) as bar,
         pool as (submit, wait),
-        copies_for(plan, jobs if kinds - {"visibility"} else []) as copies,
+        copies_for(plan, jobs if kinds - {"visibility"} else [], warned) as copies,
     ):
         bar.note(plan.summary(peak, at_once))
         seen = [0] * len(plan.views)
