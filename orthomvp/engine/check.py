@@ -18,7 +18,7 @@ import numpy as np
 from orthomvp.codes import Code, classify
 from orthomvp.engine import heap
 from orthomvp.engine.check_plan import CheckPlan
-from orthomvp.engine.copies import copies_for, image_copies
+from orthomvp.engine.copies import Copies, image_copies
 from orthomvp.engine.ncc import MISS_BINS, ROW_EDGES, NccTally, check_row, local_ncc
 from orthomvp.engine.plan import grow
 from orthomvp.engine.progress import Progress
@@ -269,7 +269,7 @@ def run_check(
         _copies(plan, client, jobs) as plan,
         Progress("checking tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_check_tile, workers, processes, client) as (submit, wait),
-        copies_for(plan, jobs) as copies,
+        contextlib.closing(Copies(plan, jobs)) as copies,
     ):
         bar.note(plan.summary(peak, at_once))
         bar.update(len(plan.tiles) - len(jobs))

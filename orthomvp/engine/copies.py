@@ -346,18 +346,16 @@ class Copies:
     """The copies that the tiles ``jobs`` of ``plan`` read: each made ahead, in one background
     thread of this process, as the first tile reading it is submitted (:meth:`started`; a
     worker that needs it sooner waits for it on its lock), and removed when the last tile
-    reading it finishes (:meth:`finished`). :meth:`close` waits for the thread. ``warned``:
-    the images already said to have no room for their copy (each is said once)."""
+    reading it finishes (:meth:`finished`). :meth:`close` waits for the thread (a run uses
+    it within ``contextlib.closing``). ``warned``: the images already said to have no room for
+    their copy (in a survey before; each is said once)."""
 
     def __init__(self, plan: Any, jobs: Sequence[int], warned: set[Path] | None = None) -> None:
         self.plan = plan
         self.warned = set() if warned is None else warned  # (images said to have no room)
         self.views = {job.index: job.views for job in plan.tiles}
-        self.left: dict[int, int] = {}
-        for index in jobs:
-            for k in self.views[index]:
-                if plan.views[k].copy is not None:
-                    self.left[k] = self.left.get(k, 0) + 1
+        reads = enumerate(zip(plan.views, _reads(plan, jobs), strict=True))
+        self.left = {k: n for k, (view, n) in reads if view.copy is not None and n}
         self.lock = threading.Lock()
         self.queued: set[int] = set()
         self.pool: ThreadPoolExecutor | None = None
@@ -412,15 +410,3 @@ class Copies:
         """Wait for the copy under way, start no other."""
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
-
-
-@contextlib.contextmanager
-def copies_for(plan: Any, jobs: Sequence[int], warned: set[Path] | None = None) -> Iterator[Copies]:
-    """:class:`Copies` of ``plan``'s tiles ``jobs`` (none when the tiles read no pixels),
-    closed at the end of the block; ``warned``: the images already said to have no room for
-    their copy (in a survey before; updated)."""
-    copies = Copies(plan, jobs, warned)
-    try:
-        yield copies
-    finally:
-        copies.close()

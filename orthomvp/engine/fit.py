@@ -6,6 +6,7 @@ writes every output (:func:`run_fit`). The windows a tile needs, and their bound
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -20,7 +21,7 @@ from rasterio.enums import Resampling
 
 from orthomvp.codes import Code
 from orthomvp.engine import heap
-from orthomvp.engine.copies import copies_for, image_copies
+from orthomvp.engine.copies import Copies, image_copies
 from orthomvp.engine.fit_plan import (
     RETRIES,
     FitJob,
@@ -400,7 +401,7 @@ def run_fit(
         image_copies(plan, Path(outputs.heights), local=all_local(client), jobs=jobs) as plan,
         Progress("fitting tiles", progress, len(plan.tiles)) as bar,
         executor(plan, run_fit_tile, workers, processes, client) as (submit, wait),
-        copies_for(plan, jobs) as copies,
+        contextlib.closing(Copies(plan, jobs)) as copies,
         Median(folder=folder) as shifts,
         Median(folder=folder) as sigmas,
     ):

@@ -31,7 +31,7 @@ from orthomvp.engine.cluster import (
     identity,
     tile_result,
 )
-from orthomvp.engine.copies import Copies, copies_for, image_copies, reread
+from orthomvp.engine.copies import Copies, image_copies, reread
 from orthomvp.engine.grid import GDAL_CACHE
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
@@ -362,7 +362,7 @@ def _run(
                 coarse = reread(coarse, reads)
                 with (
                     executor(coarse, run_tile, workers, processes, client) as (submit, wait),
-                    copies_for(coarse, reads, warned) as copies,
+                    contextlib.closing(Copies(coarse, todo, warned)) as copies,
                 ):
                     yield from results(submit, wait, todo, (kinds, 1), workers, copies)
 
@@ -375,7 +375,7 @@ def _run(
     with (
         Progress("tiles", progress, len(plan.tiles)) as bar,
         pool as (submit, wait),
-        copies_for(plan, jobs if kinds - {"visibility"} else [], warned) as copies,
+        contextlib.closing(Copies(plan, jobs, warned)) as copies,
     ):
         bar.note(plan.summary(peak, at_once))
         seen = [0] * len(plan.views)
