@@ -20,7 +20,7 @@ import numpy as np
 import rasterio
 from rasterio.errors import NotGeoreferencedWarning
 
-from orthomvp.bench.gdal import run
+from orthomvp.bench.gdal import best_runs
 from orthomvp.bench.peer import PeerCase, ngi_case, synthetic_case
 from orthomvp.io.raster import read_image
 
@@ -102,14 +102,7 @@ def bench_formats(
             args = [*base, str(image), str(camera), "--res", f"{res}m", "-o", str(out)]
             args += ["--overwrite", *(["--tile", str(tile)] if tile else [])]
             runs[tile, driver] = (args, out)
-    for args, _ in runs.values():  # warm-up: caches, compiled bytecode
-        run(args)
-    best = dict.fromkeys(runs, np.inf)
-    rss = dict.fromkeys(runs, 0.0)
-    for _ in range(repeat):
-        for key, (args, _) in runs.items():
-            seconds, mb = run(args)
-            best[key], rss[key] = min(best[key], seconds), max(rss[key], mb)
+    best, rss = best_runs({key: args for key, (args, _) in runs.items()}, repeat)
     rows = []
     with warnings.catch_warnings():  # (a frame has no georeferencing)
         warnings.simplefilter("ignore", NotGeoreferencedWarning)

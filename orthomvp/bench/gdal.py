@@ -21,8 +21,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Hashable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import rasterio
@@ -30,6 +32,8 @@ import rasterio
 from orthomvp.bench.peer import horizontal_dem
 from orthomvp.errors import InputError
 from orthomvp.io.raster import open_raster, read_image
+
+K = TypeVar("K", bound=Hashable)
 
 GDAL_RES = (24.0, 6.0, 2.0)
 """The output post spacings (m) of ``orthomvp bench --peer gdal``; 2 m on the central half of
@@ -166,6 +170,21 @@ def run(args: list[str]) -> tuple[float, float]:
     return seconds, usage.ru_maxrss / 1024  # (kB on Linux)
 
 
+def best_runs(commands: dict[K, list[str]], repeat: int) -> tuple[dict[K, float], dict[K, float]]:
+    """Each of ``commands`` (whole processes, :func:`run`) once untimed (caches, compiled
+    bytecode), then all of them in turn ``repeat`` times: per key the best wall time (s) and
+    the largest peak resident memory (MB)."""
+    for args in commands.values():
+        run(args)
+    best = dict.fromkeys(commands, np.inf)
+    rss = dict.fromkeys(commands, 0.0)
+    for _ in range(repeat):
+        for key, args in commands.items():
+            seconds, mb = run(args)
+            best[key], rss[key] = min(best[key], seconds), max(rss[key], mb)
+    return best, rss
+
+
 def agreement(ours: np.ndarray, theirs: np.ndarray) -> dict[str, float]:
     """Pearson r of two single-band orthophotos (rows, cols) over the posts where both hold a
     value, and the phase-correlation shift (``cv2.phaseCorrelate``, Hanning window) of the
@@ -198,16 +217,7 @@ def bench_gdal(
         folder = Path(tmp)
         for res in resolutions:
             bounds = grid_bounds(case, res)
-            lines = command_lines(case, folder, res, bounds)
-            for args in lines.values():  # warm-up: caches, compiled bytecode
-                run(args)
-            best = dict.fromkeys(lines, np.inf)
-            rss = dict.fromkeys(lines, 0.0)
-            for _ in range(repeat):
-                for key, args in lines.items():
-                    seconds, mb = run(args)
-                    best[key] = min(best[key], seconds)
-                    rss[key] = max(rss[key], mb)
+            best, rss = best_runs(command_lines(case, folder, res, bounds), repeat)
             ours, theirs = read_image(folder / "ours.tif"), read_image(folder / "gdal.tif")
             if ours.shape != theirs.shape:
                 raise RuntimeError(
