@@ -23,6 +23,7 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import KW_ONLY, dataclass, field, replace
 from functools import cached_property
@@ -35,6 +36,7 @@ from orthomvp.camera.model import FieldError, _points, check_crop, image_size
 from orthomvp.camera.rpc_model import GEODETIC, Rpc, finite_number
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
+from orthomvp.geometry.crs import cheap_per_thread
 from orthomvp.geometry.datum import geoid_transformer, vertical_part, whole_crs
 
 if TYPE_CHECKING:
@@ -86,12 +88,21 @@ def _to_wgs84(crs: CRS) -> Transformer:
     """World coordinates in ``crs`` to WGS84 (lon, lat, ellipsoidal height): through the
     vertical datum of a compound CRS that has one (heights in it; PROJ and its grid), else
     with the heights taken as ellipsoidal; InputError when PROJ lacks the grid."""
-    from pyproj import Transformer
 
     if crs.is_compound and vertical_part(crs) is not None:
         _horizontal_3d(crs)  # a Cartesian world frame still
         return geoid_transformer(crs, f"the world CRS {crs.name!r}", _epsg(GEODETIC))
-    return Transformer.from_crs(_horizontal_3d(crs), _epsg(GEODETIC), always_xy=True)
+    return _ellipsoidal(_horizontal_3d(crs).to_wkt())
+
+
+@functools.lru_cache(maxsize=16)
+def _ellipsoidal(wkt: str) -> Transformer:
+    """The Cartesian world CRS of WKT ``wkt`` (ellipsoidal heights) to WGS84, made once a
+    process (:func:`~orthomvp.geometry.crs.cheap_per_thread`)."""
+    from pyproj import CRS, Transformer
+
+    made = Transformer.from_crs(CRS.from_wkt(wkt), _epsg(GEODETIC), always_xy=True)
+    return cheap_per_thread(made)
 
 
 @dataclass(frozen=True, eq=False)

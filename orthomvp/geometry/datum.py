@@ -48,7 +48,7 @@ from affine import Affine
 
 from orthomvp.codes import WorldFrame
 from orthomvp.errors import InputError
-from orthomvp.geometry.crs import is_pyproj
+from orthomvp.geometry.crs import cheap_per_thread, is_pyproj
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
@@ -174,7 +174,7 @@ def _transformer(wkt: str, name: str, target_wkt: str | None = None) -> Transfor
         warnings.simplefilter("ignore", UserWarning)
         group = TransformerGroup(crs, target, always_xy=True, allow_ballpark=False)
     if group.transformers:
-        return group.transformers[0]
+        return cheap_per_thread(group.transformers[0])
     vertical = vertical_part(crs)
     what = f"{name}: its heights are {vertical.name!r} (a vertical datum)" if vertical else name
     to = f"heights above the {target.ellipsoid.name} ellipsoid"
