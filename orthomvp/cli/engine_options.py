@@ -249,8 +249,9 @@ def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> C
                     "--dtype",
                     type=click.Choice(DTYPES),
                     default="float32",
-                    help="output data type of the image values (integers are rounded; nodata "
-                    "NaN, 0 or -32768)",
+                    help="output data type of the image values (integers are rounded and "
+                    "clipped to the type's range, with a warning when values are clipped or "
+                    "rounded to a few levels; nodata NaN, 0 or -32768)",
                 )
             )
         for option in reversed(options):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,12 +24,13 @@ from affine import Affine
 from rasterio.enums import Resampling
 from rasterio.windows import Window
 
+from orthomvp.engine.casting import IntegerCast, to_dtype
 from orthomvp.engine.cog import assemble
 from orthomvp.engine.grid import OutputGrid
 from orthomvp.engine.overviews import AVERAGE, halve, window_level
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.tile import source_dtype
-from orthomvp.errors import InputError
+from orthomvp.errors import InputError, OrthoMVPWarning
 from orthomvp.io.output_checks import (
     API_FLAGS,
     Output,
@@ -167,20 +169,6 @@ def plan_inputs(plan: Any) -> list[tuple[str, Path]]:
     return inputs
 
 
-def to_dtype(data: np.ndarray, dtype: str, nodata: float) -> np.ndarray:
-    """Float32 values (NaN = empty) as ``dtype`` with ``nodata``: integers rounded and clipped
-    to the type's range; valid values equal to ``nodata`` move one step into the range."""
-    if dtype == "float32":
-        return data if np.isnan(nodata) else np.where(np.isfinite(data), data, np.float32(nodata))
-    empty = ~np.isfinite(data)
-    info = np.iinfo(dtype)
-    with np.errstate(invalid="ignore"):
-        values = np.clip(np.rint(data), info.min, info.max)
-    step = 1 if nodata < info.max else -1
-    values = np.where(values == nodata, nodata + step, values)
-    return np.where(empty, nodata, values).astype(dtype)
-
-
 def _creation(outputs: Outputs, dtype: str) -> dict[str, object]:
     """GDAL creation options shared by the tiled GeoTIFF and the COG."""
     opts: dict[str, object] = {"compress": outputs.compress, "bigtiff": "IF_SAFER"}
@@ -205,7 +193,8 @@ def _overview_factors(shape: tuple[int, int], blocksize: int) -> list[int]:
 class Layer:
     """One output file of a run: ``path``, ``count`` bands of ``dtype`` with ``nodata`` (None:
     none), band ``names``, the overview ``resampling``, and ``data(result)``: a finished
-    tile's arrays for it ((bands, rows, cols) or (rows, cols), already of ``dtype``)."""
+    tile's arrays for it ((bands, rows, cols) or (rows, cols), already of ``dtype``); ``cast``:
+    what counts the values an integer ``dtype`` loses, said once the output is written."""
 
     path: Path
     count: int
@@ -214,6 +203,7 @@ class Layer:
     resampling: Resampling
     data: Callable[[Any], np.ndarray]
     names: tuple[str, ...] = ()
+    cast: IntegerCast | None = None
 
 
 def source_names(views: int) -> tuple[str, ...]:
@@ -229,15 +219,19 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
     source = np.dtype(source_dtype(plan)).name
     names = ("view",) if plan.mosaic is None else source_names(n)
     fill = outputs.fill
+
+    def image(path: Path) -> Layer:
+        cast = None if outputs.dtype == "float32" else IntegerCast(path, outputs.dtype, fill)
+
+        def data(result: Any) -> np.ndarray:
+            if cast is None:
+                return to_dtype(result.data, outputs.dtype, fill)
+            return cast(result.data)
+
+        return Layer(path, plan.bands, outputs.dtype, fill, Resampling.average, data, cast=cast)
+
     make = {
-        "ortho": lambda path: Layer(
-            path,
-            plan.bands,
-            outputs.dtype,
-            fill,
-            Resampling.average,
-            lambda result: to_dtype(result.data, outputs.dtype, fill),
-        ),
+        "ortho": image,
         "visibility": lambda path: Layer(
             path, n, "uint8", 0, Resampling.nearest, lambda result: result.codes
         ),
@@ -446,3 +440,6 @@ def output_files(grid: OutputGrid, layers: list[Layer], outputs: Any) -> Iterato
         yield Writer(items)
         for item in items:
             item.finish()
+    for layer in layers:
+        if layer.cast is not None and (loss := layer.cast.loss()) is not None:
+            warnings.warn(loss, OrthoMVPWarning, stacklevel=3)
