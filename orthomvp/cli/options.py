@@ -406,10 +406,13 @@ def check_outputs(
 
 def own_camera(image: Path) -> Camera:
     """The camera IMAGE carries (its RPC metadata, a spiceinit'd cube's tables), for a command
-    whose CAMERA was left out; a usage error that says so where IMAGE carries none."""
+    whose CAMERA was left out; a usage error that says so where IMAGE carries none (an
+    IMAGE that is not there is named as a missing raster, as any missing input is)."""
     from orthomvp.camera import read_camera
     from orthomvp.errors import InputError
+    from orthomvp.io.files import check_regular
 
+    check_regular(image, "raster")
     try:
         return read_camera(image)
     except InputError as exc:
