@@ -124,6 +124,23 @@ def unit_scale(crs: CRS | FileCRS, radius: float) -> tuple[float, str]:
     return factor, "m" if math.isclose(factor, 1.0) else _plural(unit_name)
 
 
+def check_latitudes(bounds: tuple[float, float, float, float], crs: CRS | FileCRS) -> None:
+    """InputError, one line, when ``bounds`` (left, bottom, right, top in the units of ``crs``)
+    on a geographic ``crs`` put the bottom or the top beyond a pole: bounds given in metres,
+    say, where the CRS counts degrees."""
+    if not crs.is_geographic:
+        return
+    per_unit, unit = unit_scale(crs, 1.0)  # (radians per unit)
+    pole = math.pi / 2 / per_unit
+    for latitude in (bounds[1], bounds[3]):
+        if abs(latitude) > pole * (1 + 1e-12):
+            raise InputError(
+                f"bounds: latitude {latitude:.10g} lies outside +-{pole:g} {unit}: bounds "
+                f"(left bottom right top) are in the output CRS's units, {unit} here (for "
+                "metres, choose a projected output CRS)"
+            )
+
+
 def _plural(name: str) -> str:
     return name if name.endswith("s") else f"{name}s"
 
