@@ -237,7 +237,9 @@ def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
     source = scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights)
     centres = np.concatenate([sensor_positions(camera) for camera in cameras])
     world = detect_world(source.preview, centres) if dem.world == "auto" else WorldFrame(dem.world)
-    check_cameras_above(replace(source.preview, world=world), centres)  # heights as the file holds
+    preview = replace(source.preview, world=world)
+    preview.check_convention()  # heights against radii, before the cameras are judged by them
+    check_cameras_above(preview, centres)  # heights as the file holds
     if dem.height_offset is None and dem.vertical_datum == "auto":
         named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
         check_map_frame_heights(named, world, dem.crs or source.file_crs, as_read=True)
