@@ -1,5 +1,6 @@
-"""``--bounds`` (the API's ``bounds``) in the wrong units on a geographic output CRS: a latitude
-beyond a pole is refused in one line that says bounds are in the CRS's units, before planning."""
+"""Units of a CRS as the user reads them: ``--bounds`` (the API's ``bounds``) in the wrong units
+on a geographic output CRS (a latitude beyond a pole is refused in one line that says bounds
+are in the CRS's units, before planning), and the names of units in ``orthomvp info``."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 import pytest
 from pyproj import CRS
 
-from orthomvp.engine.units import check_latitudes
+from orthomvp.engine.units import check_latitudes, unit_scale
 from orthomvp.errors import InputError
 from tests.conftest import shared
 
@@ -52,3 +53,56 @@ def test_metres_as_bounds_on_a_lunar_degree_crs(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError, match=r"latitude 95 lies outside \+-90 degrees"):
         om.plan_ortho(dem, [(cube, cube)], bounds=(2.9, 89.5, 3.1, 95.0), progress=False)
+
+
+@pytest.mark.parametrize(
+    ("epsg", "name"),
+    [
+        (2277, "US survey feet"),
+        (2222, "feet"),
+        (2314, "Clarke's feet"),
+        (3167, "British chains (Sears 1922 truncated)"),
+        (2066, "Clarke's links"),
+        (4807, "grads"),
+        (4326, "degrees"),
+        (32633, "m"),
+    ],
+)
+def test_unit_names_are_plural_english(epsg: int, name: str) -> None:
+    """pyproj's unit names made plural ("US survey foot" was "US survey foots"), with the
+    metres per unit pyproj gives."""
+    crs = CRS.from_epsg(epsg)
+    per_unit, unit = unit_scale(crs, 6378137.0)
+    assert unit == name
+    factor = crs.axis_info[0].unit_conversion_factor
+    assert per_unit == (6378137.0 * factor if crs.is_geographic else factor)
+
+
+def test_info_names_feet(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    import numpy as np
+    from affine import Affine
+
+    from orthomvp.cli import main
+    from orthomvp.geometry.terrain import Terrain
+
+    dem = tmp_path / "ftus.tif"
+    spacing = 24 / 0.3048006096012192  # 24 m in US survey feet (EPSG:9003: 1200/3937 m)
+    Terrain(np.zeros((8, 8)), Affine(spacing, 0, 2e6, 0, -spacing, 1e7), "EPSG:2277").write(dem)
+    assert main(["info", str(dem)]) == 0
+    out = capsys.readouterr().out
+    assert "(projected, US survey feet)" in out, out
+    assert "78.74 x 78.74 US survey feet (24 x 24 m)" in out, out
+    assert "foots" not in out
+
+
+@pytest.mark.realdata
+def test_info_names_the_vertical_datum_once(capsys: pytest.CaptureFixture) -> None:
+    from orthomvp.cli import main
+
+    dem = str(shared("ngi-aerial", "dem.tif"))
+    rpc = str(shared("rpc-quickbird", "qb2_basic1b.tif"))
+    assert main(["info", dem]) == 0
+    assert "height above EGM2008 (the vertical datum)" in capsys.readouterr().out
+    assert main(["info", dem, rpc, "--height-offset", "28"]) == 0
+    out = capsys.readouterr().out
+    assert "(from EGM2008 heights, shifted for the cameras)" in out, out

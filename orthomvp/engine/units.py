@@ -142,7 +142,14 @@ def check_latitudes(bounds: tuple[float, float, float, float], crs: CRS | FileCR
 
 
 def _plural(name: str) -> str:
-    return name if name.endswith("s") else f"{name}s"
+    """The plural of a unit's name as PROJ and GDAL spell it: "US survey foot" -> "US survey
+    feet", "British yard (Sears 1922)" -> "British yards (Sears 1922)", "grad" -> "grads"."""
+    head, space, qualifier = name.partition(" (")
+    if head.endswith("foot"):
+        head = f"{head[: -len('foot')]}feet"
+    elif not head.endswith("s"):
+        head = f"{head}s"
+    return f"{head}{space}{qualifier}"
 
 
 def to_units(
