@@ -473,7 +473,7 @@ def test_read_camera_picks_the_row_by_image_stem(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="hold no camera position"):
         read_camera(interior, "img_a.tif")
     (tmp_path / "other.yml").write_text("x:\n  type: pinhole\n")
-    with pytest.raises(InputError, match=r"2 \(int_param.yaml, other.yml\) .yaml files"):
+    with pytest.raises(InputError, match=r"there are 2 \(int_param.yaml, other.yml\): keep"):
         read_camera(exterior, "img_a.tif")
     cam = read_camera(exterior, "img_a.tif", interior=interior)  # explicit: no search
     assert tsai_text(cam) == tsai_text(cams["img_a"])

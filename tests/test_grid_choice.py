@@ -380,7 +380,8 @@ def _cli(*args: object) -> subprocess.CompletedProcess:
     ("options", "words"),
     [
         (["--crs", "EPSG:4326"], "another body"),  # the Moon's DEM, the Earth's CRS
-        (["--bounds", "-1e200", "-1e200", "1e200", "1e200"], "the output grid would be"),
+        (["--bounds", "-1e200", "-90", "1e200", "90"], "the output grid would be"),
+        (["--bounds", "-1e200", "-1e200", "1e200", "1e200"], "lies outside +-90 degrees"),
         (["--bounds", "100", "50", "100.01", "50.01"], "miss the DEM"),
     ],
 )

@@ -197,7 +197,7 @@ def test_odm_shots_and_cameras_json(tmp_path: Path) -> None:
     with pytest.raises(FormatError, match=r"features\[0\].properties: no camera of .*cams.json"):
         read_odm_shots(shots, interior=tmp_path / "elsewhere" / "cams.json")
     (tmp_path / "cameras.json").unlink()
-    with pytest.raises(InputError, match="cameras.json"):
+    with pytest.raises(InputError, match=r"put ODM's cameras.json there \(or in Python, name"):
         read_camera(shots, "IMG_1")
     # cameras.json alone holds no pose
     lone = write(tmp_path / "lone" / "cameras.json", {"cam": spec})

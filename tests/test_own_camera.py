@@ -69,3 +69,22 @@ def test_an_image_without_a_camera_of_its_own(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "no CAMERA given" in proc.stderr
     assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_a_missing_image_without_a_camera_is_named_as_missing(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A mistyped IMAGE with CAMERA left out is reported as the missing raster it is (as a
+    missing IMAGE with its CAMERA is), not as an image without a camera of its own."""
+    from affine import Affine
+
+    from orthomvp.cli import main
+    from orthomvp.geometry.terrain import Terrain
+
+    dem, out = tmp_path / "dem.tif", tmp_path / "o.tif"
+    Terrain(np.zeros((4, 4)), Affine(10, 0, 5e5, 0, -10, 0), "EPSG:32633").write(dem)
+    for command in ("ortho", "visibility"):
+        assert main([command, str(dem), str(tmp_path / "typo.tif"), "-o", str(out)]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert err == [f"orthomvp: error: {tmp_path / 'typo.tif'}: raster not found (no such file)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.tif"]

@@ -141,3 +141,47 @@ def test_export_opens_from_file_with_no_server_and_no_network(
         assert _severe(driver) == []
     finally:
         driver.quit()
+
+
+def test_export_refuses_a_users_folder_and_refreshes_its_own(
+    view_scene: dict, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """--export into a folder of the user's is refused without --overwrite (one line, status 2,
+    the folder untouched) and keeps the user's other files with it; an earlier export is
+    refreshed whole: re-exported with fewer layers it holds exactly what a fresh export
+    holds. The API's write_export follows the same rule (InputError naming overwrite=True)."""
+    from orthomvp.errors import InputError
+    from orthomvp.view import LayerSet, write_export
+
+    def files(folder: Path) -> set[str]:
+        return {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()}
+
+    dem = str(view_scene["start"])
+    vis = ["--visibility", str(view_scene["dir"] / "oblique.visibility.tif")]
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "index.html").write_text("mine")
+    (user / "notes.txt").write_text("notes")
+    assert main(["view", dem, "--export", str(user)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("orthomvp: error:"), err
+    assert "--export exists and is not empty; give --overwrite" in err[0], err
+    assert files(user) == {"index.html", "notes.txt"}
+    assert (user / "index.html").read_text() == "mine"
+    with pytest.raises(InputError, match="overwrite=True"):
+        write_export(LayerSet(Path(dem)), user)
+    assert files(user) == {"index.html", "notes.txt"}
+    assert main(["view", dem, "--export", str(user), "--overwrite"]) == 0
+    assert (user / "index.html").read_text().startswith("<!doctype html>")
+    assert (user / "notes.txt").read_text() == "notes"
+    # an earlier export (two layers) refreshed with one layer: no tile of the other stays
+    page, fresh = tmp_path / "page", tmp_path / "fresh"
+    assert main(["view", dem, "--export", str(page), *vis]) == 0
+    assert any(name.startswith("tiles/L1/") for name in files(page))
+    assert main(["view", dem, "--export", str(page)]) == 0
+    assert main(["view", dem, "--export", str(fresh)]) == 0
+    assert files(page) == files(fresh) and not any(n.startswith("tiles/L1") for n in files(page))
+    assert (page / "index.html").read_text() == (fresh / "index.html").read_text()
+    assert write_export(LayerSet(Path(dem)), page) > 0  # the API refreshes it too
+    assert files(page) == files(fresh)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fresh", "page", "user"]  # no temporaries

@@ -406,10 +406,13 @@ def check_outputs(
 
 def own_camera(image: Path) -> Camera:
     """The camera IMAGE carries (its RPC metadata, a spiceinit'd cube's tables), for a command
-    whose CAMERA was left out; a usage error that says so where IMAGE carries none."""
+    whose CAMERA was left out; a usage error that says so where IMAGE carries none (an
+    IMAGE that is not there is named as a missing raster, as any missing input is)."""
     from orthomvp.camera import read_camera
     from orthomvp.errors import InputError
+    from orthomvp.io.files import check_regular
 
+    check_regular(image, "raster")
     try:
         return read_camera(image)
     except InputError as exc:
@@ -429,29 +432,12 @@ def view_inputs(dem: DemInput, pairs: Sequence[tuple[Path, Path]]) -> list[tuple
 def check_outdir(
     path: Path, option: str, *, overwrite: bool = False, refresh: Sequence[str] = ()
 ) -> None:
-    """Refuse an output directory ``path`` that is an existing file, whose parent directory
-    is missing or not writable, or that holds files, unless ``overwrite`` or unless it holds
-    every file named in ``refresh`` (the marks of the command's own earlier output, which it
-    may refresh); a usage error naming it."""
-    if path.exists() and not path.is_dir():
-        raise usage_error(f"{path}: {option} is a file, not a directory")
-    if path.is_dir() and not overwrite and any(path.iterdir()):
-        own = bool(refresh) and all((path / name).is_file() for name in refresh)
-        if not own:
-            raise usage_error(
-                f"{path}: {option} exists and is not empty; give --overwrite to write into it "
-                "(files of the same name are replaced)"
-            )
-    check_directory(path, f"{path}: {option}")
-
-
-def check_directory(path: Path, what: str) -> None:
-    """A usage error ``"{what} ..."`` unless the directory of the output ``path`` exists and
-    is writable; an OutputError naming ``path`` when its disk has no space left."""
+    """:func:`orthomvp.io.output_checks.check_folder` (the rule the API follows too), its
+    refusals as usage errors naming ``option`` and --overwrite."""
     from orthomvp.errors import InputError
-    from orthomvp.io.output_checks import check_directory as check
+    from orthomvp.io.output_checks import Flags, check_folder
 
     try:
-        check(path, what)
+        check_folder(path, option, overwrite=overwrite, refresh=refresh, flags=Flags())
     except InputError as exc:
         raise usage_error(str(exc)) from None

@@ -14,10 +14,12 @@ from orthomvp.cli.command import Command
 from orthomvp.cli.options import (
     PATH,
     DemInput,
+    check_outdir,
     dem_argument,
     dem_options,
     eps_option,
     levels_option,
+    overwrite_option,
     quiet,
 )
 from orthomvp.errors import InputError, OrthoMVPWarning
@@ -118,8 +120,11 @@ def _pairs(ctx: click.Context, param: click.Parameter, value: tuple[Path, ...]) 
     "--export",
     type=PATH,
     metavar="DIR",
-    help="write a static page with pre-rendered tiles into DIR instead of serving",
+    help="write a static page with pre-rendered tiles into DIR instead of serving (created "
+    "if absent; nothing is written on failure). A folder an earlier export wrote is refreshed "
+    "whole; any other folder that holds files needs --overwrite",
 )
+@overwrite_option
 @levels_option("coarse-to-fine pyramid levels of a click's fit")
 @eps_option
 @dem_options
@@ -136,6 +141,7 @@ def view(
     port: int,
     no_browser: bool,
     export: Path | None,
+    overwrite: bool,
     levels: int,
     eps: float | None,
 ) -> None:
@@ -156,6 +162,10 @@ def view(
 
     if dem.path is None:
         raise InputError("view needs a DEM")
+    if export is not None:
+        from orthomvp.view.export import MARKS
+
+        check_outdir(export, "--export", overwrite=overwrite, refresh=MARKS)
     layers = LayerSet(dem.path)
     for p in orthos:
         layers.add("image", [p], f"image: {p.name}")
@@ -175,7 +185,7 @@ def view(
     if export is not None:
         from orthomvp.view import write_export
 
-        count = write_export(layers, export)
+        count = write_export(layers, export, overwrite=overwrite)
         if not quiet():
             print(
                 f"orthomvp: wrote {export}/index.html and {count} tiles of "
@@ -227,7 +237,9 @@ def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
     source = scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights)
     centres = np.concatenate([sensor_positions(camera) for camera in cameras])
     world = detect_world(source.preview, centres) if dem.world == "auto" else WorldFrame(dem.world)
-    check_cameras_above(replace(source.preview, world=world), centres)  # heights as the file holds
+    preview = replace(source.preview, world=world)
+    preview.check_convention()  # heights against radii, before the cameras are judged by them
+    check_cameras_above(preview, centres)  # heights as the file holds
     if dem.height_offset is None and dem.vertical_datum == "auto":
         named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
         check_map_frame_heights(named, world, dem.crs or source.file_crs, as_read=True)

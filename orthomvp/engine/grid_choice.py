@@ -116,6 +116,7 @@ def read_source(
     if frame is None:
         frame = detect_world(source.preview, centres)
     preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough
+    preview.check_convention()  # heights against radii, before the cameras are judged by them
     sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
     check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
     source = dem_with_world(source, frame)

@@ -95,10 +95,10 @@ def _dem_properties(dem: DemSource, dem_crs: object | None) -> dict[str, Any]:
     if dem.radius_values:
         heights = "radius from the body's centre"
     elif dem.shift is not None:  # converted (or offset) for the cameras
-        held = f"{vertical} heights" if vertical is not None else "the file's heights"
+        held = f"{_datum(vertical)} heights" if vertical is not None else "the file's heights"
         heights = f"height above the reference ellipsoid (from {held}, shifted for the cameras)"
     elif vertical is not None:
-        heights = f"height above {vertical} (the vertical datum)"
+        heights = f"height above {_datum(vertical)} (the vertical datum)"
     else:
         heights = "height above the reference ellipsoid"
     rows, cols = dem.shape
@@ -119,6 +119,12 @@ def _dem_properties(dem: DemSource, dem_crs: object | None) -> dict[str, Any]:
         "height_range": [dem.h_min, dem.h_max],
         "world": dem.world.value,
     }
+
+
+def _datum(vertical: str) -> str:
+    """A vertical CRS's name without its trailing " height" ("EGM2008 height" -> "EGM2008"),
+    for phrases that say "height" or "heights" themselves."""
+    return vertical.removesuffix(" height")
 
 
 def _image_properties(dem: DemSource, view: Any, footprint: Any, grid: Any) -> dict[str, Any]:

@@ -124,8 +124,32 @@ def unit_scale(crs: CRS | FileCRS, radius: float) -> tuple[float, str]:
     return factor, "m" if math.isclose(factor, 1.0) else _plural(unit_name)
 
 
+def check_latitudes(bounds: tuple[float, float, float, float], crs: CRS | FileCRS) -> None:
+    """InputError, one line, when ``bounds`` (left, bottom, right, top in the units of ``crs``)
+    on a geographic ``crs`` put the bottom or the top beyond a pole: bounds given in metres,
+    say, where the CRS counts degrees."""
+    if not crs.is_geographic:
+        return
+    per_unit, unit = unit_scale(crs, 1.0)  # (radians per unit)
+    pole = math.pi / 2 / per_unit
+    for latitude in (bounds[1], bounds[3]):
+        if abs(latitude) > pole * (1 + 1e-12):
+            raise InputError(
+                f"bounds: latitude {latitude:.10g} lies outside +-{pole:g} {unit}: bounds "
+                f"(left bottom right top) are in the output CRS's units, {unit} here (for "
+                "metres, choose a projected output CRS)"
+            )
+
+
 def _plural(name: str) -> str:
-    return name if name.endswith("s") else f"{name}s"
+    """The plural of a unit's name as PROJ and GDAL spell it: "US survey foot" -> "US survey
+    feet", "British yard (Sears 1922)" -> "British yards (Sears 1922)", "grad" -> "grads"."""
+    head, space, qualifier = name.partition(" (")
+    if head.endswith("foot"):
+        head = f"{head[: -len('foot')]}feet"
+    elif not head.endswith("s"):
+        head = f"{head}s"
+    return f"{head}{space}{qualifier}"
 
 
 def to_units(

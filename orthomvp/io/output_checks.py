@@ -101,6 +101,29 @@ def check_outputs(
         check_directory(path, f"{path}: {out.option}")
 
 
+def check_folder(
+    path: Path,
+    what: str,
+    *,
+    overwrite: bool = False,
+    refresh: Sequence[str] = (),
+    flags: Flags = API_FLAGS,
+) -> None:
+    """InputError for an output folder ``path`` that is a file, whose directory is missing or
+    not writable, or that holds files, unless ``overwrite`` or unless it holds every file named
+    in ``refresh`` (paths relative to it: the marks of the command's own earlier output, which
+    it may refresh); ``what`` names the folder in the message (``"--export"``)."""
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: {what} is a file, not a directory")
+    if path.is_dir() and not overwrite and any(path.iterdir()):
+        if not (refresh and all((path / name).is_file() for name in refresh)):
+            raise InputError(
+                f"{path}: {what} exists and is not empty; give {flags.overwrite} to write "
+                "into it (files of the same name are replaced)"
+            )
+    check_directory(path, f"{path}: {what}")
+
+
 def check_parent(path: Path, what: str) -> None:
     """InputError ``"{what}: the directory ... does not exist"`` (or is not a directory) for
     the directory of the output ``path``."""

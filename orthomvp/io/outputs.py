@@ -282,13 +282,21 @@ def _clashes(source: Path, target: Path) -> None:
             _clashes(item, there)
 
 
-def _move_into(source: Path, target: Path) -> None:
+def _move_into(
+    source: Path, target: Path, replace: Sequence[str] = (), trash: Path | None = None
+) -> None:
     """Move the items of directory ``source`` into directory ``target``: a file replaces the
     file of its name, a folder merges into the folder of its name (a rename cannot replace a
-    folder that holds files); what else ``target`` holds stays. A folder meeting a file, or
-    the reverse, is refused before anything moves (:func:`_clashes`); only a failing rename
-    (a full disk, no permission) can leave part of ``source`` moved."""
+    folder that holds files) unless its name is in ``replace``, when the folder of ``target``
+    is first moved into the new directory ``trash`` whole; what else ``target`` holds stays. A
+    folder meeting a file, or the reverse, is refused before anything moves
+    (:func:`_clashes`); only a failing rename (a full disk, no permission) can leave part of
+    ``source`` moved."""
     _clashes(source, target)
+    for name in replace:
+        if _folder(source / name) and _folder(target / name) and trash is not None:
+            trash.mkdir(exist_ok=True)
+            os.replace(target / name, trash / name)
     _merge(source, target)
 
 
@@ -304,9 +312,10 @@ def _merge(source: Path, target: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | Path) -> Iterator[Path]:
+def atomic_dir(path: str | Path, *, replace: Sequence[str] = ()) -> Iterator[Path]:
     """Yield a temporary directory beside ``path``; on success move its files into ``path``
-    (its folders merge into those of their names there).
+    (its folders merge into those of their names there, but those named in ``replace``
+    replace theirs whole: nothing of the old ones stays).
 
     On failure (SIGINT, SIGTERM and SIGHUP too) the temporary directory is removed and ``path`` is
     left as it was; errors name the files under ``path``, not under the temporary directory.
@@ -319,6 +328,7 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
         raise InputError(f"{path}: exists and is not a directory")
     check_space(path)
     tmp: Path | None = None
+    trash: Path | None = None
     with HeldSignals() as held:
         try:
             remove_stale(path)
@@ -328,7 +338,8 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
                 yield tmp
             os.chmod(tmp, 0o777 & ~_umask())
             if path.exists():
-                _move_into(tmp, path)
+                trash = _new_temp(path, "old") if replace else None
+                _move_into(tmp, path, replace, trash)
             else:
                 os.replace(tmp, path)
             written.append(path)
@@ -339,8 +350,9 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
                 raise
             raise write_error(path / Path(exc.filename).relative_to(tmp), exc) from exc
         finally:
-            if tmp is not None:
-                _drop(tmp)
+            for temporary in (tmp, trash):
+                if temporary is not None:
+                    _drop(temporary)
 
 
 atexit.register(remove_temporaries)

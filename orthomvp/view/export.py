@@ -12,6 +12,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+from orthomvp.io.output_checks import check_folder
 from orthomvp.io.outputs import atomic_dir
 from orthomvp.view.layers import LayerSet
 from orthomvp.view.page import index_html, page_config, static_files
@@ -25,6 +26,8 @@ HOVER = 64
 a DEM, a height layer and four visibility layers)."""
 STATIC = ("view.js", "view.css", "vendor/README.txt")
 """The page's own files an export copies (and Leaflet's folder)."""
+MARKS = ("index.html", "static/view.js")
+"""The files by which a folder is known as an earlier export's (which an export refreshes)."""
 
 
 def export_zooms(layers: LayerSet, pyramid: Pyramid) -> int:
@@ -64,11 +67,24 @@ def hover_grid(layers: LayerSet, cells: int = HOVER) -> dict:
     return {"cols": cols, "rows": rows, "bounds": [left, bottom, right, top], "values": values}
 
 
-def write_export(layers: LayerSet, outdir: str | Path, **page: str) -> int:
+def write_export(
+    layers: LayerSet,
+    outdir: str | Path,
+    *,
+    overwrite: bool = False,
+    title: str = "",
+    report: str = "",
+) -> int:
     """Write the static page of ``layers`` into the folder ``outdir`` (atomically); returns the
-    number of tiles written. ``page``: see :func:`export_into`."""
-    with atomic_dir(outdir) as tmp:
-        return export_into(layers, tmp, **page)
+    number of tiles written. A folder an earlier export wrote (one holding :data:`MARKS`) is
+    refreshed whole: its ``tiles/`` and ``static/`` are replaced, so no tile of an earlier
+    layer stays. Any other folder that holds files is refused (InputError) unless
+    ``overwrite``, and then keeps what else it holds. ``title``, ``report``: see
+    :func:`export_into`."""
+    outdir = Path(outdir)
+    check_folder(outdir, "the export folder", overwrite=overwrite, refresh=MARKS)
+    with atomic_dir(outdir, replace=("tiles", "static")) as tmp:
+        return export_into(layers, tmp, title=title, report=report)
 
 
 def export_into(layers: LayerSet, folder: Path, *, title: str = "", report: str = "") -> int:

@@ -360,8 +360,9 @@ def _find_cameras_json(path: Path) -> Path:
         if (directory / CAMERAS_JSON).is_file():
             return directory / CAMERAS_JSON
     raise InputError(
-        f"{path}: ODM shots need the interior parameters of {CAMERAS_JSON}: none beside it or "
-        "one directory up; give it explicitly"
+        f"{path}: ODM shots need the interior parameters of {CAMERAS_JSON}: none beside them or "
+        f"one directory up: put ODM's {CAMERAS_JSON} there (or in Python, name it: "
+        "read_camera(..., interior=FILE))"
     )
 
 

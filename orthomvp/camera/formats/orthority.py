@@ -162,10 +162,14 @@ def read_exterior(file: CameraFile) -> PinholeCamera:
     if interior is None:
         found = sorted(p for p in path.parent.iterdir() if p.suffix.lower() in INTERIOR_SUFFIXES)
         if len(found) != 1:
-            what = "no" if not found else f"{len(found)} ({', '.join(p.name for p in found)})"
+            what, remedy = "is none", "put it there"
+            if found:
+                names = ", ".join(p.name for p in found)
+                what, remedy = f"are {len(found)} ({names})", "keep only theirs there"
             raise InputError(
-                f"{path}: Orthority exterior parameters need the interior parameter file: "
-                f"{what} .yaml files beside it; give it explicitly"
+                f"{path}: Orthority exterior parameters need their interior parameter file "
+                f"(.yaml) beside them, and there {what}: {remedy} (or in Python, name it: "
+                "read_camera(..., interior=FILE))"
             )
         interior = found[0]
     interior = Path(interior)
