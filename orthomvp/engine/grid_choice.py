@@ -49,6 +49,7 @@ from orthomvp.engine.grid import with_world as dem_with_world
 from orthomvp.engine.halo import Box
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.progress import Progress
+from orthomvp.engine.stated_crs import check_stated_crs
 from orthomvp.engine.units import check_res, clean_metres, parse_res, to_units, unit_scale
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj
@@ -113,6 +114,8 @@ def read_source(
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
         source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
+    if frame != WorldFrame.BODY:  # cameras in a map frame: their file's CRS, if it names one
+        check_stated_crs(sources, source.file_crs, source.preview.name)
     if frame is None:
         frame = detect_world(source.preview, centres)
     preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough

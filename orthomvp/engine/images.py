@@ -40,6 +40,7 @@ class ImageSource:
     from_top: bool = False
     dtype: str | None = None
     copy: Copy | None = None
+    camera_file: Path | None = None  # the file the camera was read from, if any
 
     def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
         """Pixels of ``window`` (clipped to the image by the caller), every band or only
@@ -75,11 +76,15 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
             from_top = decodes_from_top(src)
             dtype = max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
             check_blocks(src, path)
+    camera_file = None
     if not isinstance(camera, Camera):
+        camera_file = Path(camera)
         camera = read_camera(camera, path)
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     camera = check_image(shape_only, camera, str(path))
-    return ImageSource(path, cols, rows, bands, camera, layout, from_top, dtype)
+    return ImageSource(
+        path, cols, rows, bands, camera, layout, from_top, dtype, camera_file=camera_file
+    )
 
 
 def check_blocks(src: DatasetReader, path: Path) -> None:

@@ -208,6 +208,28 @@ def refuse_interior(file: CameraFile) -> PinholeCamera:
     )
 
 
+def stated_crs(path: Path) -> str | None:
+    """The world CRS an Orthority exterior file states for its cameras, as it gives it (WKT,
+    PROJ string or authority code): the ``.prj`` beside a CSV file (of the same stem) or a
+    GeoJSON file's ``world_crs``; None where it states none, or for another kind of file."""
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        prj = path.with_suffix(".prj")
+        if not prj.is_file():
+            return None
+        return prj.read_text(errors="replace").strip() or None
+    if suffix not in (".geojson", ".json"):
+        return None
+    try:
+        obj = json.loads(path.read_text(errors="replace"))
+    except (OSError, json.JSONDecodeError):
+        return None  # (reading the camera says what is wrong with the file)
+    if not isinstance(obj, dict) or obj.get("type") != "FeatureCollection":
+        return None
+    crs = obj.get("world_crs")
+    return crs if isinstance(crs, str) and crs.strip() else None
+
+
 def is_geojson(file: CameraFile) -> bool:
     """Whether the file looks like a GeoJSON FeatureCollection (an exterior file)."""
     return _FEATURE_COLLECTION.search(file.head) is not None
