@@ -47,8 +47,9 @@ class GeometryError(OrthoMVPError, ValueError):
 
 
 class OutputError(OrthoMVPError, OSError):
-    """An output that cannot be written (no space, no permission, a missing directory); the
-    message names the path and the cause."""
+    """An output whose writing fails (no space, no permission, a folder gone while writing);
+    the message names the path and the cause. An output refused before anything is written
+    (it exists, its folder does not) is an :class:`InputError`."""
 
 
 class OrthoMVPWarning(UserWarning):
