@@ -5,6 +5,7 @@ values from usgscsm's gtests; pixel conventions, the ISD writer, bad ISDs, vecto
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -374,3 +375,20 @@ def test_iterated_lenses_leave_nan_points_out_of_their_steps(
         assert np.isnan(a[np.isnan(b)]).all()
     if model in ("apollometric", "kaguyalism"):
         assert 0 < steps < 10 and len(calls) - steps == steps  # not the limit's 50
+
+
+def test_apollo_metric_far_off_the_lens_is_nan_without_a_warning() -> None:
+    """Points far outside the Apollo Metric focal plane (where the fixed-point inversion
+    diverges, as a grid far off the image asks for) come back NaN, silently; points on it as
+    before."""
+    from orthomvp.camera.isis.apollo_metric import ApolloMetricDistortion
+
+    k = (-1.3361854e-06, 5.2261757e-10, -5.0728336e-14)
+    lens = ApolloMetricDistortion(-0.006, -0.002, *k, -5.4958195e-07, -4.608942e-11, 2.965907)
+    x, y = np.array([1e5, -3e6, 10.0]), np.array([2e5, 1e4, -20.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = lens.distort(x, y)
+    assert np.isnan(out[0][:2]).all() and np.isnan(out[1][:2]).all()
+    back = lens.undistort(out[0][2:], out[1][2:])
+    np.testing.assert_allclose([back[0][0], back[1][0]], [10.0, -20.0], atol=1e-5)

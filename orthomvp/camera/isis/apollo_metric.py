@@ -75,14 +75,15 @@ class ApolloMetricDistortion:
         xt, yt = ux.copy(), uy.copy()
         finite = np.isfinite(ux) & np.isfinite(uy)
         done = ~finite  # (NaN never converges: without this every call took 50 steps)
-        for _ in range(_ITERATIONS):
-            if done.all():
-                break
-            sx, sy = self._shift(xt, yt)
-            nx, ny = ux - sx, uy - sy
-            converged = (np.abs(nx - xt) <= _TOLERANCE) & (np.abs(ny - yt) <= _TOLERANCE)
-            xt, yt = np.where(done, xt, nx), np.where(done, yt, ny)
-            done = done | converged
+        with np.errstate(over="ignore", invalid="ignore"):  # (far off the lens: diverges)
+            for _ in range(_ITERATIONS):
+                if done.all():
+                    break
+                sx, sy = self._shift(xt, yt)
+                nx, ny = ux - sx, uy - sy
+                converged = (np.abs(nx - xt) <= _TOLERANCE) & (np.abs(ny - yt) <= _TOLERANCE)
+                xt, yt = np.where(done, xt, nx), np.where(done, yt, ny)
+                done = done | converged
         done &= finite
         return np.where(done, xt + self.xp, np.nan), np.where(done, yt + self.yp, np.nan)
 
