@@ -55,7 +55,7 @@ from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
-from orthomvp.geometry.world import check_cameras_above, detect_world
+from orthomvp.geometry.world import check_camera_bodies, check_cameras_above, detect_world
 from orthomvp.io.preflight import count_text, size_text
 
 GRIDS = ("camera", "dem")
@@ -114,8 +114,9 @@ def read_source(
     centres = np.concatenate([sensor_positions(v.camera) for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
         source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
+    check_camera_bodies(source.preview, [v.camera for v in sources])
     if frame != WorldFrame.BODY:  # cameras in a map frame: their file's CRS, if it names one
-        check_stated_crs(sources, source.file_crs, source.preview.name)
+        check_stated_crs(sources, source.crs, source.preview.name)
     if frame is None:
         frame = detect_world(source.preview, centres)
     preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough

@@ -17,6 +17,7 @@ the choice is left to the user (``--world body|map``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -151,3 +152,26 @@ def check_cameras_above(terrain: Terrain, centres: np.ndarray) -> None:
         "CRS and body; is it the right CRS for these cameras (--dem-crs), or do they live in "
         "the DEM's map frame (--world map)?"
     )
+
+
+BODY_TOLERANCE = 0.01
+"""Relative difference of equatorial radii beyond which a camera's body is not the DEM's."""
+
+
+def check_camera_bodies(terrain: Terrain, cameras: Sequence[object]) -> None:
+    """GeometryError when a camera of ``cameras`` that knows its body's ellipsoid (a CSM
+    camera: an ISD's or a cube's radii) is of another body than the DEM's CRS: equatorial radii
+    more than :data:`BODY_TOLERANCE` apart, such as a lunar cube on a DEM whose CRS lost its
+    body and says WGS 84. Cameras that know no body are not checked."""
+    a = terrain.radii[0]
+    for k, camera in enumerate(cameras, start=1):
+        ellipsoid = getattr(camera, "ellipsoid", None)
+        theirs = getattr(ellipsoid, "semi_major", None)
+        if theirs is None or abs(theirs - a) <= BODY_TOLERANCE * a:
+            continue
+        raise GeometryError(
+            f"{terrain.name}: camera {k} is of a body of equatorial radius {theirs / 1000:,.1f} "
+            f"km, the DEM's CRS ({terrain.geodetic_crs.name}) of one of {a / 1000:,.1f} km: "
+            "give the DEM's CRS for the cameras' body with --dem-crs (e.g. IAU_2015:30100 for "
+            "the Moon, IAU_2015:49900 for Mars)"
+        )
