@@ -49,3 +49,33 @@ def test_a_lunar_cube_on_a_dem_that_says_earth(tmp_path: Path) -> None:
     with rasterio.open(out) as a, rasterio.open(own) as b:
         np.testing.assert_array_equal(a.read(), b.read())
         assert np.isfinite(a.read(1)).sum() > 1000
+
+
+@pytest.mark.parametrize(
+    ("dem_radii", "camera_radii", "same"),
+    [
+        ((262_000.0, 262_000.0), (289_000.0, 229_000.0), True),  # Vesta: a sphere, an ellipsoid
+        ((1_737_400.0, 1_737_400.0), (1_737_400.0, 1_737_400.0), True),
+        ((3_396_190.0, 3_376_200.0), (3_396_190.0, 3_396_190.0), True),
+        ((6_378_137.0, 6_356_752.3), (1_737_400.0, 1_737_400.0), False),  # the Moon on WGS 84
+        ((6_378_137.0, 6_356_752.3), (3_396_190.0, 3_376_200.0), False),  # Mars on WGS 84
+        ((1_737_400.0, 1_737_400.0), (3_396_190.0, 3_376_200.0), False),  # Mars on the Moon
+    ],
+)
+def test_one_body_or_two(
+    dem_radii: tuple[float, float], camera_radii: tuple[float, float], same: bool
+) -> None:
+    """Bodies are told apart by their spans of radii (each widened by a tenth), so that a
+    small body given as a sphere and as an ellipsoid is one body."""
+    from types import SimpleNamespace
+
+    from orthomvp.camera.csm.geometry import Ellipsoid
+    from orthomvp.geometry.world import check_camera_bodies
+
+    dem = SimpleNamespace(radii=dem_radii, name="dem.tif", geodetic_crs=SimpleNamespace(name="X"))
+    camera = SimpleNamespace(ellipsoid=Ellipsoid(*camera_radii))
+    if same:
+        check_camera_bodies(dem, [object(), camera])
+    else:
+        with pytest.raises(GeometryError, match="dem.tif: camera 2 is of a body"):
+            check_camera_bodies(dem, [object(), camera])

@@ -154,20 +154,26 @@ def check_cameras_above(terrain: Terrain, centres: np.ndarray) -> None:
     )
 
 
-BODY_TOLERANCE = 0.01
-"""Relative difference of equatorial radii beyond which a camera's body is not the DEM's."""
+BODY_TOLERANCE = 0.1
+"""How far (relative) a radius may lie outside another ellipsoid's span of radii for both to
+be of one body: datasets give a small body's shape differently (Vesta's 289 x 229 km ellipsoid,
+or a sphere of its mean radius)."""
 
 
 def check_camera_bodies(terrain: Terrain, cameras: Sequence[object]) -> None:
     """GeometryError when a camera of ``cameras`` that knows its body's ellipsoid (a CSM
-    camera: an ISD's or a cube's radii) is of another body than the DEM's CRS: equatorial radii
-    more than :data:`BODY_TOLERANCE` apart, such as a lunar cube on a DEM whose CRS lost its
-    body and says WGS 84. Cameras that know no body are not checked."""
+    camera: an ISD's or a cube's radii) is of another body than the DEM's CRS: their spans of
+    radii, each widened by :data:`BODY_TOLERANCE`, do not meet (a lunar cube on a DEM whose CRS
+    lost its body and says WGS 84). Cameras that know no body are not checked."""
     a = terrain.radii[0]
+    ours = (min(terrain.radii) * (1 - BODY_TOLERANCE), max(terrain.radii) * (1 + BODY_TOLERANCE))
     for k, camera in enumerate(cameras, start=1):
         ellipsoid = getattr(camera, "ellipsoid", None)
-        theirs = getattr(ellipsoid, "semi_major", None)
-        if theirs is None or abs(theirs - a) <= BODY_TOLERANCE * a:
+        if ellipsoid is None:
+            continue
+        theirs = ellipsoid.semi_major
+        low = min(theirs, ellipsoid.semi_minor) * (1 - BODY_TOLERANCE)
+        if low <= ours[1] and ours[0] <= max(theirs, ellipsoid.semi_minor) * (1 + BODY_TOLERANCE):
             continue
         raise GeometryError(
             f"{terrain.name}: camera {k} is of a body of equatorial radius {theirs / 1000:,.1f} "
