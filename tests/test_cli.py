@@ -338,3 +338,22 @@ def test_bench_peer_data_default(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert run("bench", "--peer", "orthority").stdout == "ran ngi\n"
     assert used == [None, tmp_path / "ngi-aerial"]
     assert "$ORTHOMVP_DATA/ngi-aerial" in "".join(run("bench", "--help").stdout.split())
+
+
+def test_quiet_after_the_command(crater_dir: Path, tmp_path: Path) -> None:
+    """``-q`` after the command (and its arguments) is ``-q`` before it: no summary, the same
+    output; after ``--`` it is not an option."""
+    from orthomvp.cli import quiet_first
+
+    base = [
+        "ortho", str(crater_dir / "dem.tif"), str(crater_dir / "oblique.tif"),
+        str(crater_dir / "oblique.tsai"), "--grid", "dem",
+    ]  # fmt: skip
+    loud = run(*base, "-o", str(tmp_path / "a.tif"))
+    quiet = run(*base, "-o", str(tmp_path / "b.tif"), "-q")
+    assert loud.returncode == quiet.returncode == 0
+    assert "wrote" in loud.stdout and quiet.stdout == ""
+    with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
+        np.testing.assert_array_equal(a.read(), b.read())
+    assert quiet_first(["ortho", "x", "--quiet", "--", "-q"]) == ["-q", "ortho", "x", "--", "-q"]
+    assert quiet_first(["ortho", "x"]) == ["ortho", "x"]

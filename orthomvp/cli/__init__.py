@@ -68,6 +68,16 @@ def cli(ctx: click.Context, quiet: bool) -> None:
         raise click.UsageError("no command given; 'orthomvp --help' lists the commands")
 
 
+def quiet_first(args: list[str]) -> list[str]:
+    """``args`` with ``-q``/``--quiet`` given after the command (before any ``--``) moved in
+    front of it, where the group takes it: ``orthomvp ortho ... -q`` as ``orthomvp -q ortho``."""
+    end = args.index("--") if "--" in args else len(args)
+    quiet = [a for a in args[:end] if a in ("-q", "--quiet")]
+    if not quiet:
+        return args
+    return ["-q", *(a for a in args[:end] if a not in ("-q", "--quiet")), *args[end:]]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default: ``sys.argv[1:]``); returns the exit status
     (see the module docstring).
@@ -76,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     is made and invoked here, so that every error, Ctrl-C and SIGTERM included, is reported
     below as one line (click would turn Ctrl-C into an Abort after writing a blank line).
     """
-    args = sys.argv[1:] if argv is None else [str(arg) for arg in argv]
+    args = quiet_first(sys.argv[1:] if argv is None else [str(arg) for arg in argv])
     if "orthomvp.io.outputs" in sys.modules:  # the outputs of an earlier command of this process
         sys.modules["orthomvp.io.outputs"].written.clear()
     with sigterm_raises(), one_line_warnings():
