@@ -7,7 +7,6 @@ neither frame."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,19 +31,20 @@ def check_stated_crs(sources: Sequence[ImageSource], dem_crs: FileCRS, dem: str)
     camera's horizontal position lies more than :data:`AGREE` metres from where the same
     numbers lie in the CRS ``dem_crs`` of the DEM ``dem`` (its horizontal part); files that
     state none, and cameras given as objects, are not checked."""
+    stated, seen = [], set()
+    for view in sources:
+        file = view.camera_file
+        if file is not None and file not in seen:
+            seen.add(file)
+            if (text := stated_crs(file)) is not None:
+                stated.append((view, file, text))
+    if not stated:
+        return  # (pyproj not imported: a map-frame run may never need it)
     from pyproj import Transformer
     from pyproj.exceptions import ProjError
 
     dem_horizontal = horizontal_crs(as_pyproj(dem_crs))
-    seen: set[Path] = set()
-    for view in sources:
-        file = view.camera_file
-        if file is None or file in seen:
-            continue
-        seen.add(file)
-        text = stated_crs(file)
-        if text is None:
-            continue
+    for view, file, text in stated:
         where = file.with_suffix(".prj").name if file.suffix.lower() == ".csv" else "world_crs"
         theirs = parse_crs(text, f"{file} ({where})")
         x, y, _ = sensor_positions(view.camera)[0]
