@@ -49,11 +49,13 @@ def engine(dem: Path, views: list, tmp: Path, name: str, options: MosaicOptions 
 def test_one_image_mosaic_is_a_mosaic(crater_dir: Path, tmp_path: Path, holes: str) -> None:
     """The crater's oblique view alone (its hidden posts: occluded and facing away): a mosaic
     with the source's view, flag and weight bands; visible posts take the orthophoto's values
-    bit for bit; every post carries the flag its code gives under the policy (behind fills
-    the posts facing away from the same view, naive every post inside the image, both with
-    the naive orthophoto's values; inpaint fills small holes, from no view); the report
-    counts the flags; the flags are those of the view given twice (the N-view path) and the
-    in-memory mosaic's."""
+    bit for bit, but where the clear pixels (which act near the image's own occlusion
+    boundary, as for every view of a mosaic) resample them, and everywhere with clear=False;
+    every post carries the flag its code gives under the policy (behind fills the posts facing
+    away from the same view, naive every post inside the image, both with the naive
+    orthophoto's values; inpaint fills small holes, from no view); the report counts the
+    flags. The mosaic of the view given twice (the N-view path, views that agree) and the
+    in-memory mosaic give the same flags and values."""
     dem, view = crater_dir / "dem.tif", (crater_dir / "oblique.tif", crater_dir / "oblique.tsai")
     got = engine(dem, [view], tmp_path, "one", MosaicOptions(holes=holes))
     assert got["plan"].mosaic is not None
@@ -63,7 +65,12 @@ def test_one_image_mosaic_is_a_mosaic(crater_dir: Path, tmp_path: Path, holes: s
     ortho = engine(dem, [view], tmp_path, "ortho", None)["ortho"]
     visible = flags == Flag.VISIBLE
     assert visible.sum() > 1000 and (codes[visible] == Code.VISIBLE).all()
-    np.testing.assert_array_equal(data[:, visible], ortho[:, visible])
+    memory = mosaic(Terrain.read(dem), [load_view(*view)], holes=holes)
+    moved = (data != ortho).any(axis=0) & visible
+    assert 20 < moved.sum() < 0.1 * visible.sum()
+    np.testing.assert_array_equal(moved, memory.resampled[0] & visible)
+    plain = engine(dem, [view], tmp_path, "plain", MosaicOptions(holes=holes, clear=False))
+    np.testing.assert_array_equal(plain["ortho"][:, visible], ortho[:, visible])
     filled = np.isfinite(data).all(axis=0)
     fill = {"behind": Flag.BEHIND, "naive": Flag.NAIVE, "inpaint": Flag.INPAINTED}.get(holes)
     expect = np.select(
@@ -93,7 +100,7 @@ def test_one_image_mosaic_is_a_mosaic(crater_dir: Path, tmp_path: Path, holes: s
     copy = shutil.copy(view[0], tmp_path / "copy.tif")
     two = engine(dem, [view, (copy, view[1])], tmp_path, "two", MosaicOptions(holes=holes))
     np.testing.assert_array_equal(two["source"][1], flags)
-    memory = mosaic(Terrain.read(dem), [load_view(*view)], holes=holes)
+    np.testing.assert_allclose(two["ortho"], data, rtol=1e-6, equal_nan=True)
     np.testing.assert_array_equal(memory.flags, flags)
     np.testing.assert_array_equal(memory.source, view_band)
     np.testing.assert_allclose(memory.data, data, rtol=1e-6, equal_nan=True)
@@ -133,17 +140,23 @@ def test_one_image_on_the_command_line(crater_dir: Path, tmp_path: Path, capsys)
             assert (flags == Flag.NAIVE).sum() > 100
 
 
+def crop_rows(dem: Path, out: Path, first: int) -> Path:
+    """The DEM's rows from ``first`` on, written to ``out``."""
+    with rasterio.open(dem) as src:
+        window = rasterio.windows.Window(0, first, src.width, src.height - first)
+        move = src.transform @ Affine.translation(0, first)
+        profile = src.profile | {"height": window.height, "transform": move}
+        with rasterio.open(out, "w", **profile) as dst:
+            dst.write(src.read(window=window))
+    return out
+
+
 @pytest.fixture(scope="module")
 def partial(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     """The crater's DEM rows 36 and below, and its views with the nadir image cropped to its
     top-left quarter (camera cropped alike), which images DEM rows 0 to 30 only."""
     out = tmp_path_factory.mktemp("left-out")
-    with rasterio.open(crater_dir / "dem.tif") as src:
-        window = rasterio.windows.Window(0, 36, src.width, src.height - 36)
-        move = src.transform @ Affine.translation(0, 36)
-        profile = src.profile | {"height": window.height, "transform": move}
-        with rasterio.open(out / "dem.tif", "w", **profile) as dst:
-            dst.write(src.read(window=window))
+    crop_rows(crater_dir / "dem.tif", out / "dem.tif", 36)
     views = []
     for name in ("oblique", "nadir", "fore"):
         image = crater_dir / f"{name}.tif"
@@ -193,6 +206,24 @@ def test_an_image_that_sees_no_post_is_left_out(
     assert not src3[3].any() and not three["visibility"][1].any()
     np.testing.assert_array_equal(three["visibility"][[0, 2]], two["visibility"])
     assert three["report"].taken == [two["report"].taken[0], 0, two["report"].taken[1]]
+
+
+def test_an_image_whose_box_only_brushes_the_grid(
+    crater_dir: Path, partial: dict, tmp_path: Path
+) -> None:
+    """From DEM row 32 on, the nadir quarter's image box (with its margin of 2.5 pixels) meets
+    some tiles, so the plan keeps it, but no post projects inside the image: the run leaves
+    it out with one LeftOutWarning (it raised before), and the mosaic is the oblique image's
+    alone bit for bit."""
+    dem = crop_rows(crater_dir / "dem.tif", tmp_path / "dem.tif", 32)
+    views = partial["views"][:2]
+    with pytest.warns(LeftOutWarning, match="1 of 2 images sees no post") as caught:
+        two = engine(dem, views, tmp_path, "two", MosaicOptions())
+    assert len(caught) == 1 and two["plan"].left_out == ()
+    assert any(1 in job.views for job in two["plan"].tiles) and two["report"].inside[1] == 0
+    one = engine(dem, views[:1], tmp_path, "one", MosaicOptions())
+    np.testing.assert_array_equal(two["ortho"], one["ortho"])
+    np.testing.assert_array_equal(two["source"][:3], one["source"])
 
 
 def test_left_out_errors_and_the_in_memory_mosaic(partial: dict, tmp_path: Path) -> None:

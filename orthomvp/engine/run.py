@@ -397,7 +397,8 @@ def _run(
                 seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
                 bar.update()
             part = taking_part(plan, report.inside)
-            check_views([plan.views[k] for k in part], [1] * len(part), [seen[k] for k in part])
+            inside = [report.inside[k] for k in part]
+            check_views([plan.views[k] for k in part], inside, [seen[k] for k in part])
             if "ortho" in kinds:
                 check_filled(plan.views, report)
             t0 = time.perf_counter()

@@ -297,7 +297,6 @@ def mosaic(
         correction = solve_balance(stats, options.balance, options.reference, left_out=left)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    blocked = np.zeros(shape, bool)
     sure = (codes == Code.VISIBLE) & ~doubt
 
     def test(posts: np.ndarray) -> np.ndarray:
@@ -328,12 +327,11 @@ def mosaic(
                 clear.append(weight)
         return np.concatenate(taken, axis=1), np.concatenate(clear)
 
-    support = Support(test, sure) if n > 1 else None  # (only where another view can take over)
-    if support is not None:
-        blocked = support(candidates(sure))
+    support = Support(test, sure)
+    blocked = support(candidates(sure))
     comp = compose(
         values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, support=support, resample=resample if support else None, fused=fused,
+        blocked=blocked, support=support, resample=resample, fused=fused,
     )  # fmt: skip
     return Mosaic(
         comp.data,
