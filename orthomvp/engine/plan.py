@@ -407,7 +407,7 @@ def plan_ortho(
         heights=HeightOptions(vertical_datum, height_offset),
         stack=stack,
     )
-    if mosaic and mosaic.balance and mosaic.reference in left_out:  # (InputError: the user's)
+    if mosaic and mosaic.balance and mosaic.reference in left_out:
         raise InputError(f"balance reference {mosaic.reference + 1} sees no post of the grid")
     spacing = source.post_spacing()
     post_scale = 1.0 if out.on_dem else grid_spacing(out, source) / spacing
