@@ -55,3 +55,9 @@ class OutputError(OrthoMVPError, OSError):
 class OrthoMVPWarning(UserWarning):
     """Something a user should know that does not stop the work (infinite DEM heights taken
     as nodata, an image that covers only part of the DEM); the CLI prints it as one line."""
+
+
+class LeftOutWarning(OrthoMVPWarning):
+    """Some of a mosaic's or a fit's images see no post of the grid: they are left out, named
+    in one warning (they keep their numbers: a left-out image's never appears in the source
+    raster)."""

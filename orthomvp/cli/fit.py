@@ -114,7 +114,7 @@ def fit(
     input's convention, above the ellipsoid where its vertical datum was converted, its CRS
     saying which; NaN where fewer than 2 views see a post) and, on request, the other
     per-post results, all on the DEM grid, tile by tile in bounded memory (the same results as
-    in one piece)."""
+    in one piece). Images that see no post of the DEM are left out, with one warning."""
     from orthomvp.engine import FitOutputs, plan_fit, run_fit
     from orthomvp.mvp import FitOptions
 

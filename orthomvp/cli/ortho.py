@@ -334,7 +334,8 @@ def mosaic(
     feathered over --blend posts, optionally balanced; an image never gives a post it does
     not see (except --holes naive, flagged); the summary counts the empty posts by reason.
     --source records which image (1-based, in command-line order; 0 = none) each post came
-    from, how (or why it is empty), and the blend weights. --odm DIR
+    from, how (or why it is empty), and the blend weights. One image makes a mosaic too;
+    images that see no post of the grid are left out, with one warning. --odm DIR
     takes the DEM, images and cameras of an OpenDroneMap dataset (the cameras in the DEM's
     CRS)."""
     outputs = [

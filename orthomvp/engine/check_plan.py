@@ -190,7 +190,7 @@ def plan_check(
     )
     eps, window, labels = check_options(len(pairs), eps_values, window, names)
     sources = tuple(image_source(image, camera) for image, camera in pairs)
-    source, sources, grid, jobs, reach, elevation, tile = tile_grid(
+    source, sources, grid, jobs, reach, elevation, tile, left_out = tile_grid(
         dem,
         sources,
         tile=tile,
@@ -220,5 +220,6 @@ def plan_check(
         tuple(reach),
         tuple(elevation),
         progress=progress,
+        left_out=left_out,
     )
     return CheckPlan(base, eps, window, labels)

@@ -57,7 +57,7 @@ from orthomvp.engine.tiling import (
     largest_dem_window,
     peak_bytes,
 )
-from orthomvp.errors import InputError
+from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.terrain import perimeter
 from orthomvp.mvp import FitOptions
@@ -301,9 +301,10 @@ def plan_fit(
     :func:`~orthomvp.engine.run_fit`; False prints nothing.
 
     Reads the DEM once in blocks, each image twice in blocks (its statistics), and the
-    cameras. Raises InputError for bad options and GeometryError when an image sees none of
-    the DEM; warns (:class:`~orthomvp.engine.HaloWarning`) when a camera's occluder halo is
-    larger than the DEM.
+    cameras. Raises InputError for bad options and GeometryError when fewer than 2 images see
+    the DEM (those that see none are left out, with a
+    :class:`~orthomvp.errors.LeftOutWarning`); warns (:class:`~orthomvp.engine.HaloWarning`)
+    when a camera's occluder halo is larger than the DEM.
     """
     dem = dem_path(dem)
     of_type(options, (FitOptions, type(None)), "options", " (FitOptions)")
@@ -336,6 +337,11 @@ def plan_fit(
         progress,
     )
     seen = [any(_sees(box, view) for box in boxes[k]) for k, view in enumerate(sources)]
+    if sum(seen) == 1:  # (none: check_plan says why)
+        raise GeometryError(
+            f"only 1 of the {len(sources)} images sees the DEM ({sources[seen.index(True)].path}): "
+            "a fit needs 2"
+        )
     check_plan(source, sources, boxes, seen, reach, elevation)
     used = sorted({k for job in jobs for k in job.views})
     stats: list[tuple[float, tuple[float, ...]]] = [(0.0, (1.0,) * levels)] * len(sources)

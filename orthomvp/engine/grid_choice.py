@@ -51,7 +51,7 @@ from orthomvp.engine.images import ImageSource
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.stated_crs import check_stated_crs
 from orthomvp.engine.units import check_res, clean_metres, parse_res, to_units, unit_scale
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import GeometryError, InputError, LeftOutWarning
 from orthomvp.geometry.crs import as_crs, as_pyproj
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
@@ -298,6 +298,16 @@ def _no_overlap(view: ImageSource, boxes: list[Box | None], dem: DemSource) -> s
     )
 
 
+def left_out_text(sources: Sequence[ImageSource], left_out: Sequence[int]) -> str:
+    """The :class:`LeftOutWarning` of the views ``left_out`` (0-based) of ``sources``."""
+    names = ", ".join(str(sources[k].path) for k in left_out)
+    see, are = ("sees", "is") if len(left_out) == 1 else ("see", "are")
+    return (
+        f"{len(left_out)} of {len(sources)} images {see} no post of the output grid and {are} "
+        f"left out: {names}"
+    )
+
+
 def check_plan(
     source: DemSource,
     sources: Sequence[ImageSource],
@@ -305,13 +315,21 @@ def check_plan(
     seen: list[bool],
     reach: list[float],
     elevation: list[float],
-) -> None:
-    """GeometryError for a view that no tile sees (``seen``), saying why; a
-    :class:`HaloWarning` for a view whose occluder halo is larger than the DEM."""
+) -> tuple[int, ...]:
+    """The views that no tile sees (``seen``), left out: their indices (0-based), named in one
+    :class:`LeftOutWarning`; GeometryError, saying why, when no view sees a tile (``boxes``:
+    the first view's, for the reason). A :class:`HaloWarning` for a view whose occluder halo
+    is larger than the DEM."""
+    if not any(seen):
+        why = _no_overlap(sources[0], boxes[0], source)
+        if len(sources) > 1:
+            why = f"none of the {len(sources)} images sees a post of the output grid; {why}"
+        raise GeometryError(why)
+    left_out = tuple(k for k, s in enumerate(seen) if not s)
+    if left_out:
+        warnings.warn(left_out_text(sources, left_out), LeftOutWarning, stacklevel=3)
     for k, view in enumerate(sources):
-        if not seen[k]:
-            raise GeometryError(_no_overlap(view, boxes[k], source))
-        if reach[k] > max(source.shape):
+        if seen[k] and reach[k] > max(source.shape):
             warnings.warn(
                 f"{view.path}: lines of sight as low as {elevation[k]:.1f} degrees above the "
                 f"horizon can be blocked by terrain up to {reach[k]:,.0f} DEM posts away, more "
@@ -320,3 +338,4 @@ def check_plan(
                 HaloWarning,
                 stacklevel=3,
             )
+    return left_out

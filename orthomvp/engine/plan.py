@@ -107,10 +107,11 @@ class Plan:
     ``interp``). ``spacing`` is one DEM post in metres at the DEM centre, ``post_scale`` one
     output post in DEM posts (both for the epsilon test, the same in every tile);
     ``reach`` and ``elevation`` per view: the farthest occluder track in DEM posts and the
-    lowest line of sight in degrees over all tiles. ``mosaic`` (two views or more) says how
-    views combine, ``correction`` the radiometric balance found by
+    lowest line of sight in degrees over all tiles. ``mosaic`` (always with two views or
+    more) says how views combine, ``correction`` the balance found by
     :func:`orthomvp.engine.survey.survey`; ``progress`` whether a run reports progress unless
-    told otherwise (the planner's)."""
+    told otherwise; ``left_out`` the views (0-based) that see no post of the grid: in
+    ``views`` (indices keep the caller's numbering), in no tile."""
 
     dem: DemSource
     grid: OutputGrid
@@ -127,6 +128,7 @@ class Plan:
     mosaic: MosaicOptions | None = None
     correction: Correction | None = None
     progress: bool = True
+    left_out: tuple[int, ...] = ()
 
     @property
     def bands(self) -> int:
@@ -350,16 +352,18 @@ def plan_ortho(
     heights) say how its heights become the cameras' (:mod:`orthomvp.geometry.datum`).
 
     With two views or more the plan is a mosaic, combined as ``mosaic`` says (default
-    :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); every tile then
-    computes its posts plus the options' margin, so tiles join as one untiled run would.
+    :class:`~orthomvp.ortho.composite.MosaicOptions`: seamlines and blending on); with one view
+    a mosaic when ``mosaic`` is given (source raster, flags, hole policy as with more), else
+    an orthophoto. A mosaic's tiles compute their posts plus the options' margin, so tiles join
+    as one untiled run would. Views that see no post of the grid are left out
+    (:attr:`Plan.left_out`, one :class:`~orthomvp.errors.LeftOutWarning`).
 
     ``progress``: progress bars (or log lines) and notes on stderr, here and, by default, in
     :func:`~orthomvp.engine.run_plan`; False prints nothing.
 
-    Reads the DEM once in blocks and the images' headers. Raises GeometryError when an image
-    sees none of the grid, and warns (:class:`~orthomvp.engine.grid_choice.HaloWarning`)
-    when a camera's occluder halo is larger than the DEM.
-    """
+    Reads the DEM once in blocks and the images' headers. Raises GeometryError when no image
+    sees the grid (InputError when the balance's reference is left out); warns (HaloWarning)
+    when a camera's occluder halo is larger than the DEM."""
     dem = dem_path(dem)
     tile = check_tile(tile)
     eps = eps_posts(eps)
@@ -380,11 +384,11 @@ def plan_ortho(
     sources = _views(views)
     if mosaic is not None and not isinstance(mosaic, MosaicOptions):
         raise InputError(f"mosaic must be MosaicOptions or None, got {type(mosaic).__name__}")
-    mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else None
+    mosaic = (mosaic or MosaicOptions()) if len(sources) > 1 else mosaic
     margin = mosaic.margin if mosaic is not None else 0
     smallest = SINGLE_VIEW_TILE if mosaic is None else SMALL_TILE
     stack = max(v.bands for v in sources) if mosaic is not None else 0
-    source, sources, out, jobs, reach, elevation, tile = tile_grid(
+    source, sources, out, jobs, reach, elevation, tile, left_out = tile_grid(
         dem,
         sources,
         grid=grid,
@@ -403,6 +407,8 @@ def plan_ortho(
         heights=HeightOptions(vertical_datum, height_offset),
         stack=stack,
     )
+    if mosaic and mosaic.balance and mosaic.reference in left_out:
+        raise InputError(f"balance reference {mosaic.reference + 1} sees no post of the grid")
     spacing = source.post_spacing()
     post_scale = 1.0 if out.on_dem else grid_spacing(out, source) / spacing
     return Plan(
@@ -420,13 +426,14 @@ def plan_ortho(
         tuple(elevation),
         mosaic,
         progress=progress,
+        left_out=left_out,
     )
 
 
 class TiledGrid(NamedTuple):
     """What :func:`tile_grid` gives: the DEM source, the views, the output grid, the tiles'
     jobs, per view the farthest occluder track (DEM posts) and the lowest line of sight
-    (degrees), and the tile side (posts)."""
+    (degrees), the tile side (posts), and the views left out (:func:`check_plan`)."""
 
     source: DemSource
     sources: tuple[ImageSource, ...]
@@ -435,6 +442,7 @@ class TiledGrid(NamedTuple):
     reach: list[float]
     elevation: list[float]
     tile: int
+    left_out: tuple[int, ...]
 
 
 def tile_grid(
@@ -486,9 +494,7 @@ def tile_grid(
         source, to_dem, out, sources, windows, occlusion, margin, found, progress
     )
     seen = [any(k in job.views for job in jobs) for k in range(len(sources))]
-    for k in range(len(sources)):
-        if not seen[k]:  # its box in every tile, for the message saying why
-            alone = (sources[k],)
-            boxes[k] = _jobs(source, to_dem, out, alone, windows, False, margin)[1][0]
-    check_plan(source, sources, boxes, seen, reach, elevation)
-    return TiledGrid(source, sources, out, jobs, reach, elevation, tile)
+    if not any(seen):  # the first view's box in every tile, for the message saying why
+        boxes[0] = _jobs(source, to_dem, out, sources[:1], windows, False, margin)[1][0]
+    left_out = check_plan(source, sources, boxes, seen, reach, elevation)
+    return TiledGrid(source, sources, out, jobs, reach, elevation, tile, left_out)

@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,13 +34,14 @@ from orthomvp.engine.cluster import (
 )
 from orthomvp.engine.copies import Copies, image_copies, reread
 from orthomvp.engine.grid import GDAL_CACHE
+from orthomvp.engine.grid_choice import left_out_text
 from orthomvp.engine.plan import Plan
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.schedule import Schedule, all_local, schedule
 from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_bytes, output_set, plan_inputs
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import GeometryError, InputError, LeftOutWarning
 from orthomvp.io.raster import held_rasters
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.holes import FLAGS
@@ -394,7 +396,9 @@ def _run(
                 _account(report, result, time.perf_counter() - t0)
                 seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
                 bar.update()
-            check_views(plan.views, report.inside, seen)
+            part = taking_part(plan, report.inside)
+            inside = [report.inside[k] for k in part]
+            check_views([plan.views[k] for k in part], inside, [seen[k] for k in part])
             if "ortho" in kinds:
                 check_filled(plan.views, report)
             t0 = time.perf_counter()
@@ -440,6 +444,21 @@ def check_filled(views: Any, report: RunReport) -> None:
         "below or inside the surface, or are the DEM's heights not those of the cameras "
         "(vertical datum, height offset, radius values)?"
     )
+
+
+def taking_part(plan: Plan, inside: list[int]) -> list[int]:
+    """The views (0-based) whose posts :func:`check_views` checks: all of them in a plan of
+    one view, or when none has a post ``inside`` its image; else those that have. Views that
+    the plan kept but that have none (their image boxes only brush the grid) are left out as
+    the plan's are, with a :class:`~orthomvp.errors.LeftOutWarning`."""
+    every = list(range(len(plan.views)))
+    some = [k for k in every if inside[k]]
+    if len(every) == 1 or not some:
+        return every
+    late = [k for k in every if not inside[k] and k not in plan.left_out]
+    if late:
+        warnings.warn(left_out_text(plan.views, late), LeftOutWarning, stacklevel=2)
+    return some
 
 
 def check_views(views: Any, inside: list[int], seen: list[int]) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 
 from orthomvp.engine.grid import grid_to_dem, output_grid
 from orthomvp.engine.grid_choice import grid_spacing
-from orthomvp.engine.plan import Plan, _jobs
+from orthomvp.engine.plan import Plan, TileJob, _jobs
 from orthomvp.ortho.balance import pair_stats, solve_balance
 from orthomvp.ortho.composite import clamp_blend, overlap_width
 
@@ -61,13 +61,24 @@ def survey_plan(plan: Plan, progress: bool = False) -> tuple[Plan, int]:
     coarse = replace(
         plan,
         grid=grid,
-        tiles=tuple(jobs),
+        tiles=tuple(_without(job, plan.left_out) for job in jobs),
         post_scale=post_scale,
         mosaic=plain,
         correction=None,
         occlusion=plan.occlusion and balance,
     )
     return coarse, step
+
+
+def _without(job: TileJob, left_out: tuple[int, ...]) -> TileJob:
+    """``job`` without the views ``left_out`` (the plan's, which see no post of its grid)."""
+    keep = [i for i, k in enumerate(job.views) if k not in left_out]
+    if len(keep) == len(job.views):
+        return job
+    if not keep:
+        return replace(job, views=(), dem=None, image_windows=())
+    views = tuple(job.views[i] for i in keep)
+    return replace(job, views=views, image_windows=tuple(job.image_windows[i] for i in keep))
 
 
 def survey(plan: Plan, run: Any) -> Plan:
@@ -93,6 +104,8 @@ def survey(plan: Plan, run: Any) -> Plan:
     correction = plan.correction
     if balance:
         stats = pair_stats(values, codes)
-        correction = solve_balance(stats, options.balance, options.reference)
+        correction = solve_balance(
+            stats, options.balance, options.reference, left_out=plan.left_out
+        )
     blend = clamp_blend(options.blend, overlap_width(codes, step))
     return replace(plan, mosaic=replace(options, blend=blend), correction=correction)

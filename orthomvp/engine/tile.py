@@ -399,7 +399,7 @@ def _mosaic_tile(
     doubt = np.zeros((m, *shape), bool)
     # the doubtful posts' slack only for a hole policy that uses it (fill_holes)
     slack = np.zeros((m, *shape)) if holes != "empty" else None
-    testing = caster is not None and m > 1  # the support test (its samples: SupportSamples)
+    testing = caster is not None  # the support test (its samples: SupportSamples)
     kept: list[SupportSamples] = []
     fields = frozenset({"emission", "miss", "gsd"})
     for i, k in enumerate(views):

@@ -7,6 +7,7 @@ fixed or the mean held at identity (:func:`solve_balance`, :data:`BALANCES`), an
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,11 +86,25 @@ def _constrained(
     return np.linalg.solve(kkt, rhs)[:n]
 
 
-def solve_balance(stats: np.ndarray, mode: str, reference: int | None) -> Correction:
+def solve_balance(
+    stats: np.ndarray, mode: str, reference: int | None, *, left_out: Sequence[int] = ()
+) -> Correction:
     """Per-view gains and offsets from :func:`pair_stats` (summed over windows): for every
     overlapping pair, weighted by the root of its posts, gains match the means (``mode``
     "gain") or the standard deviations ("gain-offset", whose offsets then match the means),
-    with view ``reference`` held fixed (gain 1, offset 0) or the mean gain 1 and offset 0."""
+    with view ``reference`` held fixed (gain 1, offset 0) or the mean gain 1 and offset 0.
+    Views ``left_out`` (that see no post) take no part: gain 1, offset 0, the others' as
+    without them."""
+    if left_out:
+        n, bands = stats.shape[0], stats.shape[2]
+        if reference in left_out:
+            raise InputError(f"balance reference {reference + 1} sees no post of the grid")
+        kept = [k for k in range(n) if k not in left_out]
+        ref = None if reference is None else kept.index(reference)
+        solved = solve_balance(stats[np.ix_(kept, kept)], mode, ref)
+        gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
+        gains[kept], offsets[kept] = solved.gains, solved.offsets
+        return Correction(gains, offsets)
     n, _, bands, _ = stats.shape
     if reference is not None and reference >= n:
         raise InputError(f"balance reference {reference + 1} is not one of the {n} views")

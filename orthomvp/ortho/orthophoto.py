@@ -14,6 +14,7 @@ stay nodata.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -23,7 +24,7 @@ from affine import Affine
 
 from orthomvp.camera import Camera, as_image, check_image
 from orthomvp.codes import Code, Interp
-from orthomvp.errors import InputError
+from orthomvp.errors import GeometryError, InputError, LeftOutWarning
 from orthomvp.geometry.terrain import Terrain
 from orthomvp.geometry.vectors import finite_rows
 from orthomvp.io.preflight import check_memory, count_text
@@ -230,7 +231,7 @@ def mosaic(
     options: MosaicOptions | None = None,
     holes: str | None = None,
 ) -> Mosaic:
-    """One orthophoto from several (image, camera) views, combined as ``options`` say
+    """One orthophoto from (image, camera) views, combined as ``options`` say
     (default :class:`~orthomvp.ortho.composite.MosaicOptions`: emission priority, seamlines,
     blending over 8 posts, no balance, holes left empty; see :mod:`orthomvp.ortho.composite`), as
     the engine's mosaic does. The balance's statistics come from the whole grid (the engine's from a
@@ -238,7 +239,9 @@ def mosaic(
     All images must have the same number of bands. ``eps`` and ``interp`` as in
     :func:`orthorectify`; ``caster`` reuses a ray caster built on this terrain's occluder surface
     (one is built otherwise). ``holes``: the hole policy
-    (:data:`~orthomvp.ortho.holes.HOLES`; None: that of ``options``, by default ``empty``)."""
+    (:data:`~orthomvp.ortho.holes.HOLES`; None: that of ``options``, by default ``empty``).
+    One view gives its mosaic (flags, holes, source) as several do. Of several, views that see
+    no post of the grid are left out (:func:`left_out`); GeometryError when none sees one."""
     interp = Interp(interp)
     of_type(terrain, Terrain, "terrain")
     options = options or MosaicOptions()
@@ -266,7 +269,8 @@ def mosaic(
     visibilities = []
     whole = (slice(None), slice(None))
     fused = codes[0].size >= FUSED_POSTS  # (the numba kernels pay for their load)
-    path = VisibilityPath(geometry=Geometry.SEPARABLE_KERNEL if fused else Geometry.SEPARABLE)
+    geometry = Geometry.SEPARABLE_KERNEL if fused else Geometry.SEPARABLE
+    path = VisibilityPath(geometry=geometry, strict=n == 1)  # (several: left_out says)
     for k, (image, camera) in enumerate(views):
         camera = check_image(image, camera)
         vis = compute_visibility(
@@ -284,14 +288,15 @@ def mosaic(
         if options.priority == "nadir" or options.holes == "naive":
             inside = finite_rows(vis.uv)
             nadir[k] = np.where(inside, nadir_angle(terrain, whole, camera, vis.uv), np.inf)
-        values[k][:, need] = sample_image(image, vis.uv[need], interp)
+        if need.any():  # (none in a view left out)
+            values[k][:, need] = sample_image(image, vis.uv[need], interp)
+    left = left_out(codes)
     correction = None
     if options.balance is not None:
         stats = pair_stats(values, codes)
-        correction = solve_balance(stats, options.balance, options.reference)
+        correction = solve_balance(stats, options.balance, options.reference, left_out=left)
     blend = clamp_blend(options.blend, overlap_width(codes)) if options.blend else 0
     options = replace(options, blend=blend)
-    blocked = np.zeros(shape, bool)
     sure = (codes == Code.VISIBLE) & ~doubt
 
     def test(posts: np.ndarray) -> np.ndarray:
@@ -322,12 +327,11 @@ def mosaic(
                 clear.append(weight)
         return np.concatenate(taken, axis=1), np.concatenate(clear)
 
-    support = Support(test, sure) if n > 1 else None  # (only where another view can take over)
-    if support is not None:
-        blocked = support(candidates(sure))
+    support = Support(test, sure)
+    blocked = support(candidates(sure))
     comp = compose(
         values, codes, emission, gsd, nadir, options, correction, doubt, slack=slack,
-        blocked=blocked, support=support, resample=resample if support else None, fused=fused,
+        blocked=blocked, support=support, resample=resample, fused=fused,
     )  # fmt: skip
     return Mosaic(
         comp.data,
@@ -340,6 +344,33 @@ def mosaic(
         correction,
         comp.resampled,
     )
+
+
+def left_out(codes: np.ndarray) -> tuple[int, ...]:
+    """The views (0-based) of a mosaic's ``codes`` (views, rows, cols) that see no post (all
+    outside their images), named in one :class:`~orthomvp.errors.LeftOutWarning`;
+    GeometryError when every view is, or when a view sees only posts facing away (as
+    :func:`~orthomvp.occlusion.visibility.compute_visibility` raises for one)."""
+    n = len(codes)
+    inside = (codes != Code.NODATA).reshape(n, -1).any(axis=1)
+    if not inside.any():
+        raise GeometryError(f"none of the {n} views sees a post of the grid")
+    seen = np.isin(codes, (Code.VISIBLE, Code.OCCLUDED)).reshape(n, -1).any(axis=1)
+    if (inside & ~seen).any():
+        raise GeometryError(
+            f"view {int(np.argmax(inside & ~seen)) + 1}: every post in the image faces away "
+            "from the camera: it looks at the surface from below"
+        )
+    left = tuple(int(k) for k in np.flatnonzero(~inside))
+    if left:
+        text = ", ".join(str(k + 1) for k in left)
+        see, are = ("sees", "is") if len(left) == 1 else ("see", "are")
+        warnings.warn(
+            f"{len(left)} of {n} views {see} no post of the grid and {are} left out: {text}",
+            LeftOutWarning,
+            stacklevel=3,
+        )
+    return left
 
 
 def orthophoto_bytes(shape: tuple[int, int], bands: int) -> float:
