@@ -6,14 +6,20 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
+import rasterio
+from affine import Affine
 from pyproj import CRS
+from rasterio.errors import NotGeoreferencedWarning
 
 from orthomvp.engine.units import check_latitudes, unit_scale
 from orthomvp.errors import InputError
 from tests.conftest import shared
+from tests.test_cli import run as cli_run
 
 
 def test_latitudes_beyond_a_pole_are_refused_on_a_geographic_crs_only() -> None:
@@ -106,3 +112,34 @@ def test_info_names_the_vertical_datum_once(capsys: pytest.CaptureFixture) -> No
     assert main(["info", dem, rpc, "--height-offset", "28"]) == 0
     out = capsys.readouterr().out
     assert "(from EGM2008 heights, shifted for the cameras)" in out, out
+
+
+def test_a_camera_grid_grown_past_the_pole_is_not_refused(tmp_path: Path) -> None:
+    """A geographic DEM reaching the south pole and a nadir camera near it: the default camera
+    grid, grown outward to its lattice, may pass -90 degrees; only bounds the user gives are
+    checked against the poles, so the run writes its orthophoto (as it did before the check)."""
+    dem, image, camera = tmp_path / "dem.tif", tmp_path / "img.tif", tmp_path / "cam.tsai"
+    profile = dict(driver="GTiff", width=500, height=250, count=1, dtype="float32")
+    moon = "+proj=longlat +R=1737400 +no_defs"
+    transform = Affine(0.02, 0.0, 0.0, 0.0, -0.02, -85.0)
+    with rasterio.open(dem, "w", **profile, crs=moon, transform=transform) as ds:
+        ds.write(np.zeros((1, 250, 500), np.float32))
+    ramp = (np.add.outer(np.arange(200), np.arange(200)) % 250).astype(np.uint8)[None]
+    with warnings.catch_warnings():  # (an image has no georeference)
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(image, "w", driver="GTiff", width=200, height=200, count=1,
+                           dtype="uint8") as ds:  # fmt: skip
+            ds.write(ramp)
+    camera.write_text(
+        "VERSION_4\nPINHOLE\nfu = 250.0\nfv = 250.0\ncu = 100\ncv = 100\n"
+        "u_direction = 1.0 0.0 0.0\nv_direction = 0.0 1.0 0.0\nw_direction = 0.0 0.0 1.0\n"
+        "C = 15538.455175349083 1359.4386765487684 -1787331.9412848998\n"
+        "R = -0.08715574274765817 -0.9961567660501535 -0.008693328396189484 "
+        "0.9961946980917455 -0.08715242412403446 -0.0007605676829745822 "
+        "0.0 -0.008726535498373898 0.9999619230641713\npitch = 1.0\nNULL\n"
+    )
+    out = tmp_path / "o.tif"
+    result = cli_run("ortho", str(dem), str(image), str(camera), "-o", str(out))
+    assert result.returncode == 0, result.stderr
+    with rasterio.open(out) as o:
+        assert o.bounds.bottom < -90.0 and np.isfinite(o.read(1)).sum() > 100_000

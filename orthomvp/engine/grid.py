@@ -23,7 +23,6 @@ from rasterio.windows import Window
 
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.progress import Progress
-from orthomvp.engine.units import check_latitudes
 from orthomvp.errors import InputError
 from orthomvp.geometry.crs import as_crs, as_pyproj, dem_georeference
 from orthomvp.geometry.datum import (
@@ -392,7 +391,6 @@ def output_grid(
         left, bottom, right, top = (float(v) for v in bounds)
         if not (right > left and top > bottom):
             raise InputError(f"bounds must be left bottom right top, got {bounds}")
-        check_latitudes((left, bottom, right, top), out_crs)
     if res is not None:
         dx, dy = float(res[0]), float(res[1])
     if not (dx > 0 and dy > 0):

@@ -50,7 +50,14 @@ from orthomvp.engine.halo import Box
 from orthomvp.engine.images import ImageSource
 from orthomvp.engine.progress import Progress
 from orthomvp.engine.stated_crs import check_stated_crs
-from orthomvp.engine.units import check_res, clean_metres, parse_res, to_units, unit_scale
+from orthomvp.engine.units import (
+    check_latitudes,
+    check_res,
+    clean_metres,
+    parse_res,
+    to_units,
+    unit_scale,
+)
 from orthomvp.errors import GeometryError, InputError, LeftOutWarning
 from orthomvp.geometry.crs import as_crs, as_pyproj
 from orthomvp.geometry.datum import HeightOptions
@@ -169,6 +176,8 @@ def choose_grid(
     lengths = parse_res(res)
     radius = dem.preview.radii[0]
     out_crs = dem.crs if crs is None else as_crs(crs, "output CRS")
+    if bounds is not None:  # (the user's: a grid grown to its lattice may pass a pole)
+        check_latitudes(tuple(float(v) for v in bounds), out_crs)
     units = None
     if lengths is not None:
         units, metres = to_units(lengths, out_crs, radius)
