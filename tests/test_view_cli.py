@@ -162,18 +162,24 @@ def test_export_refuses_a_users_folder_and_refreshes_its_own(
     user.mkdir()
     (user / "index.html").write_text("mine")
     (user / "notes.txt").write_text("notes")
+    for sub in ("tiles", "static"):  # folders of the export's names, holding the user's files
+        (user / sub).mkdir()
+        (user / sub / "keep.txt").write_text(sub)
     assert main(["view", dem, "--export", str(user)]) == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("orthomvp: error:"), err
     assert "--export exists and is not empty; give --overwrite" in err[0], err
-    assert files(user) == {"index.html", "notes.txt"}
+    mine = {"index.html", "notes.txt", "tiles/keep.txt", "static/keep.txt"}
+    assert files(user) == mine
     assert (user / "index.html").read_text() == "mine"
     with pytest.raises(InputError, match="overwrite=True"):
         write_export(LayerSet(Path(dem)), user)
-    assert files(user) == {"index.html", "notes.txt"}
+    assert files(user) == mine
     assert main(["view", dem, "--export", str(user), "--overwrite"]) == 0
     assert (user / "index.html").read_text().startswith("<!doctype html>")
     assert (user / "notes.txt").read_text() == "notes"
+    for sub in ("tiles", "static"):  # merged into, not replaced: the user's files stay
+        assert (user / sub / "keep.txt").read_text() == sub
     # an earlier export (two layers) refreshed with one layer: no tile of the other stays
     page, fresh = tmp_path / "page", tmp_path / "fresh"
     assert main(["view", dem, "--export", str(page), *vis]) == 0
@@ -185,3 +191,37 @@ def test_export_refuses_a_users_folder_and_refreshes_its_own(
     assert write_export(LayerSet(Path(dem)), page) > 0  # the API refreshes it too
     assert files(page) == files(fresh)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fresh", "page", "user"]  # no temporaries
+
+
+def test_a_failed_refresh_keeps_the_earlier_export(
+    view_scene: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A rename that fails while an earlier export is refreshed (no permission, a full disk)
+    leaves its tiles and page as they were; ``--export .`` (the working folder) works."""
+    from orthomvp.errors import OutputError
+    from orthomvp.io import outputs
+    from orthomvp.view import LayerSet, write_export
+
+    dem = str(view_scene["start"])
+    page = tmp_path / "page"
+    assert main(["view", dem, "--export", str(page)]) == 0
+    before = {p: p.read_bytes() for p in page.rglob("*") if p.is_file()}
+    real, refused = outputs.os.replace, []
+
+    def refuse(src: object, dst: object) -> None:  # the new tiles' move fails, once
+        if str(dst) == str(page / "tiles") and not refused:
+            refused.append(dst)
+            raise PermissionError(13, "Permission denied", str(src), None, str(dst))
+        real(src, dst)
+
+    monkeypatch.setattr(outputs.os, "replace", refuse)
+    with pytest.raises(OutputError):
+        write_export(LayerSet(Path(dem)), page)
+    monkeypatch.setattr(outputs.os, "replace", real)
+    assert {p: p.read_bytes() for p in page.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["page"]  # no temporaries
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    assert main(["view", dem, "--export", "."]) == 0
+    assert (here / "index.html").is_file()

@@ -291,13 +291,21 @@ def _move_into(
     is first moved into the new directory ``trash`` whole; what else ``target`` holds stays. A
     folder meeting a file, or the reverse, is refused before anything moves
     (:func:`_clashes`); only a failing rename (a full disk, no permission) can leave part of
-    ``source`` moved."""
+    ``source`` moved (the folders moved to ``trash`` then go back)."""
     _clashes(source, target)
     for name in replace:
         if _folder(source / name) and _folder(target / name) and trash is not None:
             trash.mkdir(exist_ok=True)
             os.replace(target / name, trash / name)
-    _merge(source, target)
+    try:
+        _merge(source, target)
+    except BaseException:
+        if trash is not None and trash.is_dir():  # the replaced folders go back as they were
+            for old in trash.iterdir():
+                if (target / old.name).exists():
+                    shutil.rmtree(target / old.name, ignore_errors=True)
+                os.replace(old, target / old.name)
+        raise
 
 
 def _merge(source: Path, target: Path) -> None:
@@ -321,7 +329,7 @@ def atomic_dir(path: str | Path, *, replace: Sequence[str] = ()) -> Iterator[Pat
     left as it was; errors name the files under ``path``, not under the temporary directory.
     Temporary directories of killed runs are removed first (see :func:`remove_stale`).
     """
-    path = Path(path)
+    path = Path(os.path.abspath(path))  # ("." has no name to put a temporary beside)
     if not path.parent.exists():
         raise InputError(f"{path}: parent directory {path.parent} does not exist")
     if path.exists() and not path.is_dir():

@@ -83,7 +83,8 @@ def write_export(
     :func:`export_into`."""
     outdir = Path(outdir)
     check_folder(outdir, "the export folder", overwrite=overwrite, refresh=MARKS)
-    with atomic_dir(outdir, replace=("tiles", "static")) as tmp:
+    earlier = all((outdir / mark).is_file() for mark in MARKS)
+    with atomic_dir(outdir, replace=("tiles", "static") if earlier else ()) as tmp:
         return export_into(layers, tmp, title=title, report=report)
 
 
