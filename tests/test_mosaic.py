@@ -259,6 +259,9 @@ def test_solve_balance_exact() -> None:
     assert mean.gains.mean(axis=0) == pytest.approx([1, 1]) and abs(mean.offsets.mean()) < 1e-6
     corrected = mean.apply(values)
     np.testing.assert_allclose(corrected[1], corrected[0], rtol=1e-4)
+    for left_out in ((), (2,)):  # a reference out of range, with or without a view left out
+        with pytest.raises(InputError, match="balance reference 4 is not one of the 3 views"):
+            solve_balance(stats, "gain", 3, left_out=left_out)
 
 
 def test_box_sum_is_exact_and_zero_off_the_grid() -> None:

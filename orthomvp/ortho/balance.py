@@ -95,8 +95,10 @@ def solve_balance(
     with view ``reference`` held fixed (gain 1, offset 0) or the mean gain 1 and offset 0.
     Views ``left_out`` (that see no post) take no part: gain 1, offset 0, the others' as
     without them."""
+    n, bands = stats.shape[0], stats.shape[2]
+    if reference is not None and not 0 <= reference < n:
+        raise InputError(f"balance reference {reference + 1} is not one of the {n} views")
     if left_out:
-        n, bands = stats.shape[0], stats.shape[2]
         if reference in left_out:
             raise InputError(f"balance reference {reference + 1} sees no post of the grid")
         kept = [k for k in range(n) if k not in left_out]
@@ -105,9 +107,6 @@ def solve_balance(
         gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
         gains[kept], offsets[kept] = solved.gains, solved.offsets
         return Correction(gains, offsets)
-    n, _, bands, _ = stats.shape
-    if reference is not None and reference >= n:
-        raise InputError(f"balance reference {reference + 1} is not one of the {n} views")
     gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
     for b in range(bands):
         mean, std, weight = {}, {}, {}
