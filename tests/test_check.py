@@ -301,3 +301,31 @@ def test_ngi_aerial_tiled_check_equals_in_memory() -> None:
     terrain = replace(terrain, world=detect_world(terrain, centres))
     compare(got, check_views(terrain, loaded, names=names))
     assert len(got.pairs) == 6 and got.pooled(4.0, "visible")["ncc_median"] > 0.85
+
+
+def test_an_image_left_out_of_the_check_is_said_once(crater_dir: Path, tmp_path: Path) -> None:
+    """Of three views of the crater one moved off it (its camera 60 km east) is left out with
+    one warning line; no line names it in a pair that does not overlap, and the other two are
+    checked as they are alone."""
+    from orthomvp.camera import read_camera
+
+    camera = read_camera(crater_dir / "nadir.tsai")
+    x, y, _ = camera.center
+    east = np.array([-y, x, 0.0]) / np.hypot(x, y)
+    away = tmp_path / "away.tsai"
+    write_tsai(replace(camera, center=camera.center + 60_000.0 * east), away)
+    files = [
+        str(crater_dir / f"{n}.{ext}") for n in ("nadir", "oblique") for ext in ("tif", "tsai")
+    ]
+    dem = str(crater_dir / "dem.tif")
+    args = ["--eps", "2"]
+    proc = run("check", dem, *files, str(crater_dir / "nadir.tif"), str(away), "-o",
+               str(tmp_path / "c"), *args)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    warned = [x for x in proc.stderr.splitlines() if x.startswith("orthomvp: warning:")]
+    assert len(warned) == 1 and "is left out" in warned[0], proc.stderr
+    assert "do not overlap" not in proc.stdout and "do not overlap" not in proc.stderr
+    alone = run("check", dem, *files, "-o", str(tmp_path / "a"), *args)
+    assert alone.returncode == 0, alone.stderr
+    median = re.compile(r"median NCC .*")
+    assert median.findall(proc.stdout) == median.findall(alone.stdout) != []
