@@ -339,3 +339,25 @@ def test_whole_flight_over_a_dem_tile(tmp_path: Path, capsys) -> None:
     np.testing.assert_array_equal(src_both[0], 2 * src_one[0])
     assert set(np.unique(src_both[0])) == {0, 2}
     np.testing.assert_array_equal(src_both[1], src_one[1])
+
+
+def test_an_image_left_out_of_a_fit_does_not_set_its_pyramid(partial: dict, tmp_path: Path) -> None:
+    """The image left out (the nadir quarter) is too small for the pyramid the other two allow:
+    it no longer sets the levels, and the fit is the other two's bit for bit."""
+    from orthomvp.mvp.problem import levels_for
+
+    dem, views = partial["dem"], partial["views"]
+    sizes = []
+    for image, _ in views:
+        with rasterio.open(image) as src:
+            sizes.append(min(src.width, src.height))
+    options = FitOptions(hwin=4, levels=3)
+    kept = levels_for(min(sizes[0], sizes[2]), 3)
+    assert levels_for(sizes[1], 3) < kept  # (what the test is about)
+    with pytest.warns(LeftOutWarning):
+        three = plan_fit(dem, views, options, tile=64, progress=False)
+    two = plan_fit(dem, [views[0], views[2]], options, tile=64, progress=False)
+    assert three.options.levels == two.options.levels == kept
+    for name, plan in (("three", three), ("two", two)):
+        run_fit(plan, FitOutputs(heights=tmp_path / f"{name}.tif"), threads=2, progress=False)
+    np.testing.assert_array_equal(read(tmp_path / "three.tif"), read(tmp_path / "two.tif"))

@@ -326,17 +326,32 @@ def plan_fit(
     heights = HeightOptions(vertical_datum, height_offset)
     source, sources = read_source(dem, sources, dem_crs, radius_values, world, progress, heights)
     grid = output_grid(source)
-    levels = levels_for(min(min(v.width, v.height) for v in sources), opts.levels)
-    opts = replace(opts, levels=levels)
+    asked = opts.levels
     spacing = source.post_spacing()
     margin = opts.deconvolve * opts.hwin
-    jobs, boxes, reach, elevation = plan_tiles(
-        grid.tiles(tile),
-        lambda index, window: _job(source, sources, index, window, margin, opts, spacing),
-        len(sources),
-        progress,
+
+    def planned(levels: int) -> tuple[FitOptions, list, list, list, list, list[bool]]:
+        """The tiles with a pyramid of ``levels``, and which images see the DEM."""
+        o = replace(opts, levels=levels)
+        jobs, boxes, reach, elevation = plan_tiles(
+            grid.tiles(tile),
+            lambda index, window: _job(source, sources, index, window, margin, o, spacing),
+            len(sources),
+            progress,
+        )
+        seen = [any(_sees(box, view) for box in boxes[k]) for k, view in enumerate(sources)]
+        return o, jobs, boxes, reach, elevation, seen
+
+    opts, jobs, boxes, reach, elevation, seen = planned(
+        levels_for(min(min(v.width, v.height) for v in sources), asked)
     )
-    seen = [any(_sees(box, view) for box in boxes[k]) for k, view in enumerate(sources)]
+    kept = [view for view, s in zip(sources, seen, strict=True) if s]
+    if kept and len(kept) < len(sources):  # the images left out do not limit the pyramid
+        levels = levels_for(min(min(v.width, v.height) for v in kept), asked)
+        again = planned(levels) if levels != opts.levels else None
+        if again is not None and again[-1] == seen:  # (else one more sees it: the first plan)
+            opts, jobs, boxes, reach, elevation, seen = again
+    levels = opts.levels
     if sum(seen) == 1:  # (none: check_plan says why)
         raise GeometryError(
             f"only 1 of the {len(sources)} images sees the DEM ({sources[seen.index(True)].path}): "
