@@ -116,3 +116,24 @@ def test_the_command_line_says_it_in_one_line(crater_dir: Path, tmp_path: Path) 
     lines = [x for x in result.stderr.splitlines() if x.startswith("orthomvp: warning:")]
     assert len(lines) == 1 and "filled values" in lines[0] and "were clipped" in lines[0]
     assert "uint8's 0..255" in lines[0]
+
+
+def test_an_integer_image_of_few_levels_says_nothing(crater_dir: Path, tmp_path: Path) -> None:
+    """The crater's image as uint8 digital numbers 10..19 (a dark, low-contrast frame) written
+    as uint8: its few levels are its own, so no warning; its float radiances as uint8 warn."""
+    with rasterio.open(crater_dir / "oblique.tif") as src:
+        profile, image = src.profile, src.read()
+    dark = tmp_path / "dark.tif"
+    numbers = (10 + np.floor(9.99 * np.clip(image, 0, 1))).astype(np.uint8)
+    with warnings.catch_warnings():  # (the scene's images have no georeference)
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(dark, "w", **(profile | {"dtype": "uint8", "nodata": None})) as dst:
+            dst.write(numbers)
+    for image_path, warned in ((dark, False), (crater_dir / "oblique.tif", True)):
+        result = cli_run(
+            "ortho", crater_dir / "dem.tif", image_path, crater_dir / "oblique.tsai",
+            "-o", tmp_path / f"{image_path.stem}-u8.tif", "--dtype", "uint8", "--grid", "dem",
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        lines = [x for x in result.stderr.splitlines() if x.startswith("orthomvp: warning:")]
+        assert len(lines) == int(warned), result.stderr

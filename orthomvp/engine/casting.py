@@ -33,11 +33,13 @@ def to_dtype(data: np.ndarray, dtype: str, nodata: float) -> np.ndarray:
 @dataclass
 class IntegerCast:
     """:func:`to_dtype` of every tile of an output of integer ``dtype`` (``path``, named in
-    :meth:`loss`), counting the filled values (all bands) it clips and their range."""
+    :meth:`loss`), counting the filled values (all bands) it clips and their range;
+    ``from_integers``: the images' pixels are integers, so a range of few levels is theirs."""
 
     path: Path
     dtype: str
     nodata: float
+    from_integers: bool = False  # the images hold integers: their levels are all there are
     filled: int = 0
     low: int = 0
     high: int = 0
@@ -64,8 +66,8 @@ class IntegerCast:
 
     def loss(self) -> str | None:
         """What the cast lost, in one line (None: nothing worth saying): the filled values it
-        clipped to the type's range, or a range of values that rounding left fewer than
-        :data:`FEW_LEVELS` integer levels."""
+        clipped to the type's range, or a range of values (not the images' own integers)
+        that rounding left fewer than :data:`FEW_LEVELS` integer levels."""
         if not self.filled:
             return None
         lo, hi = self._info.min, self._info.max
@@ -78,7 +80,7 @@ class IntegerCast:
             return f"{self.path}: {share} {clip} ({span}); {keep}"
         first = int(np.clip(np.rint(self.least), lo, hi))
         levels = int(np.clip(np.rint(self.most), lo, hi)) - first + 1
-        if not self.whole and levels < FEW_LEVELS:
+        if not (self.whole or self.from_integers) and levels < FEW_LEVELS:
             kept = f"{levels} level" + "s" * (levels > 1)
             return f"{self.path}: {span}: rounded to {self.dtype} they keep {kept}; {keep}"
         return None

@@ -220,8 +220,12 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
     names = ("view",) if plan.mosaic is None else source_names(n)
     fill = outputs.fill
 
+    integers = all(v.dtype is not None and np.dtype(v.dtype).kind in "iu" for v in plan.views)
+
     def image(path: Path) -> Layer:
-        cast = None if outputs.dtype == "float32" else IntegerCast(path, outputs.dtype, fill)
+        cast = None
+        if outputs.dtype != "float32":
+            cast = IntegerCast(path, outputs.dtype, fill, from_integers=integers)
 
         def data(result: Any) -> np.ndarray:
             if cast is None:
