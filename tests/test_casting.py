@@ -1,5 +1,6 @@
-"""Orthophoto values cast to an integer ``--dtype`` (orthomvp.engine.casting): what the cast
-loses (clipped values, a range rounded to a few levels) is counted and said once a run."""
+"""Orthophoto values as written: cast to an integer ``--dtype`` (orthomvp.engine.casting),
+what the cast loses (clipped values, a range rounded to a few levels) counted and said once a
+run; the colour interpretation of an orthophoto of RGB images."""
 
 from __future__ import annotations
 
@@ -137,3 +138,31 @@ def test_an_integer_image_of_few_levels_says_nothing(crater_dir: Path, tmp_path:
         assert result.returncode == 0, result.stderr
         lines = [x for x in result.stderr.splitlines() if x.startswith("orthomvp: warning:")]
         assert len(lines) == int(warned), result.stderr
+
+
+def test_rgb_images_give_an_rgb_orthophoto(crater_dir: Path, tmp_path: Path) -> None:
+    """Three bands that GDAL reads as red, green and blue give an orthophoto read so too, as
+    float32 (GDAL's default for other than bytes would be grey) and as uint8, COG and plain
+    GeoTIFF; the crater's grey image stays grey, and the values are the same either way."""
+    with rasterio.open(crater_dir / "oblique.tif") as src:
+        profile, grey = src.profile, src.read(1)
+    rgb = tmp_path / "rgb.tif"
+    bands = np.stack([grey, 0.5 * grey, 0.25 * grey]).astype(np.float32)
+    with warnings.catch_warnings():  # (the scene's images have no georeference)
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(rgb, "w", **(profile | {"count": 3, "photometric": "RGB"})) as dst:
+            dst.write(bands)
+    base = [crater_dir / "dem.tif", rgb, crater_dir / "oblique.tsai", "--grid", "dem", "-q"]
+    colours = ("red", "green", "blue")
+    runs = {"cog": [], "gtiff": ["--format", "gtiff"], "u8": ["--dtype", "uint8"]}
+    for name, extra in runs.items():
+        out = tmp_path / f"{name}.tif"
+        assert cli_run("ortho", *base, "-o", out, *extra).returncode == 0
+        with rasterio.open(out) as o:
+            assert tuple(c.name for c in o.colorinterp) == colours, name
+    plain = tmp_path / "grey.tif"
+    grey_args = [crater_dir / "dem.tif", crater_dir / "oblique.tif", crater_dir / "oblique.tsai"]
+    assert cli_run("ortho", *grey_args, "--grid", "dem", "-q", "-o", plain).returncode == 0
+    with rasterio.open(plain) as o, rasterio.open(tmp_path / "cog.tif") as c:
+        assert o.colorinterp[0].name == "gray"
+        np.testing.assert_array_equal(c.read(1), o.read(1))

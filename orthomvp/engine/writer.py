@@ -39,7 +39,7 @@ from orthomvp.io.output_checks import (
     check_parent,
 )
 from orthomvp.io.outputs import atomic_paths, scratch_path
-from orthomvp.io.raster import check_written
+from orthomvp.io.raster import check_written, open_raster
 from orthomvp.io.write_errors import writing
 from orthomvp.validate import number, of_type
 
@@ -204,6 +204,20 @@ class Layer:
     data: Callable[[Any], np.ndarray]
     names: tuple[str, ...] = ()
     cast: IntegerCast | None = None
+    photometric: str | None = None  # "RGB" for an orthophoto of RGB images
+
+
+def rgb_images(views: Sequence[Any]) -> bool:
+    """Whether every image of ``views`` (with ``path``) holds red, green and blue in its first
+    three bands, as GDAL reads their colour interpretation (a cube: no)."""
+    for view in views:
+        if Path(view.path).suffix.lower() == ".cub":
+            return False
+        with open_raster(view.path) as src:
+            colours = [c.name for c in src.colorinterp[:3]]
+        if colours != ["red", "green", "blue"]:
+            return False
+    return True
 
 
 def source_names(views: int) -> tuple[str, ...]:
@@ -232,7 +246,11 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
                 return to_dtype(result.data, outputs.dtype, fill)
             return cast(result.data)
 
-        return Layer(path, plan.bands, outputs.dtype, fill, Resampling.average, data, cast=cast)
+        rgb = "RGB" if plan.bands == 3 and rgb_images(plan.views) else None
+        average = Resampling.average
+        return Layer(
+            path, plan.bands, outputs.dtype, fill, average, data, cast=cast, photometric=rgb
+        )
 
     make = {
         "ortho": image,
@@ -301,6 +319,8 @@ class _Output:
             "blockysize": outputs.blocksize,
             **_creation(outputs, self.dtype),
         }
+        if layer.photometric is not None:  # (GDAL's default for 3 bands other than bytes: grey)
+            self.profile["photometric"] = layer.photometric
         self.levels: list[Any] = []
         with writing(layer.path, size):
             self.dataset = rasterio.open(work, "w", **self.profile)
