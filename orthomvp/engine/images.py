@@ -18,7 +18,7 @@ from rasterio.windows import Window
 from orthomvp.camera import Camera, check_image, read_camera
 from orthomvp.engine.copies import Copy, copied, decodes_from_top
 from orthomvp.errors import InputError
-from orthomvp.io.raster import corrupt_data, held_raster, open_raster, read_values
+from orthomvp.io.raster import corrupt_data, held_raster, image_bands, open_raster, read_values
 
 if TYPE_CHECKING:
     from orthomvp.io.isis import CubeLayout  # (pvl, imported only for cubes)
@@ -48,7 +48,7 @@ class ImageSource:
         if self.path.suffix.lower() == ".cub":
             return _read_cube_window(self.path, window, band, self.layout)
         r0, r1, c0, c1 = window
-        indexes = None if band is None else [band]
+        indexes = list(range(1, self.bands + 1)) if band is None else [band]  # (no alpha band)
         path = self.path if self.copy is None else copied(self.path, self.copy)
         # (a copy is read once per tile: opening it is cheaper than holding a file removed)
         with held_raster(path) if path == self.path else open_raster(path) as src:
@@ -72,7 +72,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     else:
         layout = None
         with open_raster(path) as src:
-            bands, rows, cols = src.count, src.height, src.width
+            bands, rows, cols = len(image_bands(src)), src.height, src.width
             from_top = decodes_from_top(src)
             dtype = max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
             check_blocks(src, path)

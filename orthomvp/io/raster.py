@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import rasterio
 from affine import Affine
-from rasterio.enums import MaskFlags
+from rasterio.enums import ColorInterp, MaskFlags
 from rasterio.errors import NotGeoreferencedWarning, RasterioError, RasterioIOError
 
 from orthomvp.errors import InputError
@@ -188,8 +188,19 @@ def held_raster(path: Path) -> Iterator[rasterio.DatasetReader]:
             dataset.close()
 
 
+def image_bands(src: Any) -> list[int]:
+    """The bands (1-based) of the open dataset ``src`` that hold image values: all but a last
+    band GDAL reads as alpha (an RGBA PNG's, a TIFF's extra sample), which GDAL already applies
+    to the others as their mask."""
+    count = src.count
+    if count > 1 and src.colorinterp[-1] == ColorInterp.alpha:
+        return list(range(1, count))
+    return list(range(1, count + 1))
+
+
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image as float32 ``(bands, rows, cols)``; nodata -> NaN.
+    """Read an image as float32 ``(bands, rows, cols)``; nodata -> NaN; an alpha band is the
+    mask of the others, not a band of values (:func:`image_bands`).
 
     ISIS3 cubes (``.cub``) are read by :func:`orthomvp.io.isis.read_cube` (special pixels -> NaN);
     everything else (GeoTIFF/TIFF of any dtype and band count, PNG, JPEG, ...) by rasterio.
@@ -200,7 +211,7 @@ def read_image(path: str | Path) -> np.ndarray:
         return read_cube(path)
     with open_raster(path) as src:
         try:
-            return read_values(src, None, None, np.float32)
+            return read_values(src, image_bands(src), None, np.float32)
         except RasterioError as exc:
             raise corrupt_data(path, exc) from exc
 
