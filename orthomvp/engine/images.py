@@ -41,6 +41,7 @@ class ImageSource:
     dtype: str | None = None
     copy: Copy | None = None
     camera_file: Path | None = None  # the file the camera was read from, if any
+    rgb: bool = False  # its first three bands are red, green and blue (GDAL's colours)
 
     def read(self, window: tuple[int, int, int, int], band: int | None = None) -> np.ndarray:
         """Pixels of ``window`` (clipped to the image by the caller), every band or only
@@ -63,7 +64,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     its row in multi-camera files; or a camera), checked against each other from the image's
     header alone: no pixel is read."""
     path = Path(image)
-    from_top, dtype = False, None
+    from_top, dtype, rgb = False, None, False
     if path.suffix.lower() == ".cub":
         from orthomvp.io.isis import read_layout  # pvl, only for cubes
 
@@ -73,6 +74,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
         layout = None
         with open_raster(path) as src:
             bands, rows, cols = len(image_bands(src)), src.height, src.width
+            rgb = [c.name for c in src.colorinterp[:3]] == ["red", "green", "blue"]
             from_top = decodes_from_top(src)
             dtype = max(src.dtypes, key=lambda d: np.dtype(d).itemsize)
             check_blocks(src, path)
@@ -83,7 +85,7 @@ def image_source(image: str | Path, camera: str | Path | Camera) -> ImageSource:
     shape_only = np.broadcast_to(np.float32(0), (bands, rows, cols))
     camera = check_image(shape_only, camera, str(path))
     return ImageSource(
-        path, cols, rows, bands, camera, layout, from_top, dtype, camera_file=camera_file
+        path, cols, rows, bands, camera, layout, from_top, dtype, camera_file=camera_file, rgb=rgb
     )
 
 

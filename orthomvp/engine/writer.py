@@ -39,7 +39,7 @@ from orthomvp.io.output_checks import (
     check_parent,
 )
 from orthomvp.io.outputs import atomic_paths, scratch_path
-from orthomvp.io.raster import check_written, open_raster
+from orthomvp.io.raster import check_written
 from orthomvp.io.write_errors import writing
 from orthomvp.validate import number, of_type
 
@@ -207,19 +207,6 @@ class Layer:
     photometric: str | None = None  # "RGB" for an orthophoto of RGB images
 
 
-def rgb_images(views: Sequence[Any]) -> bool:
-    """Whether every image of ``views`` (with ``path``) holds red, green and blue in its first
-    three bands, as GDAL reads their colour interpretation (a cube: no)."""
-    for view in views:
-        if Path(view.path).suffix.lower() == ".cub":
-            return False
-        with open_raster(view.path) as src:
-            colours = [c.name for c in src.colorinterp[:3]]
-        if colours != ["red", "green", "blue"]:
-            return False
-    return True
-
-
 def source_names(views: int) -> tuple[str, ...]:
     """Band names of a mosaic's source raster: the 1-based view (0 = none), the
     :class:`~orthomvp.ortho.holes.Flag` (how the post was filled, or why it is empty), and each
@@ -246,7 +233,7 @@ def ortho_layers(plan: Plan, outputs: Outputs) -> list[Layer]:
                 return to_dtype(result.data, outputs.dtype, fill)
             return cast(result.data)
 
-        rgb = "RGB" if plan.bands == 3 and rgb_images(plan.views) else None
+        rgb = "RGB" if plan.bands == 3 and all(v.rgb for v in plan.views) else None
         average = Resampling.average
         return Layer(
             path, plan.bands, outputs.dtype, fill, average, data, cast=cast, photometric=rgb
