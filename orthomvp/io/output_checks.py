@@ -101,6 +101,12 @@ def check_outputs(
         check_directory(path, f"{path}: {out.option}")
 
 
+def holds(folder: Path, names: Sequence[str]) -> bool:
+    """Whether ``folder`` holds every file of ``names`` (paths relative to it): the marks by
+    which a command knows its own earlier output."""
+    return all((folder / name).is_file() for name in names)
+
+
 def check_folder(
     path: Path,
     what: str,
@@ -116,7 +122,7 @@ def check_folder(
     if path.exists() and not path.is_dir():
         raise InputError(f"{path}: {what} is a file, not a directory")
     if path.is_dir() and not overwrite and any(path.iterdir()):
-        if not (refresh and all((path / name).is_file() for name in refresh)):
+        if not (refresh and holds(path, refresh)):
             raise InputError(
                 f"{path}: {what} exists and is not empty; give {flags.overwrite} to write "
                 "into it (files of the same name are replaced)"

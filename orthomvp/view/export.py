@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from orthomvp.io.output_checks import check_folder
+from orthomvp.io.output_checks import check_folder, holds
 from orthomvp.io.outputs import atomic_dir
 from orthomvp.view.layers import LayerSet
 from orthomvp.view.page import index_html, page_config, static_files
@@ -83,8 +83,7 @@ def write_export(
     :func:`export_into`."""
     outdir = Path(outdir)
     check_folder(outdir, "the export folder", overwrite=overwrite, refresh=MARKS)
-    earlier = all((outdir / mark).is_file() for mark in MARKS)
-    with atomic_dir(outdir, replace=("tiles", "static") if earlier else ()) as tmp:
+    with atomic_dir(outdir, replace=("tiles", "static") if holds(outdir, MARKS) else ()) as tmp:
         return export_into(layers, tmp, title=title, report=report)
 
 
