@@ -671,13 +671,12 @@ def test_fused_compose_at_the_edges_of_its_inputs() -> None:
     assert (ref == 1).all()
 
 
-@pytest.fixture(scope="module")
-def partial_views(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> list:
-    """The crater's views, the nadir one cropped to its image's top-left quarter (its camera
-    cropped alike): tiles outside that quarter's footprint do not have it."""
+def nadir_quarter_views(crater_dir: Path, out: Path) -> list:
+    """The crater's views (``VIEWS``), the nadir one cropped to its image's top-left quarter,
+    written into ``out`` (its camera cropped alike): tiles outside that quarter's footprint
+    do not have it."""
     from orthomvp.camera import read_camera
 
-    out = tmp_path_factory.mktemp("partial")
     views = []
     for name in VIEWS:
         image = crater_dir / f"{name}.tif"
@@ -694,6 +693,12 @@ def partial_views(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) ->
                 camera = camera.crop(0, 0, width // 2, height // 2)
         views.append((image, camera))
     return views
+
+
+@pytest.fixture(scope="module")
+def partial_views(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> list:
+    """:func:`nadir_quarter_views`."""
+    return nadir_quarter_views(crater_dir, tmp_path_factory.mktemp("partial"))
 
 
 @pytest.mark.parametrize(

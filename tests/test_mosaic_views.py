@@ -13,7 +13,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from orthomvp.camera import load_view, read_camera, write_tsai
+from orthomvp.camera import load_view, write_tsai
 from orthomvp.cli import main
 from orthomvp.codes import Code
 from orthomvp.engine import Outputs, plan_fit, plan_ortho, run_fit, run_plan
@@ -26,6 +26,7 @@ from orthomvp.ortho.composite import MosaicOptions
 from orthomvp.ortho.holes import FLAGS, HOLES, Flag
 from orthomvp.ortho.orthophoto import mosaic
 from tests.conftest import shared
+from tests.test_mosaic import nadir_quarter_views
 
 KINDS = ("ortho", "source", "visibility")
 
@@ -157,21 +158,7 @@ def partial(crater_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict:
     top-left quarter (camera cropped alike), which images DEM rows 0 to 30 only."""
     out = tmp_path_factory.mktemp("left-out")
     crop_rows(crater_dir / "dem.tif", out / "dem.tif", 36)
-    views = []
-    for name in ("oblique", "nadir", "fore"):
-        image = crater_dir / f"{name}.tif"
-        with rasterio.open(image) as src:
-            width, height = src.width, src.height
-            camera = read_camera(crater_dir / f"{name}.tsai").with_image_size(width, height)
-            if name == "nadir":
-                quarter = rasterio.windows.Window(0, 0, width // 2, height // 2)
-                profile = src.profile | {"width": width // 2, "height": height // 2}
-                profile.pop("transform", None)
-                image = out / "nadir-quarter.tif"
-                with rasterio.open(image, "w", **profile) as dst:
-                    dst.write(src.read(window=quarter))
-                camera = camera.crop(0, 0, width // 2, height // 2)
-        views.append((image, camera))
+    views = nadir_quarter_views(crater_dir, out)
     copy = (shutil.copy(views[1][0], out / "nadir-copy.tif"), views[1][1])
     return {"dem": out / "dem.tif", "views": views, "copy": copy}
 
