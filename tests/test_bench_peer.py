@@ -125,5 +125,9 @@ def test_bench_gdal_figures_are_consistent(
         assert row[f"{name}_s"] > 0 and row[f"{name}_rss_mb"] > 10
     assert row["ratio"] == pytest.approx(row["orthomvp_s"] / row["gdal_s"])
     assert row["naive_ratio"] == pytest.approx(row["orthomvp_naive_s"] / row["gdal_s"])
+    assert 0 < row["gdal_startup_s"] and 0 < row["orthomvp_startup_s"] < row["orthomvp_s"] * 1.5
+    net = (row["orthomvp_s"] - row["orthomvp_startup_s"]) / (row["gdal_s"] - row["gdal_startup_s"])
+    assert row["net_ratio"] == pytest.approx(net) or row["gdal_s"] <= row["gdal_startup_s"]
+    assert "beyond start-up" in text and "4 x 4 posts" in text
     assert row["common_posts"] > 0.9 * 396 * 236
     assert row["r"] > 0.9999 and row["shift"] < 0.01
