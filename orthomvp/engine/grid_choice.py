@@ -14,7 +14,7 @@ The camera grid (``grid="camera"``):
   horizontal plane, every view's samples pooled), rounded to the nearest clean value, 1, 2,
   2.5 or 5 times a power of ten metres (:func:`orthomvp.engine.units.clean_metres`), then
   converted to the CRS's units (:mod:`orthomvp.engine.units`: on a geographic CRS, degrees
-  by the body's equatorial radius), square.
+  by the body's equatorial radius), square: a warning where its posts crowd east-west).
 
 ``res`` and ``bounds`` given replace the camera's choice of each: ``res`` alone keeps the
 footprint's extent (snapped to the lattice of that ``res``), ``bounds`` alone keeps the
@@ -54,11 +54,12 @@ from orthomvp.engine.units import (
     check_latitudes,
     check_res,
     clean_metres,
+    east_west_text,
     parse_res,
     to_units,
     unit_scale,
 )
-from orthomvp.errors import GeometryError, InputError, LeftOutWarning
+from orthomvp.errors import GeometryError, InputError, LeftOutWarning, OrthoMVPWarning
 from orthomvp.geometry.crs import as_crs, as_pyproj
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import nan_median
@@ -182,13 +183,15 @@ def choose_grid(
     if lengths is not None:
         units, metres = to_units(lengths, out_crs, radius)
         check_res(lengths, metres, out_crs, radius, dem_extent_metres(dem, radius))
+    # a spacing from metres, whose posts may crowd east-west on a geographic CRS
+    from_metres = lengths is None or any(length.unit == "m" for length in lengths)
     if grid == "dem" or (units is not None and bounds is not None):
-        return output_grid(dem, units, bounds, crs)
+        return _checked(output_grid(dem, units, bounds, crs), radius, units and from_metres)
     if footprints is None:
         footprints = image_footprints(dem, sources)
     windows = [f.window for f in footprints if f.window is not None]
     if not windows:
-        return output_grid(dem, units, bounds, crs)
+        return _checked(output_grid(dem, units, bounds, crs), radius, units and from_metres)
     if units is None:
         gsd = np.concatenate([f.gsd for f in footprints])
         per_unit, _ = unit_scale(out_crs, radius)
@@ -204,7 +207,18 @@ def choose_grid(
             same_body(dem, out_crs)  # (else PROJ's own error, as an internal one)
             to_out = Transformer.from_crs(as_pyproj(dem.crs), as_pyproj(out_crs), always_xy=True)
             bounds = to_out.transform_bounds(*bounds, densify_pts=21)
-    return output_grid(dem, units, bounds, crs)
+    return _checked(output_grid(dem, units, bounds, crs), radius, from_metres)
+
+
+def _checked(out: OutputGrid, radius: float, from_metres: object) -> OutputGrid:
+    """``out``, with a warning (:func:`~orthomvp.engine.units.east_west_text`) where its
+    spacing came ``from_metres`` on a geographic CRS and its posts crowd east-west."""
+    if from_metres and out.crs.is_geographic:
+        T = out.transform
+        text = east_west_text((abs(T.a), abs(T.e)), T.f + T.e * out.shape[0] / 2, out.crs, radius)
+        if text:
+            warnings.warn(text, OrthoMVPWarning, stacklevel=4)
+    return out
 
 
 def _snap(

@@ -5,7 +5,9 @@ degree CRS) before anything is planned.
 
 Lengths on the ground convert to CRS units nominally: a projected CRS by its axis unit
 (metres, feet; the projection's scale factor is left out), a geographic CRS by the body's
-equatorial radius (one degree is ``a * pi / 180`` metres, in longitude as in latitude).
+equatorial radius (one degree is ``a * pi / 180`` metres, in longitude as in latitude:
+square in degrees, as gdalwarp and ASP's mapproject take a resolution), so that far from the
+equator the posts crowd east-west; :func:`east_west_text` warns of it.
 """
 
 from __future__ import annotations
@@ -139,6 +141,40 @@ def check_latitudes(bounds: tuple[float, float, float, float], crs: CRS | FileCR
                 f"(left bottom right top) are in the output CRS's units, {unit} here (for "
                 "metres, choose a projected output CRS)"
             )
+
+
+EAST_WEST_SHARE = 0.5
+"""A grid of a geographic CRS whose posts lie this share of their north-south spacing apart
+east-west, or closer, at its centre (beyond latitude 60) is warned about
+(:func:`east_west_text`)."""
+
+
+def east_west_text(
+    res: tuple[float, float], latitude: float, crs: CRS | FileCRS, radius: float
+) -> str | None:
+    """The warning for a grid of post spacing ``res`` (x, y; units of ``crs``) centred at
+    ``latitude`` (the CRS's units) on a geographic ``crs`` whose posts lie
+    :data:`EAST_WEST_SHARE` of their north-south spacing apart east-west or closer (a spacing
+    in metres converts to degrees at the equator, as gdalwarp and ASP's mapproject take it:
+    square in degrees); None otherwise. It gives the spacing in degrees that would make the
+    posts square on the ground there, and the projected alternative."""
+    if not crs.is_geographic:
+        return None
+    per_unit, unit = unit_scale(crs, 1.0)  # (radians per unit)
+    cos = math.cos(latitude * per_unit)
+    if not cos < EAST_WEST_SHARE * res[1] / res[0]:
+        return None
+    metres = radius * per_unit
+    east, north = res[0] * metres * cos, res[1] * metres
+    degrees = per_unit * 180 / math.pi  # (degrees per unit)
+    square = res[1] / max(cos, 1e-12) * degrees
+    return (
+        f"the output grid is centred at latitude {latitude:.4g} {unit} of a geographic CRS, "
+        f"where its posts lie {_metres_text(east)} apart east-west and {_metres_text(north)} "
+        "north-south (metres convert to degrees at the equator): for square posts give "
+        f"--res {square:.3g}deg {res[1] * degrees:.3g}deg, "
+        "or a polar stereographic CRS with --crs"
+    )
 
 
 def _plural(name: str) -> str:
