@@ -86,3 +86,23 @@ def test_a_one_band_source_has_no_flags_layer(files: dict) -> None:
     source = layers.layers["L1"]
     assert source.kind.describe(source.value_at(500001.0, 3999999.0)) in ("none", "view 1")
     layers.close()
+
+
+def test_layers_take_paths_as_text_and_refuse_a_kind_they_do_not_know(files: dict) -> None:
+    """Found by a new user's audit: a path as text without a title was an AttributeError, an
+    unknown kind a bare KeyError; a missing file is listed as a problem (None returned)."""
+    from orthomvp.errors import InputError
+    from orthomvp.view import LayerSet
+
+    layers = LayerSet(str(files["dem"]))
+    source = layers.add("source", str(files["one"]))  # one path, as text, no title
+    assert source is not None and source.title == "source: old-source.tif"
+    again = layers.add("source", [str(files["one"])])
+    assert np.array_equal(again.read(layers.bounds, (16, 8)), source.read(layers.bounds, (16, 8)))
+    with pytest.raises(InputError, match="layer kind must be one of .*bogus"):
+        layers.add("bogus", [files["one"]])
+    with pytest.raises(InputError, match="at least one file"):
+        layers.add("source", [])
+    assert layers.add("source", [files["one"].with_name("absent.tif")]) is None
+    assert [p.path.endswith("absent.tif") for p in layers.problems] == [True]
+    layers.close()

@@ -6,6 +6,7 @@ one :class:`WorkerError` line instead of a wait without end."""
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import contextlib
 import importlib
 import logging
@@ -14,6 +15,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 from orthomvp.engine.tile import run_tile
@@ -88,8 +90,11 @@ def dask_client(
                             local_directory=scratch,
                             preload=[LOCAL_PRELOAD],
                         )
-                    except BaseException:
+                    except BaseException as exc:
                         _forget_clusters()
+                        log = os.path.join(scratch, "workers.log")
+                        if isinstance(exc, RuntimeError) and _unguarded(log):
+                            raise InputError(UNGUARDED) from exc
                         raise
                 with cluster, distributed.Client(cluster) as client:
                     _warm_up(client, "the local cluster")
@@ -97,6 +102,28 @@ def dask_client(
             except BaseException:  # Ctrl-C, SIGTERM or an error while it runs or stops
                 _forget_clusters()
                 raise
+
+
+BOOTSTRAP = "bootstrapping phase"
+"""What Python's multiprocessing says in a worker process that imported a main script which
+starts processes at import (no ``if __name__ == "__main__":``)."""
+
+
+UNGUARDED = (
+    "the local Dask cluster's workers could not start: they import the main script again, "
+    "so a script that starts a cluster needs its code under 'if __name__ == \"__main__\":'"
+)
+"""The error for a local cluster started by a script without the ``__main__`` guard."""
+
+
+def _unguarded(log: str) -> bool:
+    """Whether the workers' ``log`` says that they died importing a main script that starts
+    processes at import (:data:`BOOTSTRAP`)."""
+    try:
+        with open(log, errors="replace") as f:
+            return any(BOOTSTRAP in line for line in f)
+    except OSError:
+        return False
 
 
 @contextlib.contextmanager
@@ -305,3 +332,44 @@ worker within a few seconds), and for its scheduler to answer, before it gives u
 def identity(value: Any) -> Any:
     """``value`` itself (a Dask task whose result is its argument)."""
     return value
+
+
+@contextlib.contextmanager
+def worker_deaths() -> Iterator[None]:
+    """Within the block, an exception that says a worker died (:func:`_died`, from its pool or
+    cluster) becomes one WorkerError line; any other passes as it is."""
+    try:
+        yield
+    except Exception as exc:
+        if not _died(exc):
+            raise
+        if "scheduler-connection-lost" in str(exc):
+            raise WorkerError(
+                "lost the connection to the Dask scheduler while running tiles (did it stop?); "
+                "nothing was written"
+            ) from None
+        raise WorkerError(
+            f"a worker died while running a tile ({type(exc).__name__}: "
+            f"{' '.join(str(exc).split())[:200]}){_guard_hint(exc)}; nothing was written"
+        ) from None
+
+
+def _guard_hint(exc: BaseException) -> str:
+    """For a process pool broken under a script (a ``__main__`` module with a file): the
+    usual cause, a script without the ``__main__`` guard, whose every worker process imports
+    it again and so starts its own run."""
+    script = getattr(sys.modules.get("__main__"), "__file__", None)
+    if not isinstance(exc, cf.BrokenExecutor) or script is None:
+        return ""
+    return (
+        f" (if {Path(script).name} starts this run at import, put its code under "
+        "'if __name__ == \"__main__\":': every worker process imports it again)"
+    )
+
+
+def _died(exc: BaseException) -> bool:
+    """Whether ``exc`` says that a worker died under a tile (Dask's KilledWorker after its
+    retries, or a future cancelled because the data it needed died with a worker)."""
+    if isinstance(exc, cf.BrokenExecutor):  # a process pool whose worker died
+        return True
+    return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")

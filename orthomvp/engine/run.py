@@ -11,8 +11,10 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import os
+import pickle
 import signal
 import sys
+import tempfile
 import threading
 import time
 import warnings
@@ -26,11 +28,11 @@ import rasterio
 
 from orthomvp.codes import Code
 from orthomvp.engine.cluster import (
-    WorkerError,
     dask_tile,
     dask_wait,
     identity,
     tile_result,
+    worker_deaths,
 )
 from orthomvp.engine.copies import Copies, image_copies, reread
 from orthomvp.engine.grid import GDAL_CACHE
@@ -103,14 +105,18 @@ def check_memory(plan: Any, need: int, workers: int) -> int:
     return need
 
 
-def _worker_init(plan: Any, parent: int) -> None:
-    """Set up a worker process of :func:`executor`: keep ``plan``; keep the images' datasets
+def _worker_init(plan_file: str, parent: int) -> None:
+    """Set up a worker process of :func:`executor`: keep the plan pickled in ``plan_file``
+    (a file, not start-up data: a worker that dies while it starts, as one that imports a
+    script without the ``__main__`` guard does, would leave its parent blocked writing start-up
+    data larger than a pipe holds, for good); keep the images' datasets
     open between its tiles (:func:`~orthomvp.io.raster.held_rasters`, for the life of the
     worker, which ends with the run); leave SIGINT to the parent ``parent`` (pid; a Ctrl-C
     reaches the whole process group, and the parent stops the pool: no traceback of every
     worker), and die with the parent, even when it is killed outright."""
     global _PLAN
-    _PLAN = plan
+    with open(plan_file, "rb") as f:
+        _PLAN = pickle.load(f)
     _HELD.enter_context(held_rasters())
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, HELD_SIGNALS)  # held while it was started
@@ -198,12 +204,17 @@ def executor(
             with contextlib.suppress(Exception):  # a scheduler that is gone has nothing to cancel
                 client.cancel([shared])
         return
+    scope = contextlib.ExitStack()
     if processes:
         import multiprocessing
 
+        folder = scope.enter_context(tempfile.TemporaryDirectory(prefix="orthomvp-plan-"))
+        plan_file = os.path.join(folder, "plan.pickle")
+        with open(plan_file, "wb") as f:
+            pickle.dump(plan, f, protocol=pickle.HIGHEST_PROTOCOL)
         ctx = multiprocessing.get_context("spawn")
         pool: cf.Executor = cf.ProcessPoolExecutor(
-            processes, mp_context=ctx, initializer=_worker_init, initargs=(plan, os.getpid())
+            processes, mp_context=ctx, initializer=_worker_init, initargs=(plan_file, os.getpid())
         )
 
         def submit(i: int, *a: Any) -> cf.Future:
@@ -214,7 +225,7 @@ def executor(
         pool = cf.ThreadPoolExecutor(workers)
         submit = lambda i, *a: pool.submit(work, plan, i, *a)  # noqa: E731
     # the images' datasets kept open between tiles (threads; a worker process holds its own)
-    with held_rasters() if not processes else contextlib.nullcontext():
+    with scope, held_rasters() if not processes else contextlib.nullcontext():
         try:
             yield submit, lambda fs: cf.wait(fs, return_when=cf.FIRST_COMPLETED)
         finally:
@@ -246,52 +257,24 @@ def results(
             index = queue.pop()
             if copies is not None:
                 copies.started(index)
-            with _worker_deaths():  # a broken pool refuses new work
+            with worker_deaths():  # a broken pool refuses new work
                 future = submit(index, *args)
             pending.add(future)
             index_of[future] = index
 
     top_up()
     while pending:  # empty only once the queue is (top_up refills it up to the limit)
-        with _worker_deaths():  # Dask's wait raises for futures cancelled with their scheduler
+        with worker_deaths():  # Dask's wait raises for futures cancelled with their scheduler
             done, rest = wait(pending)
         pending.intersection_update(rest)
         top_up()
         for future in done:
-            with _worker_deaths():
+            with worker_deaths():
                 result = tile_result(future)
             index = index_of.pop(future)
             if copies is not None:
                 copies.finished(index)
             yield result
-
-
-@contextlib.contextmanager
-def _worker_deaths() -> Iterator[None]:
-    """Within the block, an exception that says a worker died (:func:`_died`, from its pool or
-    cluster) becomes one WorkerError line; any other passes as it is."""
-    try:
-        yield
-    except Exception as exc:
-        if not _died(exc):
-            raise
-        if "scheduler-connection-lost" in str(exc):
-            raise WorkerError(
-                "lost the connection to the Dask scheduler while running tiles (did it stop?); "
-                "nothing was written"
-            ) from None
-        raise WorkerError(
-            f"a worker died while running a tile ({type(exc).__name__}: "
-            f"{' '.join(str(exc).split())[:200]}); nothing was written"
-        ) from None
-
-
-def _died(exc: BaseException) -> bool:
-    """Whether ``exc`` says that a worker died under a tile (Dask's KilledWorker after its
-    retries, or a future cancelled because the data it needed died with a worker)."""
-    if isinstance(exc, cf.BrokenExecutor):  # a process pool whose worker died
-        return True
-    return type(exc).__name__ in ("KilledWorker", "FuturesCancelledError", "CancelledError")
 
 
 def run_plan(

@@ -10,6 +10,7 @@ rest still work. Requests name layers by id only: no path from a request ever op
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -140,15 +141,23 @@ class LayerSet:
         self._lonlat = Transformer.from_crs(self.crs, geographic, always_xy=True)
         self._geod = Geod(ellps="WGS84") if self.crs.ellipsoid is None else self.crs.get_geod()
 
-    def add(self, kind: str, paths: list[Path], title: str | None = None) -> Layer | None:
-        """Add a layer of ``kind`` from ``paths``; a file that cannot be shown goes to
-        ``problems`` (and None is returned)."""
+    def add(
+        self, kind: str, paths: str | Path | Sequence[str | Path], title: str | None = None
+    ) -> Layer | None:
+        """Add a layer of ``kind`` (one of :data:`KINDS`; InputError otherwise) from
+        ``paths`` (one file or several); a file that cannot be shown (missing, not on the
+        DEM's grid) goes to ``problems`` and None is returned, as the page lists it."""
+        if kind not in KINDS:
+            raise InputError(f"layer kind must be one of {', '.join(KINDS)}, not {kind!r}")
+        paths = [Path(paths)] if isinstance(paths, str | Path) else [Path(p) for p in paths]
+        if not paths:
+            raise InputError("a layer needs at least one file")
         the_kind = KINDS[kind]
         title = title or f"{kind}: {paths[0].name}"
         datasets = []
         try:
             for p in paths:
-                datasets.append(self._open(Path(p)))
+                datasets.append(self._open(p))
         except InputError as exc:
             for d in datasets:
                 d.close()

@@ -1,0 +1,68 @@
+"""A script that starts a run on worker processes without the ``__main__`` guard: every
+spawned worker imports the script again, and so starts a run of its own and dies while it
+starts. The run ends in bounded time with one error naming the guard (it used to block for
+good writing the plan to a worker that had died), and a guarded script runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+SECONDS = 120
+
+
+def _script(folder: Path, scene: Path, body: str, *, guarded: bool) -> Path:
+    code = textwrap.dedent(
+        f"""
+        import orthomvp as om
+
+        def main():
+            plan = om.plan_ortho({str(scene / "dem.tif")!r},
+                [({str(scene / "oblique.tif")!r}, {str(scene / "oblique.tsai")!r})],
+                progress=False)
+            {body}
+        """
+    )
+    code += 'if __name__ == "__main__":\n    main()\n' if guarded else "main()\n"
+    path = folder / ("guarded.py" if guarded else "unguarded.py")
+    path.write_text(code)
+    return path
+
+
+def _run(script: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=SECONDS,
+        cwd=script.parent,
+    )  # fmt: skip
+
+
+def test_processes_without_the_guard_end_with_one_error(crater_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "o.tif"
+    body = f"om.run_plan(plan, om.Outputs(ortho={str(out)!r}), processes=2)"
+    proc = _run(_script(tmp_path, crater_dir, body, guarded=False))
+    assert proc.returncode == 1
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("orthomvp.engine.cluster.WorkerError: a worker died"), last
+    assert "unguarded.py" in last and 'if __name__ == "__main__":' in last
+    assert not out.exists()
+    good = _run(_script(tmp_path, crater_dir, body, guarded=True))
+    assert good.returncode == 0, good.stderr
+    assert out.exists()
+
+
+def test_a_local_dask_cluster_without_the_guard_is_one_input_error(
+    crater_dir: Path, tmp_path: Path
+) -> None:
+    pytest.importorskip("distributed")
+    body = "from orthomvp.engine.cluster import dask_client; dask_client(workers=1).__enter__()"
+    script = _script(tmp_path, crater_dir, body, guarded=False)
+    proc = _run(script)
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("orthomvp.errors.InputError: the local Dask cluster's workers"), last
+    assert 'if __name__ == "__main__":' in last
