@@ -324,7 +324,7 @@ def test_export_errors_leave_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyP
     (tmp_path / "old.glb").write_text("old")
     for name in ("m.ply", "m.obj", "old.glb"):
         with pytest.raises(OSError):
-            export_mesh(tm, tmp_path / name, texture=rgb_texture())
+            export_mesh(tm, tmp_path / name, texture=rgb_texture(), overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.glb"]
     assert (tmp_path / "old.glb").read_text() == "old"
 

@@ -132,6 +132,7 @@ def mesh(
         colour_kind=kind,
         error_limit=error_limit,
         texture_image=image,
+        overwrite=True,  # (the outputs were checked with the command's options)
     )
     note = f", decimated to about {decimate:,} triangles" if decimate else ""
     say(f"wrote {output}: {len(tmesh.vertices):,} vertices, {len(tmesh.faces):,} triangles{note}")

@@ -188,10 +188,25 @@ class Terrain:
                 "m: are they radii from its centre (--radius-values)?"
             )
 
-    def write(self, path: str | Path, values: np.ndarray | None = None) -> None:
-        """Write ``values`` (default: this DEM's) as float32 GeoTIFF on this grid, NaN = nodata."""
-        data = self.values if values is None else values
-        write_geotiff(path, data.astype(np.float32), self.transform, self.crs, nodata=np.nan)
+    def write(
+        self, path: str | Path, values: np.ndarray | None = None, *, overwrite: bool = False
+    ) -> None:
+        """Write ``values`` (default: this DEM's; (rows, cols) as the DEM) as a float32
+        GeoTIFF (``.tif``) on this grid, NaN = nodata, atomically. InputError for other
+        values' shape or another file type, and for a file that exists unless ``overwrite``
+        (as every output of the API)."""
+        from orthomvp.io.output_checks import API_FLAGS, Output, check_outputs
+        from orthomvp.io.outputs import atomic_path
+
+        data = self.values if values is None else np.asarray(values)
+        if data.shape != self.shape:
+            raise InputError(
+                f"{self.name}: values to write must have the DEM's shape {self.shape}, got "
+                f"{data.shape}"
+            )
+        check_outputs([Output("Terrain.write", Path(path))], overwrite=overwrite, flags=API_FLAGS)
+        with atomic_path(path) as tmp:
+            write_geotiff(tmp, data.astype(np.float32), self.transform, self.crs, nodata=np.nan)
 
     def with_values(self, values: np.ndarray) -> Terrain:
         """The same grid and conventions with other ``values`` of the same (rows, cols) shape."""

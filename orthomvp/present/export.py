@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from orthomvp.errors import InputError
+from orthomvp.io.output_checks import API_FLAGS, Output, check_outputs
 from orthomvp.io.outputs import atomic_path, write_set
 from orthomvp.occlusion.mesh import TerrainMesh
 from orthomvp.optional import require
@@ -34,6 +35,8 @@ def export_mesh(
     colour_kind: str = "image",
     error_limit: float | None = None,
     texture_image: np.ndarray | None = None,
+    *,
+    overwrite: bool = False,
 ) -> None:
     """Write the mesh as PLY (vertex colours), OBJ or GLB (image texture, UVs from the grid).
 
@@ -46,13 +49,15 @@ def export_mesh(
     extent ``k`` times finer ((bands, k * rows, k * cols), as
     :func:`orthomvp.present.texture.finer_grid` samples it), coloured as ``texture``. With
     ``target_triangles`` the mesh is first decimated with Open3D; the colours then travel as
-    vertex colours in every format. Files are written atomically.
+    vertex colours in every format. Files are written atomically; a file that exists
+    (OBJ's material and image too) is refused with an InputError unless ``overwrite``.
     """
     of_type(tmesh, TerrainMesh, "the mesh", " (orthomvp.occlusion.mesh.terrain_mesh)")
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in EXPORT_FORMATS:
         raise InputError(f"{path}: mesh format must be one of {', '.join(EXPORT_FORMATS)}")
+    check_outputs([Output("export_mesh", path, ())], overwrite=overwrite, flags=API_FLAGS)
     trimesh = require("trimesh", "mesh export")
     colours = None
     if texture is not None:
@@ -83,7 +88,7 @@ def export_mesh(
         return
     mesh.vertices = mesh.vertices + offset
     if suffix == ".obj":
-        _export_obj(mesh, path)
+        _export_obj(mesh, path, overwrite)
     else:
         write_ply(mesh, path)
 
@@ -144,15 +149,18 @@ def write_ply(mesh: trimesh.Trimesh, path: str | Path) -> None:
         tmp.write_bytes(blob)
 
 
-def _export_obj(mesh: trimesh.Trimesh, path: Path) -> None:
+def _export_obj(mesh: trimesh.Trimesh, path: Path, overwrite: bool) -> None:
     """OBJ with its material and texture image beside it, atomic as a set: all files are
-    renamed only when all were written (see :func:`orthomvp.io.outputs.write_set`)."""
+    renamed only when all were written (see :func:`orthomvp.io.outputs.write_set`); any that
+    exists is refused unless ``overwrite``."""
     from trimesh.exchange.obj import export_obj
 
     text, files = export_obj(
         mesh, include_texture=True, return_texture=True, mtl_name=f"{path.stem}.mtl"
     )
     blobs = {path: text.encode(), **{path.parent / name: blob for name, blob in files.items()}}
+    beside = [Output("export_mesh", target, ()) for target in blobs]
+    check_outputs(beside, overwrite=overwrite, flags=API_FLAGS)
     write_set({target: functools.partial(Path.write_bytes, data=b) for target, b in blobs.items()})
 
 

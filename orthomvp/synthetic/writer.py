@@ -90,7 +90,7 @@ def write_scene(
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     t = scene.terrain
-    t.write(outdir / "dem.tif")
+    t.write(outdir / "dem.tif", overwrite=True)  # (the scene's folder: every file anew)
     x, y = scene.post_local()
     radiance = scene.surface.radiance(x, y).astype(np.float32)
     write_geotiff(outdir / "truth_radiance.tif", radiance, t.transform, t.crs, nodata=np.nan)
