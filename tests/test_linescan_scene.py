@@ -174,3 +174,26 @@ def test_info_gives_the_time_range_of_the_lines_that_see_the_dem(scene_dir: Path
     t = camera.image_time(np.array([rows.min(), rows.max()]) + 0.5)
     assert props["time_s"] == pytest.approx(list(t), abs=1e-9)
     assert t[1] - t[0] > 0.5 * (camera.image_time(camera.lines) - camera.image_time(0.0))
+
+
+def test_messages_count_cameras_not_a_line_scanners_positions(scene_dir: Path) -> None:
+    """Found by a new user's audit: a line scanner gives several sensor positions, and the
+    camera after it was named by its position's number ("camera 4" of two)."""
+    from dataclasses import replace
+
+    from orthomvp.camera import PinholeCamera, camera_centres
+    from orthomvp.errors import GeometryError
+    from orthomvp.geometry.terrain import Terrain
+    from orthomvp.geometry.world import check_cameras_above
+
+    line = read_camera(scene_dir / "linescan.json")  # (an ISD: the image's size with it)
+    assert line.width is not None and line.height is not None
+    centres, views = camera_centres([line, line])
+    assert len(centres) > 2 and views.tolist() == sorted(views.tolist())
+    assert set(views.tolist()) == {0, 1}
+    terrain = Terrain.read(scene_dir / "dem.tif")
+    far = PinholeCamera(1000.0, 1000.0, 500.0, 500.0, -centres[0], np.eye(3))  # (the far side)
+    with pytest.raises(GeometryError, match=r"camera 2 is beyond the DEM's horizon"):
+        check_cameras_above(terrain, *camera_centres([line, far]))
+    with pytest.raises(GeometryError, match=r"camera 3 is beyond"):
+        check_cameras_above(terrain, *camera_centres([line, replace(line), far]))

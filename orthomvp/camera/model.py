@@ -19,7 +19,7 @@ Reading and writing camera files is :mod:`orthomvp.camera`'s (``read_camera``) a
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol, runtime_checkable
 
@@ -409,3 +409,12 @@ def sensor_positions(camera: Camera, lattice: int = 3) -> np.ndarray:
     # distinct rows, sorted (np.unique's axis=0 path imports numpy.ma: 10 ms of a run)
     distinct = sorted({tuple(p) for p in points[np.isfinite(points).all(axis=1)].tolist()})
     return np.array(distinct, float).reshape(-1, 3)
+
+
+def camera_centres(cameras: Sequence[Camera]) -> tuple[np.ndarray, np.ndarray]:
+    """The :func:`sensor_positions` of all ``cameras`` (n, 3), and the index of the camera
+    each comes from (n,): a line scanner gives several, so that messages count cameras, not
+    positions."""
+    each = [sensor_positions(camera) for camera in cameras]
+    centres = np.concatenate(each) if each else np.empty((0, 3))
+    return centres, np.repeat(np.arange(len(each)), [len(e) for e in each])

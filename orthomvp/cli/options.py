@@ -163,6 +163,7 @@ class DemInput:
         (:func:`orthomvp.geometry.world.check_cameras_above`)."""
         from dataclasses import replace
 
+        from orthomvp.camera import camera_centres
         from orthomvp.geometry.terrain import Terrain
         from orthomvp.geometry.world import check_cameras_above, detect_world
 
@@ -170,10 +171,10 @@ class DemInput:
         heights = {"vertical_datum": self.vertical_datum, "height_offset": self.height_offset}
         if cameras:  # the frame and "above" from the heights as the file holds them
             raw = Terrain.read(self.path, self.radius_values, world, self.crs, **_AS_READ)
-            centres = _centres(cameras)
+            centres, views = camera_centres(cameras)
             if self.world == "auto":
-                world = detect_world(raw, centres)
-            check_cameras_above(replace(raw, world=world), centres)
+                world = detect_world(raw, centres, views)
+            check_cameras_above(replace(raw, world=world), centres, views)
             if self.height_offset is None and self.vertical_datum == "auto":
                 from orthomvp.camera.rpc import check_map_frame_heights
                 from orthomvp.io.raster import open_raster
@@ -187,15 +188,6 @@ class DemInput:
 
 _AS_READ: dict[str, Any] = {"vertical_datum": "ignore", "height_offset": None}
 """Terrain.read's options for heights as the file holds them."""
-
-
-def _centres(cameras: Sequence[Camera]) -> Any:
-    """The cameras' sensor positions, (n, 3) world metres."""
-    import numpy as np
-
-    from orthomvp.camera import sensor_positions
-
-    return np.concatenate([sensor_positions(camera) for camera in cameras])
 
 
 DEM_HELP = (

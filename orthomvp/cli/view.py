@@ -224,9 +224,7 @@ def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
     (:class:`~orthomvp.engine.grid.DemSource`): a click reads its block, not the DEM."""
     from dataclasses import replace
 
-    import numpy as np
-
-    from orthomvp.camera import sensor_positions
+    from orthomvp.camera import camera_centres
     from orthomvp.camera.rpc import check_map_frame_heights
     from orthomvp.codes import WorldFrame
     from orthomvp.engine.grid import scan_dem, with_world
@@ -235,11 +233,15 @@ def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
 
     heights = HeightOptions(dem.vertical_datum, dem.height_offset)
     source = scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights)
-    centres = np.concatenate([sensor_positions(camera) for camera in cameras])
-    world = detect_world(source.preview, centres) if dem.world == "auto" else WorldFrame(dem.world)
+    centres, views = camera_centres(cameras)
+    world = (
+        detect_world(source.preview, centres, views)
+        if dem.world == "auto"
+        else WorldFrame(dem.world)
+    )
     preview = replace(source.preview, world=world)
     preview.check_convention()  # heights against radii, before the cameras are judged by them
-    check_cameras_above(preview, centres)  # heights as the file holds
+    check_cameras_above(preview, centres, views)  # heights as the file holds
     if dem.height_offset is None and dem.vertical_datum == "auto":
         named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
         check_map_frame_heights(named, world, dem.crs or source.file_crs, as_read=True)

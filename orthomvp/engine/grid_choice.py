@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from orthomvp.camera import in_world, sensor_positions
+from orthomvp.camera import camera_centres, in_world, sensor_positions
 from orthomvp.camera.rpc import in_vertical_datum
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.footprint import Footprint, image_footprints, union_window, window_bounds
@@ -119,18 +119,18 @@ def read_source(
     vertical datum takes the DEM's compound CRS (:func:`~orthomvp.camera.rpc.in_vertical_datum`:
     PROJ converts its heights with the geoid's grid, or it is refused naming the grid)."""
     frame = world_frame(world)
-    centres = np.concatenate([sensor_positions(v.camera) for v in sources])
+    centres, views = camera_centres([v.camera for v in sources])
     with Progress("reading the DEM's heights", progress, unit="row") as bar:
         source = scan_dem(dem, dem_crs, radius_values, progress=bar, heights=heights)
     check_camera_bodies(source.preview, [v.camera for v in sources])
     if frame != WorldFrame.BODY:  # cameras in a map frame: their file's CRS, if it names one
         check_stated_crs(sources, source.crs, source.preview.name)
     if frame is None:
-        frame = detect_world(source.preview, centres)
+        frame = detect_world(source.preview, centres, views)
     preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough
     preview.check_convention()  # heights against radii, before the cameras are judged by them
     sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
-    check_cameras_above(preview, np.concatenate([sensor_positions(v.camera) for v in sources]))
+    check_cameras_above(preview, *camera_centres([v.camera for v in sources]))
     source = dem_with_world(source, frame)
     as_read = source.heights == HeightOptions()  # auto, no offset: the map frame's rule
     named = [(str(v.path), v.camera) for v in sources]

@@ -84,9 +84,18 @@ def map_plausible(terrain: Terrain, centres: np.ndarray) -> np.ndarray:
     return near & (z > under) & (z <= np.nanmax(terrain.values) + MAP_ALTITUDE)
 
 
-def detect_world(terrain: Terrain, centres: np.ndarray) -> WorldFrame:
+def _camera(views: np.ndarray | None, k: int) -> int:
+    """The 1-based camera that centre ``k`` belongs to (``views``: each centre's camera index,
+    as :func:`~orthomvp.camera.camera_centres` gives; None: one centre a camera)."""
+    return (k if views is None else int(views[k])) + 1
+
+
+def detect_world(
+    terrain: Terrain, centres: np.ndarray, views: np.ndarray | None = None
+) -> WorldFrame:
     """The world frame (``"body"`` or ``"map"``) of cameras with ``centres`` (n, 3) over
-    ``terrain`` (its own ``world`` is ignored). Geographic CRSs are always ``"body"``.
+    ``terrain`` (its own ``world`` is ignored); ``views``: the camera of each centre, which
+    messages name (default: one centre a camera). Geographic CRSs are always ``"body"``.
 
     Raises InputError, asking for ``--world body|map``, when there are no cameras, when a
     camera fits both frames or neither, or when the cameras disagree.
@@ -106,16 +115,19 @@ def detect_world(terrain: Terrain, centres: np.ndarray) -> WorldFrame:
         return WorldFrame.MAP
     both, neither = np.flatnonzero(body & map_), np.flatnonzero(~body & ~map_)
     if both.size:
-        why = f"camera {both[0] + 1} fits both body-fixed metres and the DEM's map frame"
+        why = (
+            f"camera {_camera(views, both[0])} fits both body-fixed metres and the DEM's map frame"
+        )
     elif neither.size:
         why = (
-            f"camera {neither[0] + 1} fits neither body-fixed metres nor the DEM's map frame "
+            f"camera {_camera(views, neither[0])} fits neither body-fixed metres nor the DEM's "
+            "map frame "
             f"(within {MAP_EXTENTS:g} DEM extents of its map extent, above its heights)"
         )
     else:
         why = (
-            f"camera {np.flatnonzero(body)[0] + 1} fits body-fixed metres, camera "
-            f"{np.flatnonzero(map_)[0] + 1} the DEM's map frame"
+            f"camera {_camera(views, np.flatnonzero(body)[0])} fits body-fixed metres, camera "
+            f"{_camera(views, np.flatnonzero(map_)[0])} the DEM's map frame"
         )
     raise InputError(
         f"{terrain.name}: cannot tell the cameras' world frame: {why}; "
@@ -123,8 +135,11 @@ def detect_world(terrain: Terrain, centres: np.ndarray) -> WorldFrame:
     )
 
 
-def check_cameras_above(terrain: Terrain, centres: np.ndarray) -> None:
-    """GeometryError when a camera centre of ``centres`` (n, 3) does not sit above the DEM in
+def check_cameras_above(
+    terrain: Terrain, centres: np.ndarray, views: np.ndarray | None = None
+) -> None:
+    """GeometryError when a camera centre of ``centres`` (n, 3; ``views``: the camera of each,
+    as :func:`detect_world`) does not sit above the DEM in
     the body-fixed frame of its CRS (see :func:`body_plausible`): the DEM's CRS names another
     body (an Earth CRS for lunar cameras), or the cameras belong to the map frame. Says how far
     from the body's centre the camera is, against the body's radius. Map-frame terrains are
@@ -147,7 +162,7 @@ def check_cameras_above(terrain: Terrain, centres: np.ndarray) -> None:
         else "beyond the DEM's horizon (on another side of the body)"
     )
     raise GeometryError(
-        f"{terrain.name}: camera {k + 1} is {where} in the DEM's CRS "
+        f"{terrain.name}: camera {_camera(views, k)} is {where} in the DEM's CRS "
         f"({terrain.geodetic_crs.name}): the cameras do not sit above the DEM in this "
         "CRS and body; is it the right CRS for these cameras (--dem-crs), or do they live in "
         "the DEM's map frame (--world map)?"
