@@ -96,3 +96,25 @@ def test_the_warning_holds_exactly_at_its_share() -> None:
     assert east_west_text((0.01, 0.01), -60.1, crs, R) is not None
     assert east_west_text((0.02, 0.01), 70.0, crs, R) is None  # (already wider in longitude)
     assert east_west_text((0.01, 0.01), 80.0, CRS.from_epsg(32633), R) is None  # (projected)
+
+
+def test_info_gives_the_ground_spacing_of_degrees_at_the_dem_centre(tmp_path: Path) -> None:
+    """Found by a new user's audit: `info` gave a degree of longitude the metres of one of
+    latitude (Hadley, 25.5 N: "118 x 118 m" where posts lie 107 m apart east-west). Against
+    pyproj's geodesic on the sphere, at the DEM's centre and median height."""
+    from pyproj import Geod
+
+    from orthomvp.engine.info import describe
+
+    dem = _dem(tmp_path, 80.64)
+    d = describe(dem)["properties"]["dem"]
+    east, north = d["post_spacing_m"]
+    with rasterio.open(dem) as ds:
+        heights = ds.read(1)
+    radius = R + float(np.median(heights))
+    geod = Geod(a=radius, b=radius)
+    lat = 80.64 - 0.01 * (31.5 + 0.5)  # the grid centre: row 31.5, pixel centres
+    _, _, along = geod.inv(10.0, lat, 10.01, lat)
+    _, _, down = geod.inv(10.0, lat, 10.0, lat - 0.01)
+    assert east == pytest.approx(along, rel=1e-4) and north == pytest.approx(down, rel=1e-6)
+    assert east < 0.17 * north

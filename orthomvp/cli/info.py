@@ -95,9 +95,12 @@ def text_lines(feature: dict[str, Any]) -> list[str]:
     if image["time_s"] is not None:
         t0, t1 = image["time_s"]
         lines.append(f"  time:          {t0:.4f} to {t1:.4f} s from the centre time")
+    (rx, ry), (gx, gy) = grid["res"], grid["res_m"]
+    units = f"{rx:.6g} {grid['units']}" if rx == ry else f"{rx:.6g} x {ry:.6g} {grid['units']}"
+    metres = f"{gx:.3g} m" if f"{gx:.3g}" == f"{gy:.3g}" else f"{gx:.3g} x {gy:.3g} m"
     lines += [
         f"  default grid:  {grid['size'][0]:,} x {grid['size'][1]:,} posts of "
-        f"{grid['res'][0]:.6g} {grid['units']} ({grid['res_m'][0]:.3g} m), "
+        f"{units} ({metres}), "
         f"{100 * grid['dem_share']:.1f}% of the DEM's extent",
         f"                 bounds {left:.10g} {bottom:.10g} {right:.10g} {top:.10g} "
         "(left bottom right top)",
