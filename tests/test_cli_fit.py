@@ -73,3 +73,18 @@ def test_fit_errors_are_one_line_and_leave_nothing(scene: Path, tmp_path: Path) 
         run("fit", str(scene / "start.tif"), *p, "-o", str(out), "--hwin", "0"), "hwin"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_a_window_too_large_is_named_as_such(scene: Path, tmp_path: Path) -> None:
+    """Found by a new user's audit: a window larger than the images' overlap said "no post is
+    visible in 2 or more images" (fit_dem itself says why), and one needing more memory than
+    the machine has said "use smaller tiles", which changes nothing."""
+    out = tmp_path / "fit.tif"
+    args = ["fit", str(scene / "start.tif"), *pairs(scene), "-o", str(out), "--levels", "1"]
+    proc = run(*args, "--hwin", "40")
+    assert_one_line_error(proc, "posts are visible in 2 or more images, but at none of them")
+    assert "81 x 81 samples (hwin 40): choose a smaller hwin" in proc.stderr
+    proc = run(*args, "--hwin", "400", "--tile", "16")
+    assert_one_line_error(proc, "choose a smaller --hwin (every post's patch holds 801 squared")
+    assert list(tmp_path.iterdir()) == []

@@ -57,6 +57,7 @@ from orthomvp.io.output_checks import (
     check_parent,
 )
 from orthomvp.mvp import fit_dem
+from orthomvp.mvp.fit import nothing_fitted
 from orthomvp.mvp.views import ViewWindow, covers, exact_masks, union, window_for
 from orthomvp.occlusion.visibility import compute_visibility, occluder_caster
 from orthomvp.validate import of_type
@@ -71,7 +72,8 @@ class FitTile:
     (2, rows, cols) float32 sigma_h and the converged flag (NaN where unresolved); for the
     summary, ``fitted`` and ``converged`` counts, ``shift`` (heights minus the input) and
     ``sigma`` (the finite sigma_h) of the fitted posts as float64; per view the posts
-    ``inside`` the image and those ``seen`` (visible or occluded); ``refits``: times the
+    ``inside`` the image and those ``seen`` (visible or occluded), and ``twice`` the posts
+    visible in 2 or more; ``refits``: times the
     tile was fitted again with grown image windows; ``seconds`` per phase."""
 
     index: int
@@ -87,6 +89,7 @@ class FitTile:
     sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
     inside: list[int] = field(default_factory=list)
     seen: list[int] = field(default_factory=list)
+    twice: int = 0
     refits: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
 
@@ -157,7 +160,9 @@ def _run_fit_tile(plan: FitPlan, index: int, threads: int, progress: bool) -> Fi
         visible[i][fit] = vis.codes[fit] == Code.VISIBLE
         del vis
     del caster, window, values
-    if not (visible.sum(axis=0) >= 2).any():
+    twice = visible.sum(axis=0) >= 2
+    result.twice = int(twice[inner].sum())
+    if not twice.any():
         return result
     images = list(job.images)
     geometry = plan.dem.geometry()
@@ -389,11 +394,20 @@ def run_fit(
     progress = plan.progress if progress is None else progress
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
-    peak = check_memory(plan, plan.peak_memory(at_once, sched.processes, inner), at_once)
+    need = plan.peak_memory(at_once, sched.processes, inner)
+    patches = plan.patch_bytes(inner) * (at_once + sched.processes)
+    advice = (
+        f"choose a smaller --hwin (every post's patch holds {2 * plan.options.hwin + 1} squared "
+        "samples of each image) or fewer threads/processes"
+        if 2 * patches > need
+        else "use smaller tiles or fewer threads/processes"
+    )
+    peak = check_memory(plan, need, at_once, advice)
     start = time.perf_counter()
     rows, cols = plan.grid.shape
     report = FitReport(posts=rows * cols)
     inside, seen = [0] * len(plan.views), [0] * len(plan.views)
+    twice = 0
     squares = 0.0
     folder = Path(outputs.heights).parent
     heights_grid = replace(plan.grid, crs=plan.dem.heights_crs())  # the heights' vertical datum
@@ -434,13 +448,14 @@ def run_fit(
                 sigmas.add(result.sigma)
                 inside = [a + b for a, b in zip(inside, result.inside, strict=True)]
                 seen = [a + b for a, b in zip(seen, result.seen, strict=True)]
+                twice += result.twice
                 bar.update()
             # views seen in some tile, only facing away (views that no tile fits are not
             # known to be inside: the plan checked that each one sees the DEM)
             tried = [k for k, n in enumerate(inside) if n]
             check_views([plan.views[k] for k in tried], [1] * len(tried), [seen[k] for k in tried])
             if not report.fitted:
-                raise GeometryError("no post is visible in 2 or more images: nothing to fit")
+                raise GeometryError(nothing_fitted(twice, plan.options.hwin, plan.levels))
         report.median_shift = shifts.value()
         report.median_sigma = sigmas.value()
     report.rms_shift = math.sqrt(squares / report.fitted)

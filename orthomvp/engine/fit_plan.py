@@ -160,14 +160,27 @@ class FitPlan:
         k = len(job.views)
         posts = _posts(_grow(job.fit, 1, self.grid.shape))
         pixels = sum(_posts(w) for w in job.images)
-        side = 2 * self.options.hwin + 1
-        batch = BATCH_SAMPLE_BYTES * BATCH * BATCH * k * side * side * max(threads, 1)
+        batch = self.patch_bytes(threads, k, posts)
         return (
             (WINDOW_BYTES + MESH_BYTES) * job.dem_posts
             + (FIT_POST_BYTES + FIT_VIEW_BYTES * k) * posts
             + PIXEL_BYTES * pixels
             + batch
         )
+
+    def patch_bytes(self, threads: int = 1, views: int = 0, posts: int = 0) -> int:
+        """The patches' share of :meth:`tile_bytes`, bytes: a batch of BATCH x BATCH posts
+        (at most the tile's ``posts``) per thread, each post's (2 hwin + 1)^2 samples of each
+        of ``views`` images; by default for the tile of most views and posts."""
+        if not views:
+            fitted = [job for job in self.tiles if job.dem is not None]
+            if not fitted:
+                return 0
+            views = max(len(job.views) for job in fitted)
+            posts = max(_posts(_grow(job.fit, 1, self.grid.shape)) for job in fitted)
+        side = 2 * self.options.hwin + 1
+        batch = min(BATCH * BATCH, posts)
+        return BATCH_SAMPLE_BYTES * batch * views * side * side * max(threads, 1)
 
     def peak_memory(self, workers: int, processes: int = 0, threads: int = 1) -> int:
         """Expected peak memory of a run with ``workers`` tiles at a time (each with

@@ -92,15 +92,16 @@ def preflight(plan: Plan, workers: int, processes: int, images: bool) -> int:
     return check_memory(plan, plan.peak_memory(workers, processes, images), workers)
 
 
-def check_memory(plan: Any, need: int, workers: int) -> int:
+def check_memory(
+    plan: Any, need: int, workers: int, advice: str = "use smaller tiles or fewer threads/processes"
+) -> int:
     """``need`` bytes for a run of ``plan`` with ``workers`` tiles at a time; InputError (one
-    line, saying what to change) when it exceeds :func:`available_memory`."""
+    line, saying what to change: ``advice``) when it exceeds :func:`available_memory`."""
     have = available_memory()
     if need > have:
         raise InputError(
             f"the run needs about {need / 2**30:.1f} GiB of memory with {workers} tile(s) of "
-            f"{plan.tile} posts at a time, {have / 2**30:.1f} GiB is available: use smaller "
-            "tiles or fewer threads/processes"
+            f"{plan.tile} posts at a time, {have / 2**30:.1f} GiB is available: {advice}"
         )
     return need
 

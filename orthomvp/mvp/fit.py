@@ -325,18 +325,23 @@ def fit_dem(
     out.heights = deconvolve(out.plane_heights, window.hwin, window.sigma, opts.deconvolve)
     if strict and not out.resolved.any():
         seen = problem.usable & (problem.visible.sum(axis=0) >= 2)
-        if not seen.any():
-            raise GeometryError("no post is visible in 2 or more images: nothing to fit")
-        side = 2 * window.hwin + 1
-        step = 2 ** (problem.levels - 1)
-        steps = f", {step} posts a sample at the coarsest level" if step > 1 else ""
-        raise GeometryError(
-            f"{int(seen.sum()):,} posts are visible in 2 or more images, but at none of them "
-            f"do 2 images hold the whole patch of {side} x {side} samples (hwin "
-            f"{window.hwin}{steps}): choose a smaller hwin"
-            + (" or fewer levels" if step > 1 else "")
-        )
+        raise GeometryError(nothing_fitted(int(seen.sum()), window.hwin, problem.levels))
     return out
+
+
+def nothing_fitted(seen: int, hwin: int, levels: int) -> str:
+    """Why a fit resolved no post, from the count of posts ``seen`` (visible in 2 or more
+    images), the window half-size ``hwin`` and the pyramid's ``levels``."""
+    if not seen:
+        return "no post is visible in 2 or more images: nothing to fit"
+    side = 2 * hwin + 1
+    step = 2 ** (levels - 1)
+    steps = f", {step} posts a sample at the coarsest level" if step > 1 else ""
+    return (
+        f"{seen:,} posts are visible in 2 or more images, but at none of them do 2 images "
+        f"hold the whole patch of {side} x {side} samples (hwin {hwin}{steps}): choose a "
+        "smaller hwin" + (" or fewer levels" if step > 1 else "")
+    )
 
 
 def check_fit_memory(
