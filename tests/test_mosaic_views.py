@@ -348,3 +348,28 @@ def test_an_image_left_out_of_a_fit_does_not_set_its_pyramid(partial: dict, tmp_
     for name, plan in (("three", three), ("two", two)):
         run_fit(plan, FitOutputs(heights=tmp_path / f"{name}.tif"), threads=2, progress=False)
     np.testing.assert_array_equal(read(tmp_path / "three.tif"), read(tmp_path / "two.tif"))
+
+
+def test_an_image_over_another_part_of_the_body_is_left_out(
+    crater_dir: Path, tmp_path: Path
+) -> None:
+    """Found by a new user's audit: a camera over another region of the body stopped every
+    command ("beyond the DEM's horizon", blaming the CRS). Of several images it is left out as
+    one that sees no post, the mosaic that of the others bit for bit; alone it is refused in
+    one line that says where it looks and what the DEM covers."""
+    from dataclasses import replace
+
+    d = crater_dir
+    oblique = load_view(d / "oblique.tif", d / "oblique.tsai")[1]
+    far = replace(oblique, center=-oblique.center)  # over the far side of the body
+    write_tsai(far, tmp_path / "far.tsai")
+    views = [(d / "oblique.tif", d / "oblique.tsai"), (d / "nadir.tif", tmp_path / "far.tsai")]
+    with pytest.warns(LeftOutWarning, match=r"1 of 2 images sees no post .*nadir\.tif"):
+        two = engine(d / "dem.tif", views, tmp_path, "two", MosaicOptions())
+    one = engine(d / "dem.tif", views[:1], tmp_path, "one", MosaicOptions())
+    np.testing.assert_array_equal(two["ortho"], one["ortho"])
+    with pytest.raises(GeometryError) as caught:
+        plan_ortho(d / "dem.tif", views[1:], progress=False)
+    text = str(caught.value)
+    assert "camera 1 is beyond the DEM's horizon (over longitude" in text
+    assert "the DEM covers longitude" in text and "is it the DEM of these images" in text

@@ -174,7 +174,7 @@ class DemInput:
             centres, views = camera_centres(cameras)
             if self.world == "auto":
                 world = detect_world(raw, centres, views)
-            check_cameras_above(replace(raw, world=world), centres, views)
+            check_cameras_above(replace(raw, world=world), centres, views, spare=len(cameras) > 1)
             if self.height_offset is None and self.vertical_datum == "auto":
                 from orthomvp.camera.rpc import check_map_frame_heights
                 from orthomvp.io.raster import open_raster

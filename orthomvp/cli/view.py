@@ -241,7 +241,7 @@ def _dem_source(dem: DemInput, cameras: list):  # noqa: ANN202
     )
     preview = replace(source.preview, world=world)
     preview.check_convention()  # heights against radii, before the cameras are judged by them
-    check_cameras_above(preview, centres, views)  # heights as the file holds
+    check_cameras_above(preview, centres, views, spare=len(cameras) > 1)  # (as the file holds)
     if dem.height_offset is None and dem.vertical_datum == "auto":
         named = [(f"camera {k + 1}", camera) for k, camera in enumerate(cameras)]
         check_map_frame_heights(named, world, dem.crs or source.file_crs, as_read=True)

@@ -130,7 +130,9 @@ def read_source(
     preview = replace(source.preview, world=frame)  # the heights as read tell "above" enough
     preview.check_convention()  # heights against radii, before the cameras are judged by them
     sources = tuple(replace(v, camera=in_world(v.camera, preview)) for v in sources)
-    check_cameras_above(preview, *camera_centres([v.camera for v in sources]))
+    # (of several images, those that look at another part of the body are left out below)
+    centres, views = camera_centres([v.camera for v in sources])
+    check_cameras_above(preview, centres, views, spare=len(sources) > 1)
     source = dem_with_world(source, frame)
     as_read = source.heights == HeightOptions()  # auto, no offset: the map frame's rule
     named = [(str(v.path), v.camera) for v in sources]

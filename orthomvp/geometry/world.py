@@ -17,6 +17,7 @@ the choice is left to the user (``--world body|map``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -136,14 +137,20 @@ def detect_world(
 
 
 def check_cameras_above(
-    terrain: Terrain, centres: np.ndarray, views: np.ndarray | None = None
+    terrain: Terrain,
+    centres: np.ndarray,
+    views: np.ndarray | None = None,
+    *,
+    spare: bool = False,
 ) -> None:
     """GeometryError when a camera centre of ``centres`` (n, 3; ``views``: the camera of each,
-    as :func:`detect_world`) does not sit above the DEM in
-    the body-fixed frame of its CRS (see :func:`body_plausible`): the DEM's CRS names another
-    body (an Earth CRS for lunar cameras), or the cameras belong to the map frame. Says how far
-    from the body's centre the camera is, against the body's radius. Map-frame terrains are
-    not checked."""
+    as :func:`detect_world`) does not sit above the DEM in the body-fixed frame of its CRS (see
+    :func:`body_plausible`): the DEM's CRS names another body (an Earth CRS for lunar cameras),
+    the cameras belong to the map frame, or a camera looks at another part of the body. Says
+    how far from the body's centre the camera is, against the body's radius, or where on the
+    body it looks, against the DEM's extent. With ``spare`` (commands of several images, which
+    leave out the images that see no post), cameras that merely look at another part of the
+    body pass while one camera sits above the DEM. Map-frame terrains are not checked."""
     if terrain.world != WorldFrame.BODY:
         return
     centres = np.atleast_2d(np.asarray(centres, dtype=np.float64))
@@ -152,20 +159,39 @@ def check_cameras_above(
     ok = body_plausible(terrain, centres)
     if ok.all():
         return
-    k = int(np.flatnonzero(~ok)[0])
-    distance = float(np.linalg.norm(centres[k]))
     radius = terrain.radii[1]
-    where = (
-        f"{distance / 1000:,.0f} km from the centre of the DEM's body, below its surface "
-        f"({radius / 1000:,.0f} km radius)"
-        if distance < radius
-        else "beyond the DEM's horizon (on another side of the body)"
-    )
+    distance = np.linalg.norm(centres, axis=1)
+    if spare and ok.any() and (distance[~ok] >= radius).all():
+        return
+    k = int(np.flatnonzero(~ok)[0])
+    if distance[k] < radius:
+        where = (
+            f"{distance[k] / 1000:,.0f} km from the centre of the DEM's body, below its surface "
+            f"({radius / 1000:,.0f} km radius)"
+        )
+    else:
+        where = f"beyond the DEM's horizon ({_looks_at(terrain, centres[k])})"
     raise GeometryError(
         f"{terrain.name}: camera {_camera(views, k)} is {where} in the DEM's CRS "
         f"({terrain.geodetic_crs.name}): the cameras do not sit above the DEM in this "
-        "CRS and body; is it the right CRS for these cameras (--dem-crs), or do they live in "
-        "the DEM's map frame (--world map)?"
+        "CRS and body; is it the DEM of these images, the right CRS for these cameras "
+        "(--dem-crs), or do they live in the DEM's map frame (--world map)?"
+    )
+
+
+def _looks_at(terrain: Terrain, centre: np.ndarray) -> str:
+    """Where on the body a camera at body-fixed ``centre`` lies over (planetocentric, degrees),
+    against the DEM's extent in longitude and latitude."""
+    x, y, z = (float(v) for v in centre)
+    lon, lat = math.degrees(math.atan2(y, x)), math.degrees(math.atan2(z, math.hypot(x, y)))
+    rows, cols = terrain.shape
+    c = np.array([0.0, cols - 1, 0.0, cols - 1, (cols - 1) / 2])
+    r = np.array([0.0, 0.0, rows - 1, rows - 1, (rows - 1) / 2])
+    dem_lon, dem_lat = (np.degrees(v) for v in terrain.pixel_to_lonlat(c, r))
+    return (
+        f"over longitude {lon:.2f}, latitude {lat:.2f}; the DEM covers longitude "
+        f"{dem_lon.min():.2f} to {dem_lon.max():.2f}, latitude {dem_lat.min():.2f} to "
+        f"{dem_lat.max():.2f}"
     )
 
 
