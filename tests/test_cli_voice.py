@@ -302,6 +302,31 @@ def test_help_names_every_camera_kind(command: str) -> None:
         assert words in text, words
 
 
+CUBE_INSTRUMENTS = {
+    "LRO NAC (left and right)": "LRO NAC",
+    "LRO WAC (UV and VIS)": "WAC",
+    "MRO CTX": "MRO CTX",
+    "Kaguya TC1/TC2": "Kaguya TC",
+    "Mars Express HRSC": "Mars Express HRSC",
+    "Apollo 15/16/17 Metric": "Apollo Metric",
+    "MESSENGER MDIS (NAC and WAC filters)": "MESSENGER MDIS",
+    "Dawn FC1/FC2": "Dawn FC",
+}
+"""Each instrument of the ISIS3 cube reader, and the words by which --help names it."""
+
+
+@pytest.mark.parametrize("command", ["ortho", "isd"])
+def test_help_names_every_cube_instrument(command: str) -> None:
+    from orthomvp.camera.isis import INSTRUMENTS
+
+    assert {i.name for i in INSTRUMENTS} == set(CUBE_INSTRUMENTS)  # a new one: name it in help
+    proc = run(command, "--help")
+    assert proc.returncode == 0
+    text = " ".join(proc.stdout.split())
+    for words in CUBE_INSTRUMENTS.values():
+        assert words in text, words
+
+
 # ------------------------------------------------------------------------------- mesh textures
 def _write(path: Path, values: np.ndarray, transform: Affine | None, crs: object, **kw) -> Path:  # noqa: ANN003
     profile = {"driver": "GTiff", "width": values.shape[-1], "height": values.shape[-2]}

@@ -15,13 +15,13 @@ GUIDES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 def _run_block(marker: str, folder: Path) -> dict:
     """Run the one Python block of the README or docs/ that contains ``marker`` in ``folder``;
-    its names."""
+    its names. It runs as a script does (``__name__ == "__main__"``), guarded code included."""
     blocks = [b for g in GUIDES for b in re.findall(r"```python\n(.*?)```", g.read_text(), re.S)]
     (block,) = [b for b in blocks if marker in b]
     cwd = os.getcwd()
     os.chdir(folder)
     try:
-        namespace: dict = {}
+        namespace: dict = {"__name__": "__main__"}
         exec(compile(block, "README.md", "exec"), namespace)
     finally:
         os.chdir(cwd)
@@ -71,6 +71,11 @@ def test_readme_python_example(tmp_path: Path) -> None:
     with rasterio.open(tmp_path / "fitted.tif") as src:
         np.testing.assert_array_equal(src.read(1), again.heights.astype(np.float32))
     assert n["report"].fitted == int(again.resolved.sum())
+    # the page shows what the block wrote: the fitted DEM and the true radiance over the DEM
+    layers = n["layers"]
+    assert not layers.problems
+    assert [layer.kind.name for layer in layers.layers.values()] == ["relief", "height", "image"]
+    assert (tmp_path / "page" / "index.html").is_file()
 
 
 def test_readme_front_example(tmp_path: Path) -> None:

@@ -105,7 +105,7 @@ def test_ngi_aerial_orthophotos_and_mosaic_through_the_cli(tmp_path: Path) -> No
     posts filled per frame; 42,029..43,636 visible, 0..18 occluded, 0..32 facing away (gentle
     terrain seen near nadir); the 6 overlapping pairs agree with r = 0.79..0.97 in
     band 1 (mean 0.89; 0.64..0.96 in band 3, 0.74..0.96 grey; 4,917..17,409 common posts);
-    the mosaic takes 28,647..30,531 posts from each frame, and all visible posts but 2 that
+    the mosaic takes 28,700..30,439 posts from each frame, and all visible posts but 2 that
     only doubtful views see."""
     d = shared("ngi-aerial")
     dem, exterior = d / "dem.tif", d / "orthority-format" / "ngi_xyz_opk.csv"

@@ -202,8 +202,10 @@ def engine_options(*, dtype: bool, grid: bool = True, rasters: bool = True) -> C
                 "--tile",
                 type=click.IntRange(min=2),
                 metavar="POSTS",
-                show_default="1024, or for ortho, mosaic and check on a small grid its longer side "
-                "split among the cores (at least 256)",
+                show_default="1024; on a grid too small to give each core a tile, its longer "
+                "side split among the cores, at least 512 for visibility and ortho, 256 for "
+                "mosaic and check; a mosaic's tiles also shrink, to 192 at least, where many "
+                "views overlap; fit: always 1024",
                 help="output tile size: memory grows with it, not with the DEM or image",
             ),
             click.option(

@@ -52,7 +52,9 @@ MAX_DECONVOLVE = 10
     "--uncertainty",
     type=OUT_FILE,
     metavar="U.tif",
-    help="write the 1-sigma height uncertainty (metres) and a converged flag (band 2)",
+    help="write the 1-sigma height uncertainty (metres) and a converged flag (band 2); it "
+    "covers the fit's noise only, not its bias (the window's on curved terrain, a wrong "
+    "minimum): where the fit is better or worse determined, not an error bar",
 )
 @click.option(
     "--hwin",

@@ -25,8 +25,8 @@ from orthomvp.cli.options import (
     "cube",
     type=PATH,
     metavar="CUBE",
-    help="a level-1 ISIS3 cube after spiceinit (attach=yes): LRO NAC, MRO CTX, Apollo "
-    "Metric, MESSENGER MDIS or Dawn FC",
+    help="a level-1 ISIS3 cube after spiceinit (attach=yes): LRO NAC or WAC, MRO CTX, Kaguya "
+    "TC, Mars Express HRSC, Apollo Metric, MESSENGER MDIS or Dawn FC",
 )
 @output_option("ISD.json", "the ISD (JSON, ALE's keys; the name_model line picks usgscsm's model)")
 @overwrite_option

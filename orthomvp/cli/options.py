@@ -46,7 +46,8 @@ CAMERA_HELP = (
     "reconstruction.json or ODM shots.geojson (the shot of IMAGE); a USGS CSM ISD or model "
     "state .json (line scan, frame, push frame); an RPC camera: the image itself when its "
     "GeoTIFF holds RPC metadata, an _RPC.TXT or an .RPB file; a spiceinit'd ISIS3 .cub (the cube "
-    "itself: LRO NAC, MRO CTX, Apollo Metric, MESSENGER MDIS, Dawn FC)"
+    "itself: LRO NAC and WAC, MRO CTX, Kaguya TC, Mars Express HRSC, Apollo Metric, MESSENGER "
+    "MDIS, Dawn FC)"
 )
 """What a CAMERA may be: every kind of :data:`orthomvp.camera.FORMATS` (not imported: --help
 stays fast; a test checks that every kind is named)."""

@@ -52,7 +52,10 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
     cls=Variadic,
     type=PATH,
     metavar="CAM ...",
-    help="cameras to draw (.tsai, .pinhole or .json), numbered from 1",
+    help="cameras to draw, numbered from 1: a camera file as the other commands read it "
+    "(.tsai, .pinhole, our .json, a USGS CSM ISD or model state, an RPC file or a GeoTIFF with "
+    "RPCs, a spiceinit'd ISIS3 .cub); an Orthority, OpenSfM or ODM file only when it holds one "
+    "camera (no image picks the row here)",
 )
 @click.option(
     "--rays",
