@@ -284,3 +284,29 @@ def test_export_of_a_south_up_dem_and_layers_is_the_north_up_ones(
     err = capsys.readouterr().err.splitlines()
     assert err == [f"orthomvp: error: {dem}: not on the DEM's grid (cannot be shown)"], err
     assert not (tmp_path / "none").exists()
+
+
+def test_export_says_it_ignores_the_views(
+    view_scene: dict, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The static page has no clicks or 3D: IMAGE CAMERA pairs given with --export are not
+    read (even a missing camera), and one warning line says so; the page is the one written
+    without them. The live viewer reads them (a missing camera is an error there)."""
+    d = view_scene["dir"]
+    dem = str(view_scene["start"])
+    pairs = [str(d / "nadir.tif"), str(tmp_path / "nope.tsai"), str(d / "oblique.tif")]
+    pairs.append(str(d / "oblique.tsai"))
+    assert main(["-q", "view", dem, *pairs, "--export", str(tmp_path / "with")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "orthomvp: warning: --export ignores the 2 IMAGE CAMERA pairs (not read): the static "
+        "page has no clicks or 3D; view without --export serves them"
+    ], err
+    assert main(["-q", "view", dem, "--export", str(tmp_path / "without")]) == 0
+    assert capsys.readouterr().err == ""
+    for name in ("index.html", "tiles/L0/0/0/0.png"):
+        assert (tmp_path / "with" / name).read_bytes() == (tmp_path / "without" / name).read_bytes()
+    _no_serve(monkeypatch)
+    assert main(["view", dem, *pairs, "--port", "0"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("orthomvp: error:") and "nope.tsai" in err[0], err
