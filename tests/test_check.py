@@ -90,16 +90,35 @@ def test_views_that_do_not_overlap(city) -> None:
 
 def test_check_command(city_dir: Path, tmp_path: Path) -> None:
     files = [str(city_dir / f"{n}.{ext}") for n in NAMES for ext in ("tif", "tsai")]
-    out = tmp_path / "chk"
+    out = tmp_path / "chk_eps2.4"  # the suffixes go after the whole prefix
     proc = run("check", str(city_dir / "dem.tif"), *files, "-o", str(out), "--eps", "2", "4")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.startswith("orthomvp: plan: check ")
     medians = re.findall(r"orthomvp: eps (\d) posts: median NCC (\d\.\d+) \(", proc.stdout)
     assert [e for e, _ in medians] == ["2", "4"] and all(float(m) > 0.9 for _, m in medians)
-    lines = (tmp_path / "chk.csv").read_text().splitlines()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chk_eps2.4.csv", "chk_eps2.4.png"]
+    lines = (tmp_path / "chk_eps2.4.csv").read_text().splitlines()
     assert lines[0] == "eps,view,other,class,miss_from,miss_to,posts,scored,ncc_mean,ncc_median"
     assert len(lines) == 1 + 2 * 12 * 2 * 8 + 2 * 2 * 8  # eps x ordered pairs x classes x bins
-    assert (tmp_path / "chk.png").read_bytes()[:4] == b"\x89PNG"
+    assert (tmp_path / "chk_eps2.4.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_prefix_naming_a_directory_is_refused(
+    city_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """check and eps-study -o PREFIX: a prefix that names a directory (., an existing one, one
+    ending in /) is one line saying what -o means, and nothing is written."""
+    files = [str(city_dir / f"{n}.{ext}") for n in NAMES[:2] for ext in ("tif", "tsai")]
+    (tmp_path / "existdir").mkdir()
+    monkeypatch.chdir(tmp_path)
+    for prefix in (".", "..", "existdir", "existdir/", str(tmp_path), "new/"):
+        for command in (["check", str(city_dir / "dem.tif"), *files], ["eps-study", "scene"]):
+            proc = run(*command, "-o", prefix)
+            assert_one_line_error(
+                proc, f"{prefix} names a directory; -o is the PREFIX", "PREFIX.csv and PREFIX.png"
+            )
+    assert [p.name for p in tmp_path.iterdir()] == ["existdir"]
+    assert not list((tmp_path / "existdir").iterdir())
 
 
 def test_check_command_bad_input(city_dir: Path, tmp_path: Path) -> None:

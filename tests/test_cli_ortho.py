@@ -119,12 +119,13 @@ def test_visibility_and_mosaic_commands(crater_dir: Path, tmp_path: Path) -> Non
 
 @pytest.mark.slow
 def test_eps_study_command(crater_dir: Path, tmp_path: Path) -> None:
-    prefix = tmp_path / "study"
+    prefix = tmp_path / "study_eps0.5"  # the suffixes go after the whole prefix
     proc = run("eps-study", str(crater_dir), "-o", str(prefix), "--eps", "0.5", "4", "40")
     assert proc.returncode == 0, proc.stderr
-    lines = (tmp_path / "study.csv").read_text().splitlines()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study_eps0.5.csv", "study_eps0.5.png"]
+    lines = (tmp_path / "study_eps0.5.csv").read_text().splitlines()
     assert lines[0].startswith("noise_m,view,eps") and len(lines) == 1 + 4 * 4
-    assert (tmp_path / "study.png").stat().st_size > 10_000
+    assert (tmp_path / "study_eps0.5.png").stat().st_size > 10_000
     assert_one_line_error(run("eps-study", str(tmp_path)), "scene.json")
 
 

@@ -87,3 +87,41 @@ def test_lunar_radii_read_as_heights_are_named_as_such(
         err = capsys.readouterr().err.splitlines()
         assert len(err) == 1 and words in err[0], err
     assert not Path(out).exists()
+
+
+def test_mesh_and_info_name_the_mix_up_on_every_path(
+    crater_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The audit's cases: `mesh radii.tif -o x.ply` (streamed) wrote vertices at twice the
+    body's radius, `mesh heights.tif --radius-values -o x.ply` a mesh near the centre, and `info
+    heights.tif --radius-values` printed radii of -1,162 m; each is now the one-line mix-up
+    error, and the convention as given right puts every vertex at radius + height."""
+    import trimesh
+
+    dem = crater_dir / "dem.tif"
+    radii = _radii(dem, tmp_path / "radii.tif")
+    out = tmp_path / "x.ply"
+    cases = (
+        (["mesh", str(radii), "-o", str(out)], RADII),
+        (["mesh", str(dem), "--radius-values", "-o", str(out)], HEIGHTS),
+        (["mesh", str(radii), "-o", str(tmp_path / "x.glb")], RADII),
+        (["mesh", str(dem), "--error-against", str(radii), "-o", str(out)], RADII),
+        (["info", str(dem), "--radius-values"], HEIGHTS),
+        (["info", str(radii)], RADII),
+    )
+    for args, words in cases:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and err[0].startswith("orthomvp: error:") and words in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["radii.tif"]
+    terrain = Terrain.read(dem)
+    radius = terrain.radii[0]
+    assert terrain.radii[0] == terrain.radii[1]  # a sphere: |vertex| = radius + height
+    heights = np.sort(terrain.values[np.isfinite(terrain.values)].ravel())
+    for path, options in ((dem, []), (radii, ["--radius-values"])):
+        ply = tmp_path / f"{path.stem}.ply"
+        assert main(["-q", "mesh", str(path), *options, "-o", str(ply)]) == 0
+        vertices = trimesh.load(ply, process=False).vertices
+        got = np.sort(np.linalg.norm(vertices, axis=1)) - radius
+        assert len(got) == len(heights)
+        assert np.abs(got - heights).max() < 0.2  # radii as float32 near 1,737 km: 0.125 m steps

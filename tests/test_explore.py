@@ -282,3 +282,76 @@ def test_apollo_small_windows_give_local_minima(tmp_path: Path, capsys) -> None:
     assert min(minima[2], minima[4]) >= 3
     assert max(minima[12], minima[14], minima[16]) == 1
     capsys.readouterr()
+
+
+def test_save_never_replaces_an_input_and_an_existing_file_only_with_overwrite(
+    planar_dir: Path,
+    tmp_path: Path,
+    capsys,  # noqa: ANN001
+) -> None:
+    """save refuses a figure or its CSV that is one of the session's inputs (by path through a
+    link, or the same file by a hard link), and a file that exists unless explore was started
+    with --overwrite; the inputs are left byte for byte as they were."""
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    for name in ("dem.tif", "orbit1.tif", "orbit1.tsai", "orbit2.tif", "orbit2.tsai"):
+        (scene / name).write_bytes((planar_dir / name).read_bytes())
+    (scene / "view1.png").symlink_to(scene / "orbit1.tif")  # an image input named .png
+    os.link(scene / "orbit2.tsai", scene / "cam2.csv")  # the camera by another name
+    files = [str(scene / n) for n in ("dem.tif", "view1.png", "orbit1.tsai")]
+    files += [str(scene / n) for n in ("orbit2.tif", "orbit2.tsai")]
+    before = {p.name: p.read_bytes() for p in scene.iterdir()}
+
+    def run(commands: str, *options: str) -> tuple[int, str]:
+        status = main(["-q", "explore", *files, *options, "-c", commands])
+        out = capsys.readouterr()
+        return status, out.out + out.err
+
+    (scene / "orbit1.csv").write_text("mine\n")  # an earlier save's data, no input
+    before["orbit1.csv"] = b"mine\n"
+    for save, options, message in [
+        ("view1.png", (), "save: {}/view1.png is the input IMAGE 1"),
+        ("view1.png", ("--overwrite",), "save: {}/view1.png is the input IMAGE 1"),
+        ("cam2.png", ("--overwrite",), "save: {}/cam2.csv is the input CAMERA 2"),
+        ("orbit1.png", (), "save: {}/orbit1.csv exists; start explore with --overwrite"),
+    ]:
+        status, out = run(f"rplot 50 11; save {scene / save}", *options)
+        errors = [ln for ln in out.splitlines() if ln.startswith("orthomvp: error:")]
+        assert status == 2 and len(errors) == 1, (save, out)
+        assert message.format(scene) in errors[0], (save, out)
+        assert {p.name: p.read_bytes() for p in scene.iterdir()} == before
+    status, out = run(f"rplot 50 11; save {scene / 'orbit1.png'}", "--overwrite")
+    assert status == 0, out  # told to replace a file that is no input
+    header, data = _read_csv(scene / "orbit1.csv")
+    assert header == ["height_m", "cost"] and len(data) == 11
+    assert sorted(p.name for p in scene.iterdir()) == sorted([*before, "orbit1.png"])
+    for name in before.keys() - {"orbit1.csv"}:
+        assert (scene / name).read_bytes() == before[name], name
+
+
+def test_interactive_save_follows_the_same_rule(tmp_path: Path) -> None:
+    """At the mvp> prompt a refused save is reported and the session goes on, the file kept."""
+    import io
+
+    from matplotlib.figure import Figure
+
+    from orthomvp.explore import ExplorerShell
+    from orthomvp.explore.plots import Plot
+
+    camera = tmp_path / "cam.csv"
+    camera.write_bytes(b"camera")
+    kept = tmp_path / "old.png"
+    kept.write_bytes(b"old")
+    out = io.StringIO()
+    shell = ExplorerShell(None, stdout=out, inputs=[("CAMERA", camera)])  # type: ignore[arg-type]
+    shell.plot = Plot(Figure(), ["a"], [[1]])
+    shell.onecmd(f"save {tmp_path / 'cam.png'}")
+    shell.onecmd(f"save {kept}")
+    shell.onecmd(f"save {tmp_path / 'x.png'}")  # goes on after the refusals
+    assert out.getvalue().splitlines() == [
+        f"error: save: {camera} is the input CAMERA; give another file name",
+        f"error: save: {kept} exists; start explore with --overwrite to replace it",
+        f"wrote {tmp_path / 'x.png'} and {tmp_path / 'x.csv'}",
+    ]
+    assert kept.read_bytes() == b"old" and camera.read_bytes() == b"camera"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cam.csv", "old.png", "x.csv", "x.png"]

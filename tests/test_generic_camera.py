@@ -194,5 +194,5 @@ def test_snapshots_draw_any_camera_and_look_through_frame_cameras_only(
     finally:
         bare.close()
         drawn.close()
-    with pytest.raises(InputError, match="camera 0: the from-camera view .one centre. needs"):
+    with pytest.raises(InputError, match="camera 1: the from-camera view needs a frame camera"):
         snapshot(terrain, cameras=[generic], options=SnapshotOptions(view=View.FROM_CAMERA))

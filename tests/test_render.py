@@ -22,6 +22,7 @@ from orthomvp.present.snapshot import (
     snapshot,
 )
 from orthomvp.synthetic import Scene, make_scene
+from tests.conftest import shared
 
 SIZE = (320, 240)
 
@@ -158,6 +159,46 @@ def test_from_camera_view_matches_the_camera(crater: Scene) -> None:
         snap.close()
 
 
+@pytest.mark.realdata
+def test_from_camera_view_through_an_isis_frame_cube(tmp_path: Path) -> None:
+    """The audit's case: an ISIS frame cube (a CSM frame camera: Apollo 15 Metric over Hadley)
+    is a frame camera, and the from-camera view looks through it: every post it sees lands
+    where the camera's own projection puts it (lens model included) within 0.5 px; the
+    command line renders it too."""
+    from orthomvp.camera import read_camera
+    from orthomvp.camera.csm import CsmFrameCamera
+    from orthomvp.geometry.terrain import Terrain
+
+    dem = shared("as15-hadley", "LOLA_hadley_dem.tif")
+    cube = shared("as15-hadley", "AS15-M-1134-hadley.cub")
+    camera, terrain = read_camera(cube), Terrain.read(dem)
+    assert isinstance(camera, CsmFrameCamera)
+    width, height = camera.width, camera.height
+    options = SnapshotOptions(view="from-camera", size=(width, height))
+    snap = snapshot(terrain, cameras=[camera], options=options)
+    try:
+        assert snap.image.std() > 20
+        pts = terrain.world_points().reshape(-1, 3)[::37]
+        uv, _ = camera.project(pts)
+        inside = np.isfinite(uv).all(axis=1) & (uv >= 0).all(axis=1)
+        inside &= (uv[:, 0] < width) & (uv[:, 1] < height)
+        assert inside.sum() > 500
+        renderer = snap.plotter.renderer
+        display = []
+        for p in pts[inside] - snap.origin:
+            renderer.SetWorldPoint(*p, 1.0)
+            renderer.WorldToDisplay()
+            display.append(renderer.GetDisplayPoint()[:2])
+        expected = np.column_stack([uv[inside, 0] + 0.5, height - (uv[inside, 1] + 0.5)])
+        np.testing.assert_allclose(display, expected, atol=0.5)
+    finally:
+        snap.close()
+    out = tmp_path / "through.png"
+    argv = ["-q", "render", str(dem), "--camera", str(cube), "--view", "from-camera"]
+    assert main([*argv, "--size", "200", "200", "-o", str(out)]) == 0
+    assert out.stat().st_size > 1000
+
+
 def test_vertical_exaggeration_scales_relief(crater: Scene) -> None:
     up = crater.terrain.up_vectors(crater.terrain.world_points()[32, 32])
     ranges = []
@@ -182,7 +223,7 @@ def test_bad_inputs_raise_input_errors(crater: Scene) -> None:
         ({"heights": t.values}, {}, "truth"),
         ({}, {"view": "sideways"}, "unknown view"),
         ({}, {"view": "from-camera"}, "camera"),
-        ({"cameras": nadir}, {"view": "from-camera", "view_camera": 1}, "0-based"),
+        ({"cameras": nadir}, {"view": "from-camera", "view_camera": 1}, "camera 2 .counted from 1"),
         ({}, {"exaggerate": 0.0}, "exaggeration"),
         ({}, {"size": (4, 4)}, "size"),
         ({}, {"rays": -1}, "rays"),

@@ -225,3 +225,88 @@ def test_a_failed_refresh_keeps_the_earlier_export(
     monkeypatch.chdir(here)
     assert main(["view", dem, "--export", "."]) == 0
     assert (here / "index.html").is_file()
+
+
+def test_export_of_a_south_up_dem_and_layers_is_the_north_up_ones(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A south-up DEM (rows flipped, positive pixel height) and south-up layers are shown as
+    their north-up originals: the same values read on the DEM's posts and at a point, the same
+    tiles and page; a DEM the viewer cannot show at all is one line, not an internal error."""
+    import rasterio
+
+    from orthomvp.errors import InputError
+    from orthomvp.view import LayerSet
+
+    rows, cols = 48, 64  # 4 tile pixels a post at zoom 0: no pixel centre on a post's edge
+    y, x = np.mgrid[0:rows, 0:cols]
+    heights = 300 + 40 * np.exp(-((x - 20) ** 2 + (y - 30) ** 2) / 200) + 0.3 * x
+    codes = np.random.default_rng(3).integers(0, 4, (rows, cols))
+    files = {}
+    for name, data, dtype in (("dem", heights, "float32"), ("vis", codes, "uint8")):
+        for up, flip, t in (
+            ("north", lambda a: a, Affine(5.0, 0, 500000.0, 0, -5.0, 4000000.0)),
+            ("south", lambda a: a[::-1], Affine(5.0, 0, 500000.0, 0, 5.0, 4000000.0 - 5 * rows)),
+        ):
+            path = files[name, up] = tmp_path / f"{up}-{name}.tif"
+            profile = {"driver": "GTiff", "width": cols, "height": rows, "count": 1}
+            profile |= {"dtype": dtype, "crs": "EPSG:32633", "transform": t}
+            with rasterio.open(path, "w", **profile) as dst:
+                dst.write(flip(data).astype(dtype), 1)
+    north_bounds = (500000.0, 4000000.0 - 5 * rows, 500000.0 + 5 * cols, 4000000.0)
+    for d, v in (("north", "south"), ("south", "south"), ("south", "north")):
+        layers = LayerSet(files["dem", d])
+        layers.add("visibility", [files["vis", v]])
+        assert not layers.problems, layers.problems
+        assert layers.bounds == north_bounds
+        relief, shown = layers.layers["L0"], layers.layers["L1"]
+        assert np.array_equal(relief.read(layers.bounds, (cols, rows))[0], heights.astype("f4"))
+        assert np.array_equal(shown.read(layers.bounds, (cols, rows))[0], codes), (d, v)
+        assert shown.value_at(500000.0 + 5 * 2.5, 4000000.0 - 5 * 3.5)[0] == codes[3, 2]
+    pages = {}
+    for up in ("north", "south"):
+        out = tmp_path / f"page-{up}"
+        args = [str(files["dem", up]), "--visibility", str(files["vis", up]), "--export", str(out)]
+        assert main(["view", *args]) == 0
+        assert "not shown" not in capsys.readouterr().err
+        pages[up] = {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    north, south = pages["north"], pages["south"]
+    assert north.keys() == south.keys() and any(k.startswith("tiles/L1/") for k in north)
+    assert all(north[k] == south[k] for k in north if k != "index.html")
+    assert south["index.html"].replace(b"south-", b"north-") == north["index.html"]
+
+    def refused(self, path: Path) -> None:  # noqa: ANN001
+        raise InputError(f"{path}: not on the DEM's grid (cannot be shown)")
+
+    monkeypatch.setattr(LayerSet, "_open", refused)
+    dem = files["dem", "north"]
+    assert main(["view", str(dem), "--export", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"orthomvp: error: {dem}: not on the DEM's grid (cannot be shown)"], err
+    assert not (tmp_path / "none").exists()
+
+
+def test_export_says_it_ignores_the_views(
+    view_scene: dict, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The static page has no clicks or 3D: IMAGE CAMERA pairs given with --export are not
+    read (even a missing camera), and one warning line says so; the page is the one written
+    without them. The live viewer reads them (a missing camera is an error there)."""
+    d = view_scene["dir"]
+    dem = str(view_scene["start"])
+    pairs = [str(d / "nadir.tif"), str(tmp_path / "nope.tsai"), str(d / "oblique.tif")]
+    pairs.append(str(d / "oblique.tsai"))
+    assert main(["-q", "view", dem, *pairs, "--export", str(tmp_path / "with")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "orthomvp: warning: --export ignores the 2 IMAGE CAMERA pairs (not read): the static "
+        "page has no clicks or 3D; view without --export serves them"
+    ], err
+    assert main(["-q", "view", dem, "--export", str(tmp_path / "without")]) == 0
+    assert capsys.readouterr().err == ""
+    for name in ("index.html", "tiles/L0/0/0/0.png"):
+        assert (tmp_path / "with" / name).read_bytes() == (tmp_path / "without" / name).read_bytes()
+    _no_serve(monkeypatch)
+    assert main(["view", dem, *pairs, "--port", "0"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("orthomvp: error:") and "nope.tsai" in err[0], err

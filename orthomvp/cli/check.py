@@ -20,6 +20,7 @@ from orthomvp.cli.options import (
     optional_dem_argument,
     overwrite_options,
     pairs_argument,
+    prefix_files,
     prefix_option,
     quiet,
     say,
@@ -82,7 +83,7 @@ def check(
 
     if window % 2 == 0:
         raise click.UsageError(f"--window must be odd, got {window}", click.get_current_context())
-    csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
+    csv, png = prefix_files(output)
     outputs = [Output("-o", csv, (".csv",), "CSV"), Output("-o", png, (".png",), "a PNG")]
     dem, pairs, inputs = command_views(dem, pairs, odm)
     check_outputs(outputs, inputs, overwrite, replace_input)

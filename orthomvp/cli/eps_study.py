@@ -14,6 +14,7 @@ from orthomvp.cli.options import (
     Output,
     check_outputs,
     overwrite_option,
+    prefix_files,
     prefix_option,
     say,
 )
@@ -60,7 +61,7 @@ def eps_study(
     and F1 per view (CSV) and a plot (PNG)."""
     from orthomvp.quality import eps_study as epsstudy
 
-    csv, png = output.with_suffix(".csv"), output.with_suffix(".png")
+    csv, png = prefix_files(output)
     check_outputs([Output("-o", csv, ()), Output("-o", png, ())], overwrite=overwrite)
     values = eps or epsstudy.DEFAULT_EPS_VALUES
     rows = epsstudy.eps_study(scene, eps_values=values, noise=dem_noise)

@@ -17,6 +17,7 @@ from orthomvp.cli.options import (
     levels_option,
     pairs_argument,
     quiet,
+    view_inputs,
 )
 
 
@@ -33,6 +34,12 @@ from orthomvp.cli.options import (
 @click.option("--script", type=PATH, metavar="FILE", help="run the commands in FILE")
 @levels_option("coarse-to-fine pyramid levels for fit")
 @eps_option
+@click.option(
+    "--overwrite",
+    is_flag=True,
+    help="let save replace files that exist (without it an existing file is refused; an input "
+    "never is)",
+)
 @dem_options
 def explore(
     dem: DemInput,
@@ -41,6 +48,7 @@ def explore(
     script: Path | None,
     levels: int,
     eps: float | None,
+    overwrite: bool,
 ) -> None:
     """The objective explorer, successor of mvpgui: an mvp> prompt with commands to plot the
     MVP objective against height (rplot) and orientation (llplot), list the views, show the
@@ -69,7 +77,7 @@ def explore(
         eps=eps,
         levels=levels,
     )
-    shell = ExplorerShell(explorer)
+    shell = ExplorerShell(explorer, inputs=view_inputs(dem, pairs), overwrite=overwrite)
     if not quiet():
         rows, cols = terrain.shape
         print(

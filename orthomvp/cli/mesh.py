@@ -163,10 +163,12 @@ def _stream(
     world = WorldFrame.BODY if dem.world == "auto" else WorldFrame(dem.world)
     heights = HeightOptions(dem.vertical_datum, dem.height_offset)
     source = with_world(scan_dem(dem.path, dem.crs, dem.radius_values, heights=heights), world)
+    source.preview.check_convention()  # heights against radii, as the .obj / .glb path does
     colours, limit = None, None
     if error_against:
         truth = scan_dem(error_against, dem.crs, dem.radius_values, heights=heights)
         truth = with_world(truth, world)
+        truth.preview.check_convention()
         colours, limit = error_colours_of(truth, source, error_limit)
     elif texture:
         sampler = TextureSampler(texture, source.shape, source.transform, source.crs)

@@ -40,6 +40,32 @@ class FilePath(click.Path):
 OUT_FILE = FilePath(path_type=Path)
 """An output file's name (see :class:`FilePath`)."""
 
+
+class PrefixPath(click.Path):
+    """The prefix of a table and its plot (PREFIX.csv, PREFIX.png): a prefix that names a
+    directory (``.``, one ending in ``/``, an existing directory) is refused."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        path = super().convert(value, param, ctx)
+        if isinstance(path, Path) and (
+            str(value).endswith(("/", os.sep)) or path.name in ("", ".", "..") or path.is_dir()
+        ):
+            example = Path(value) / "results"
+            self.fail(
+                f"{value} names a directory; -o is the PREFIX of the files written, PREFIX.csv "
+                f"and PREFIX.png (e.g. -o {example})",
+                param,
+                ctx,
+            )
+        return path
+
+
+def prefix_files(prefix: Path) -> tuple[Path, Path]:
+    """The table and plot of an output ``prefix``: PREFIX.csv and PREFIX.png (the suffixes
+    added to the whole name, so ``eps0.5`` gives ``eps0.5.csv``)."""
+    return prefix.with_name(prefix.name + ".csv"), prefix.with_name(prefix.name + ".png")
+
+
 CAMERA_HELP = (
     "camera model, any of: ASP .tsai or .pinhole; our .json; an Orthority exterior file (.csv, "
     ".geojson; the row of IMAGE, the one .yaml beside it) or RPC .yaml; an OpenSfM "
@@ -323,7 +349,7 @@ def prefix_option(default: str) -> Callable[[F], F]:
     return click.option(
         "-o",
         "--output",
-        type=PATH,
+        type=PrefixPath(path_type=Path),
         default=Path(default),
         metavar="PREFIX",
         help="output prefix: writes PREFIX.csv and PREFIX.png",

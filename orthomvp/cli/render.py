@@ -68,7 +68,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".webp", ".bmp")
     "--view",
     default=View.OBLIQUE.value,
     **enum_choice(View),
-    help="oblique from --azimuth and --elevation, straight down, or through a camera",
+    help="oblique from --azimuth and --elevation, straight down, or through a frame camera "
+    "(pinhole, CSM or ISIS frame; --camera-index)",
 )
 @click.option(
     "--camera-index",

@@ -122,7 +122,8 @@ def _pairs(ctx: click.Context, param: click.Parameter, value: tuple[Path, ...]) 
     metavar="DIR",
     help="write a static page with pre-rendered tiles into DIR instead of serving (created "
     "if absent; nothing is written on failure). A folder an earlier export wrote is refreshed "
-    "whole; any other folder that holds files needs --overwrite",
+    "whole; any other folder that holds files needs --overwrite. The page has no clicks or 3D, "
+    "so IMAGE CAMERA pairs are not read (a warning says so)",
 )
 @overwrite_option
 @levels_option("coarse-to-fine pyramid levels of a click's fit")
@@ -166,6 +167,13 @@ def view(
         from orthomvp.view.export import MARKS
 
         check_outdir(export, "--export", overwrite=overwrite, refresh=MARKS)
+        if pairs:
+            warnings.warn(
+                f"--export ignores the {len(pairs)} IMAGE CAMERA pairs (not read): the static "
+                "page has no clicks or 3D; view without --export serves them",
+                OrthoMVPWarning,
+                stacklevel=1,
+            )
     layers = LayerSet(dem.path)
     for p in orthos:
         layers.add("image", [p], f"image: {p.name}")

@@ -61,6 +61,7 @@ def describe(
     else:
         frame = WorldFrame.BODY if world == "auto" else WorldFrame(world)
         source = scan_dem(dem, dem_crs, radius_values, frame)
+        source.preview.check_convention()  # heights against radii, as read_source does
     properties: dict[str, Any] = {"dem": _dem_properties(source, dem_crs)}
     ring = _dem_outline(source)
     if views:

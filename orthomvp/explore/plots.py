@@ -8,6 +8,8 @@ it needs no display) and the plotted data as CSV columns. Heights are in the DEM
 from __future__ import annotations
 
 import csv
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from orthomvp.explore.session import Curve, ExploreError, PathPoint, Surface
+from orthomvp.io.output_checks import check_directory, same_file
 from orthomvp.io.outputs import write_set
 
 FORMATS = ("png", "svg", "pdf")
@@ -29,14 +32,36 @@ class Plot:
     header: list[str]
     rows: list[list[object]]
 
-    def save(self, path: str | Path) -> tuple[Path, Path]:
+    def save(
+        self,
+        path: str | Path,
+        *,
+        inputs: Sequence[tuple[str, Path | str | None]] = (),
+        overwrite: bool = False,
+        overwrite_hint: str = "overwrite=True",
+    ) -> tuple[Path, Path]:
         """Write the figure (format from the suffix: PNG, SVG or PDF) and the data as CSV beside
-        it (same name, ``.csv``), atomically as a set. Returns both paths."""
+        it (same name, ``.csv``), atomically as a set. Returns both paths. Neither file may be
+        one of the ``inputs`` ((label, path) pairs, e.g. ("DEM", dem_path); also through links),
+        nor may it exist unless ``overwrite`` (``overwrite_hint`` names that permission in the
+        message); ExploreError otherwise, before anything is written."""
         path = Path(path)
         fmt = path.suffix.lower().lstrip(".")
         if fmt not in FORMATS:
             raise ExploreError(f"save: {path.name}: use a .png, .svg or .pdf name")
-        data = path.with_suffix(".csv")
+        data = path.with_name(path.stem + ".csv")
+        for out in (path, data):
+            for label, given in inputs:
+                if given is not None and same_file(out, given):
+                    alias = f" ({given})" if str(out) != str(given) else ""
+                    raise ExploreError(
+                        f"save: {out} is the input {label}{alias}; give another file name"
+                    )
+            if out.is_dir():
+                raise ExploreError(f"save: {out} is a directory; give a file name")
+            if not overwrite and os.path.lexists(out):
+                raise ExploreError(f"save: {out} exists; {overwrite_hint} to replace it")
+            check_directory(out, f"save: {out}")
         write_set(
             {
                 path: lambda tmp: self.figure.savefig(tmp, format=fmt, dpi=110),

@@ -6,7 +6,8 @@ import cmd
 import inspect
 import math
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import TextIO
 
 import numpy as np
@@ -39,16 +40,28 @@ def _numbers(arg: str, kinds: tuple[type, ...], command: str) -> list:
 
 class ExplorerShell(cmd.Cmd):
     """Commands of the objective explorer; ``strict`` makes errors raise (scripts) instead of
-    printing and going on (interactive)."""
+    printing and going on (interactive). ``save`` never writes onto one of the session's
+    ``inputs`` ((label, path) pairs: DEM, images, cameras) and replaces an existing file only
+    with ``overwrite`` (``explore --overwrite``)."""
 
     prompt = "mvp> "
     doc_header = "Commands (help COMMAND for details):"
     undoc_header = None
 
-    def __init__(self, explorer: Explorer, stdout: TextIO | None = None, strict: bool = False):
+    def __init__(
+        self,
+        explorer: Explorer,
+        stdout: TextIO | None = None,
+        strict: bool = False,
+        *,
+        inputs: Sequence[tuple[str, Path | str | None]] = (),
+        overwrite: bool = False,
+    ):
         super().__init__(stdout=stdout or sys.stdout)
         self.ex = explorer
         self.strict = strict
+        self.inputs = list(inputs)
+        self.overwrite = overwrite
         self.plot: Plot | None = None
         self.last_plot: tuple[str, str] | None = None
 
@@ -238,13 +251,19 @@ class ExplorerShell(cmd.Cmd):
     def do_save(self, arg: str) -> None:
         """save FILE
         Save the last plot (PNG, SVG or PDF by the file's extension) and its data beside it
-        as CSV (same name, .csv)."""
+        as CSV (same name, .csv). Neither may be an input (DEM, image, camera); a file that
+        exists is replaced only when explore was started with --overwrite."""
         if not arg.strip():
             raise ExploreError("save needs a file name, e.g. save rplot.png")
         if self.plot is None:
             raise ExploreError("save: nothing plotted yet")
         try:
-            figure, data = self.plot.save(arg.strip())
+            figure, data = self.plot.save(
+                arg.strip(),
+                inputs=self.inputs,
+                overwrite=self.overwrite,
+                overwrite_hint="start explore with --overwrite",
+            )
         except OSError as exc:
             raise ExploreError(f"save: {exc}") from exc
         self.say(f"wrote {figure} and {data}")

@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from orthomvp.camera import Camera, require_pinhole
+from orthomvp.camera import Camera, PinholeCamera
+from orthomvp.camera.csm import CsmFrameCamera
 from orthomvp.codes import CODE_RGB, Code, View
 from orthomvp.errors import InputError
 from orthomvp.geometry.terrain import Terrain
@@ -57,6 +58,8 @@ if TYPE_CHECKING:
     import pyvista as pv
 
 DEFAULT_SIZE = (1024, 768)
+FRAME = (PinholeCamera, CsmFrameCamera)
+"""The cameras with one centre that the from-camera view looks through."""
 CROP_MARGIN = 12
 """Pixels of background kept around the content of a cropped snapshot."""
 MAX_RAYS = 10_000
@@ -74,8 +77,9 @@ class SnapshotOptions:
     ``"oblique"`` looks at the DEM centre from ``elevation`` degrees (in (0, 90]), from
     ``azimuth`` degrees clockwise from grid north (default: opposite the first camera, so that
     the slopes it cannot see face the viewer, or 210); ``"top"`` looks straight down, grid
-    north up, orthographic; ``"from-camera"`` looks through ``cameras[view_camera]`` (0-based)
-    with its vertical field of view and principal point (lens distortion ignored).
+    north up, orthographic; ``"from-camera"`` looks through ``cameras[view_camera]`` (0-based),
+    a frame camera (:data:`FRAME`: a pinhole with its vertical field of view and principal
+    point, lens distortion ignored; a CSM or ISIS frame camera through its own rays).
     ``exaggerate`` K > 0 scales heights about their median along each post's up direction
     (``h' = h_med + K (h - h_med)``). ``size`` is (width, height) in pixels, 16 to 8192 a side,
     default 1024 x 768 (``from-camera``: the camera's aspect, 1024 on the long side).
@@ -195,12 +199,16 @@ def snapshot(
     if opts.view == View.FROM_CAMERA and not 0 <= opts.view_camera < len(cameras):
         n = len(cameras)
         raise InputError(
-            f"the from-camera view needs camera {opts.view_camera} (0-based) but {n} "
-            f"camera{'s were' if n != 1 else ' was'} given"
+            f"the from-camera view needs camera {opts.view_camera + 1} (counted from 1) but "
+            f"{n} camera{'s were' if n != 1 else ' was'} given"
         )
-    if opts.view == View.FROM_CAMERA:
-        k = opts.view_camera
-        require_pinhole(cameras[k], f"camera {k}", "the from-camera view (one centre)")
+    if opts.view == View.FROM_CAMERA and not isinstance(cameras[opts.view_camera], FRAME):
+        kind = type(cameras[opts.view_camera]).__name__
+        raise InputError(
+            f"camera {opts.view_camera + 1}: the from-camera view needs a frame camera (one "
+            "centre): a pinhole (.tsai, .pinhole, .json, Orthority frame) or a CSM or ISIS "
+            f"frame camera; this one is a {kind}"
+        )
 
     tmesh = terrain_mesh(terrain)
     shown, values = tmesh, terrain.values

@@ -199,22 +199,38 @@ def view_dem(
 
 def view_from_camera(
     plotter: pv.Plotter,
-    camera: PinholeCamera,
+    camera: Camera,
     rect: Rect,
     origin: np.ndarray,
 ) -> None:
-    """Look through ``camera``: its centre, axis, image 'up' (-v) and the field of view of
-    ``rect``, whose centre is put at the middle of the snapshot."""
-    a = camera.world_to_image_axes
+    """Look through ``camera``, a frame camera (one centre): its centre, axis, image 'up' (-v)
+    and the field of view of ``rect``, whose centre is put at the middle of the snapshot. A
+    pinhole camera gives them from its model; a CSM or ISIS frame camera its centre and axis
+    (``boresight``) from its model, its image axes and field of view from its rays through
+    ``rect``'s edges' midpoints (lens distortion ignored in both)."""
     u0, v0, u1, v1 = rect
-    (tl, tr), (tt, tb) = pixel_tangents(camera, np.array([u0, u1]), np.array([v0, v1]))
+    if isinstance(camera, PinholeCamera):
+        a = camera.world_to_image_axes
+        (tl, tr), (tt, tb) = pixel_tangents(camera, np.array([u0, u1]), np.array([v0, v1]))
+        centre, right, down, axis = camera.center, a[0], a[1], a[2]
+    else:
+        um, vm = (u0 + u1) / 2, (v0 + v1) / 2
+        starts, dirs = camera.ray(np.array([[u0, vm], [u1, vm], [um, v0], [um, v1]]))
+        if not np.isfinite(dirs).all():
+            raise InputError("the from-camera view needs the camera's rays at its image edges")
+        axis = camera.boresight
+        t = dirs / (dirs @ axis)[:, None] - axis  # offsets on the image plane at unit depth
+        right = (t[1] - t[0]) / np.linalg.norm(t[1] - t[0])
+        down = np.cross(axis, right)  # image u x v = w
+        (tl, tr), (tt, tb) = t[:2] @ right, t[2:] @ down
+        centre = starts[0]
     half = (tb - tt) / 2  # tangent of half the vertical field of view
     width, height = plotter.window_size
     cam = plotter.camera
-    c = camera.center - origin
+    c = centre - origin
     cam.position = c
-    cam.focal_point = c + a[2]
-    cam.up = -a[1]
+    cam.focal_point = c + axis
+    cam.up = -down
     cam.view_angle = float(np.degrees(2 * np.arctan(half)))
     # Shift the projection so that the rectangle's centre (off the optical axis when the
     # principal point is off-centre) lands in the middle of the snapshot.

@@ -18,7 +18,7 @@ import numpy as np
 import rasterio
 from pyproj import CRS, Geod, Transformer
 from rasterio.enums import Resampling
-from rasterio.windows import Window, from_bounds
+from rasterio.windows import Window
 
 from orthomvp.errors import InputError
 from orthomvp.io.raster import open_raster
@@ -79,19 +79,21 @@ class Layer:
 def _read(
     d: rasterio.DatasetReader, bounds: Bounds, size: tuple[int, int], nearest: bool
 ) -> np.ndarray | None:
-    """Read ``bounds`` of ``d`` onto ``size`` (cols, rows) pixels (see :meth:`Layer.read`)."""
+    """Read ``bounds`` of ``d`` onto ``size`` (cols, rows) pixels (see :meth:`Layer.read`),
+    north up whichever way the file's rows and columns run (a south-up file's rows flipped)."""
     cols, rows = size
-    win = from_bounds(*bounds, transform=d.transform)
-    c0, r0 = max(win.col_off, 0.0), max(win.row_off, 0.0)
-    c1 = min(win.col_off + win.width, d.width)
-    r1 = min(win.row_off + win.height, d.height)
+    left, bottom, right, top = bounds
+    (ca, ra), (cb, rb) = ~d.transform @ (left, top), ~d.transform @ (right, bottom)
+    (col_lo, col_hi), (row_lo, row_hi) = sorted((ca, cb)), sorted((ra, rb))
+    c0, r0 = max(col_lo, 0.0), max(row_lo, 0.0)
+    c1, r1 = min(col_hi, d.width), min(row_hi, d.height)
     if c1 <= c0 or r1 <= r0:
         return None
-    # the part of the output the file covers, in output pixels
-    x0 = int(round((c0 - win.col_off) / win.width * cols))
-    x1 = int(round((c1 - win.col_off) / win.width * cols))
-    y0 = int(round((r0 - win.row_off) / win.height * rows))
-    y1 = int(round((r1 - win.row_off) / win.height * rows))
+    # the part of the output the file covers, in output pixels (file order)
+    x0 = int(round((c0 - col_lo) / (col_hi - col_lo) * cols))
+    x1 = int(round((c1 - col_lo) / (col_hi - col_lo) * cols))
+    y0 = int(round((r0 - row_lo) / (row_hi - row_lo) * rows))
+    y1 = int(round((r1 - row_lo) / (row_hi - row_lo) * rows))
     out = np.full((d.count, rows, cols), np.nan)
     if x1 <= x0 or y1 <= y0:
         return out
@@ -101,8 +103,20 @@ def _read(
         resampling=Resampling.nearest if nearest else Resampling.bilinear,
         masked=True,
     )
-    out[:, y0:y1, x0:x1] = part.astype(np.float64).filled(np.nan)
+    part = part.astype(np.float64).filled(np.nan)
+    if d.transform.e > 0:  # rows run south to north
+        part, (y0, y1) = part[:, ::-1], (rows - y1, rows - y0)
+    if d.transform.a < 0:  # columns run east to west
+        part, (x0, x1) = part[:, :, ::-1], (cols - x1, cols - x0)
+    out[:, y0:y1, x0:x1] = part
     return out
+
+
+def map_bounds(d: rasterio.DatasetReader) -> Bounds:
+    """(left, bottom, right, top) of a raster with left < right and bottom < top, whichever
+    way its rows and columns run (rasterio gives a south-up file's ``bounds`` bottom > top)."""
+    left, bottom, right, top = d.bounds
+    return (min(left, right), min(bottom, top), max(left, right), max(bottom, top))
 
 
 def _horizontal(crs: object) -> CRS:
@@ -125,18 +139,21 @@ class LayerSet:
     the map frame (``bounds``, ``crs``) and the files refused (``problems``)."""
 
     def __init__(self, dem: Path) -> None:
-        """Open the DEM (an InputError when it is missing or no georeferenced raster)."""
+        """Open the DEM (an InputError when it is missing, no georeferenced raster, or cannot be
+        shown: there is nothing to show the other layers over). North-up and south-up files
+        alike (rows running either way): the map's frame is north up."""
         with open_raster(dem) as src:
             if src.crs is None:
                 raise InputError(f"{dem}: the DEM has no CRS")
             self.crs = CRS.from_user_input(src.crs.to_wkt())
-            self.bounds: Bounds = tuple(src.bounds)  # type: ignore[assignment]
+            self.bounds: Bounds = map_bounds(src)
             self.shape = (src.height, src.width)
             self.transform = src.transform
         self.dem = Path(dem)
         self.layers: dict[str, Layer] = {}
         self.problems: list[Problem] = []
-        self.add("relief", [dem], f"DEM shaded: {Path(dem).name}")
+        if self.add("relief", [dem], f"DEM shaded: {Path(dem).name}") is None:
+            raise InputError(self.problems[0].reason)  # nothing to show the others over
         geographic = self.crs.geodetic_crs or self.crs
         self._lonlat = Transformer.from_crs(self.crs, geographic, always_xy=True)
         self._geod = Geod(ellps="WGS84") if self.crs.ellipsoid is None else self.crs.get_geod()
@@ -182,7 +199,7 @@ class LayerSet:
                 _horizontal(self.crs), ignore_axis_order=True
             ):
                 raise InputError(f"{path}: not on the DEM's grid (its CRS is not the DEM's)")
-            left, bottom, right, top = src.bounds
+            left, bottom, right, top = map_bounds(src)
             l0, b0, r0, t0 = self.bounds
             if right <= l0 or left >= r0 or top <= b0 or bottom >= t0:
                 raise InputError(f"{path}: not on the DEM's grid (it does not overlap the DEM)")

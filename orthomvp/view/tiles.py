@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image
 
-from orthomvp.view.layers import Bounds, Layer, LayerSet
+from orthomvp.view.layers import Bounds, Layer, LayerSet, map_bounds
 
 TILE = 256
 """Tile side, pixels."""
@@ -84,8 +84,8 @@ def _covered(layer: Layer, bounds: Bounds, size: tuple[int, int]) -> np.ndarray:
     y = top - (np.arange(rows) + 0.5) * (top - bottom) / rows
     inside = np.ones((rows, cols), bool)
     for d in layer.datasets:
-        b = d.bounds
-        inside &= ((y >= b.bottom) & (y <= b.top))[:, None] & ((x >= b.left) & (x <= b.right))
+        b_left, b_bottom, b_right, b_top = map_bounds(d)
+        inside &= ((y >= b_bottom) & (y <= b_top))[:, None] & ((x >= b_left) & (x <= b_right))
     return inside
 
 

@@ -41,6 +41,12 @@ class CsmFrameCamera(CsmImage):
         """Camera-to-body rotation (3, 3)."""
         return xyzw_matrix(self.quaternion)
 
+    @property
+    def boresight(self) -> np.ndarray:
+        """Unit direction (3,), body-fixed, of the optical axis: the way depth grows (the
+        camera frame's z axis, signed as :meth:`csm_ground_to_image` measures depth)."""
+        return self.look_sign * self.focal_plane.axis_sign * self.rotation[:, 2]
+
     def csm_locus(self, line: np.ndarray, sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor position and unit look directions (..., 3) of CSM (line, sample)."""
         line, sample = np.broadcast_arrays(

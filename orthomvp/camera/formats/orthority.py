@@ -111,18 +111,19 @@ def read_orthority_cameras(
     each ``filename`` (the name without directory and extension). FormatError for bad files.
     """
     interior, exterior = Path(interior), Path(exterior)
-    cameras = _read_interior(interior, _interior_text(interior))
     text = decode_text(exterior, read_bytes(exterior, "exterior parameter file"))
-    return _combine(cameras, interior, exterior, text, radians)
+    images = _read_exterior(exterior, text, radians)  # first: is it exterior parameters at all?
+    return _combine(_read_interior(interior, _interior_text(interior)), interior, exterior, images)
 
 
 def _combine(
-    cameras: dict[str, Interior], interior: Path, exterior: Path, text: str, radians: bool
+    cameras: dict[str, Interior], interior: Path, exterior: Path, images: list[_Exterior]
 ) -> dict[str, PinholeCamera]:
-    """The cameras of the exterior file ``exterior`` holding ``text``, by image file stem, with
-    the interior ``cameras`` of the file ``interior`` (see :func:`read_orthority_cameras`)."""
+    """The cameras of the ``images`` of the exterior file ``exterior``, by image file stem,
+    with the interior ``cameras`` of the file ``interior`` (see
+    :func:`read_orthority_cameras`)."""
     out: dict[str, PinholeCamera] = {}
-    for ext in _read_exterior(exterior, text, radians):
+    for ext in images:
         key = Path(ext.filename).stem
         if key in out:
             raise FormatError(exterior, f"image {key!r} appears twice", ext.line)
@@ -159,6 +160,7 @@ def read_exterior(file: CameraFile) -> PinholeCamera:
     :func:`orthomvp.camera.read_camera`); CSV angles in degrees."""
     path, interior = file.path, file.interior
     text = file.text  # read first: a missing or unreadable camera file is reported as such
+    _images(path, text)  # then what it holds: not exterior parameters is said as such
     if interior is None:
         found = sorted(p for p in path.parent.iterdir() if p.suffix.lower() in INTERIOR_SUFFIXES)
         if len(found) != 1:
@@ -197,7 +199,15 @@ def _file_cameras(
     the same contents: a mosaic's images pick their cameras from one file, and building them
     all for each image made its planning grow as the square of their number (1,000 rows: 0.08 s
     an image). Cameras are immutable; the dict is shared: read it, never change it."""
-    return _combine(_read_interior(interior, interior_text), interior, path, text, radians=False)
+    images = list(_images(path, text))
+    return _combine(_read_interior(interior, interior_text), interior, path, images)
+
+
+@functools.lru_cache(maxsize=4)
+def _images(path: Path, text: str) -> tuple[_Exterior, ...]:
+    """The images of the exterior file ``path`` holding ``text`` (CSV angles in degrees),
+    parsed once per process for the same contents (see :func:`_file_cameras`)."""
+    return tuple(_read_exterior(path, text, radians=False))
 
 
 def refuse_interior(file: CameraFile) -> PinholeCamera:
@@ -320,6 +330,12 @@ def _interior(
         return [float(v) for v in items]
 
     kind = params.get("type")
+    if kind is None and "rpc" in params:
+        raise fail(
+            "rpc",
+            "holds RPC parameters (an Orthority RPC file), not the interior parameters of a "
+            "frame camera",
+        )
     if kind not in _ORTHORITY_MODELS:
         known = ", ".join(_ORTHORITY_MODELS)
         raise fail("type", f"camera type {kind!r} is not supported (supported: {known})")
@@ -442,6 +458,14 @@ def _geojson_exterior(path: Path, text: str) -> list[_Exterior]:
             raise FormatError(path, f"feature {i} has no properties")
         name = props.get("filename")
         camera = props.get("camera")
+        if "ji" in props and "xyz" not in props and "opk" not in props:
+            raise FormatError(
+                path,
+                f"an Orthority GCP file (ground control points: feature {i} has pixel "
+                "coordinates 'ji' and a ground point), not camera exterior parameters ('xyz' "
+                "and 'opk'): give the image's camera instead (none for an image that carries "
+                "its own RPCs)",
+            )
         if not isinstance(name, str) or not (camera is None or isinstance(camera, str)):
             raise FormatError(path, f"feature {i}: filename (and camera) must be strings")
         vectors = []
