@@ -11,7 +11,8 @@ import trimesh
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.occlusion.mesh import terrain_mesh
 from orthomvp.occlusion.raycast import RayCaster
 from orthomvp.occlusion.visibility import compute_visibility

@@ -10,7 +10,8 @@ from scipy.ndimage import gaussian_filter
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import InputError
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.mvp.deconvolve import deconvolve, window_plane
 from orthomvp.mvp.model import PlaneModel
 from orthomvp.mvp.patches import ViewStack

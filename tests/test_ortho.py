@@ -9,7 +9,8 @@ from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import GeometryError, InputError
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.occlusion.visibility import compute_visibility, default_eps, occluder_caster
 from orthomvp.ortho.composite import MosaicOptions, doubtful, trusted
 from orthomvp.ortho.orthophoto import mosaic, orthorectify, sample_image

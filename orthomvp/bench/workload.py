@@ -9,7 +9,8 @@ from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.camera.csm import LineScanCamera
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.io.preflight import check_memory, count_text
 from orthomvp.synthetic import MOON_CRS, MOON_RADIUS, ViewSpec, orbital_camera
 from orthomvp.synthetic.linescan import orbital_line_scanner

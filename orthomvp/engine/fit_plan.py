@@ -59,7 +59,7 @@ from orthomvp.engine.tiling import (
 )
 from orthomvp.errors import GeometryError, InputError
 from orthomvp.geometry.datum import HeightOptions
-from orthomvp.geometry.terrain import perimeter
+from orthomvp.geometry.vectors import perimeter
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
 from orthomvp.mvp.problem import levels_for

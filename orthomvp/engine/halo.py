@@ -36,7 +36,7 @@ from orthomvp.camera import Camera, PinholeCamera, sensor_positions
 from orthomvp.codes import WorldFrame
 from orthomvp.engine.grid import DemSource, WindowT
 from orthomvp.geometry.crs import geocentric_transformer
-from orthomvp.geometry.terrain import perimeter
+from orthomvp.geometry.vectors import perimeter
 
 TRACK_SAMPLES = 9
 """Points per ground track (from the post to where its line of sight leaves O)."""

@@ -29,7 +29,8 @@ from rasterio.windows import Window
 
 from orthomvp.camera import PinholeCamera
 from orthomvp.errors import OrthoMVPError
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 
 SPACING = 20.0
 """Metres between posts of the synthetic DEM."""

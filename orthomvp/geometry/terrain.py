@@ -40,28 +40,12 @@ from orthomvp.geometry.crs import (
 from orthomvp.geometry.datum import HeightOptions, height_shift
 from orthomvp.geometry.heights import check_relief, count_unusable, unusable, warn_infinite
 from orthomvp.geometry.normals import grid_normals
-from orthomvp.geometry.vectors import nan_median, row_norms
+from orthomvp.geometry.vectors import nan_median, row_norms, unit_vector
 from orthomvp.io.preflight import check_memory, count_text
 from orthomvp.io.raster import corrupt_data, open_raster, read_values, write_geotiff
 
 if TYPE_CHECKING:
     from pyproj import CRS, Transformer
-
-
-def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
-    """Eq. (3): body-fixed unit vector (..., 3) of planetocentric ``lon``, ``lat`` (radians)."""
-    cl = np.cos(lat)
-    return np.stack([np.cos(lon) * cl, np.sin(lon) * cl, np.sin(lat)], axis=-1)
-
-
-def perimeter(window: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions ``(c, r)`` of every post on the border of a window (row0, row1, col0,
-    col1), half-open, in posts."""
-    r0, r1, c0, c1 = window
-    cols, rows = np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64)
-    c = np.concatenate([cols, cols, np.full(len(rows), c0), np.full(len(rows), c1 - 1)])
-    r = np.concatenate([np.full(len(cols), r0), np.full(len(cols), r1 - 1), rows, rows])
-    return c, r
 
 
 def _heights(values: object, name: str) -> np.ndarray:

@@ -52,3 +52,19 @@ def nan_median(a: np.ndarray) -> float:
         return float(np.partition(v, k)[k])
     part = np.partition(v, [k - 1, k])
     return float((part[k - 1] + part[k]) / 2)
+
+
+def perimeter(window: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions ``(c, r)`` of every post on the border of a window (row0, row1, col0,
+    col1), half-open, in posts."""
+    r0, r1, c0, c1 = window
+    cols, rows = np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64)
+    c = np.concatenate([cols, cols, np.full(len(rows), c0), np.full(len(rows), c1 - 1)])
+    r = np.concatenate([np.full(len(cols), r0), np.full(len(cols), r1 - 1), rows, rows])
+    return c, r
+
+
+def unit_vector(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Eq. (3): body-fixed unit vector (..., 3) of planetocentric ``lon``, ``lat`` (radians)."""
+    cl = np.cos(lat)
+    return np.stack([np.cos(lon) * cl, np.sin(lon) * cl, np.sin(lat)], axis=-1)

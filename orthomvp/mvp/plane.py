@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from orthomvp.codes import WorldFrame
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 
 FD_STEP = 0.5  # pixels, for the local affine maps of projected CRSs and ellipsoids
 

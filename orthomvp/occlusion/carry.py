@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from orthomvp.codes import Code
-from orthomvp.geometry.terrain import Terrain, perimeter
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import perimeter
 from orthomvp.occlusion.post_geometry import PostGeometry
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from orthomvp.geometry.terrain import unit_vector
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.synthetic.surface import MOON_RADIUS, LocalField, local_frame
 
 KINDS = ("planar", "crater", "hills", "city")

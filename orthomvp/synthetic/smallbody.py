@@ -12,7 +12,8 @@ from affine import Affine
 from pyproj import CRS
 
 from orthomvp.camera import PinholeCamera
-from orthomvp.geometry.terrain import Terrain, unit_vector
+from orthomvp.geometry.terrain import Terrain
+from orthomvp.geometry.vectors import unit_vector
 from orthomvp.synthetic.truth import visibility_truth
 
 SMALL_BODY_RADIUS = 2500.0

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from orthomvp.geometry.terrain import unit_vector
+from orthomvp.geometry.vectors import unit_vector
 
 MOON_RADIUS = 1737400.0
 MOON_CRS = "+proj=longlat +R=1737400 +no_defs"
