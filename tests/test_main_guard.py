@@ -66,3 +66,20 @@ def test_a_local_dask_cluster_without_the_guard_is_one_input_error(
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("orthomvp.errors.InputError: the local Dask cluster's workers"), last
     assert 'if __name__ == "__main__":' in last
+
+
+def test_a_local_dask_cluster_whose_workers_fail_rerunning_the_script(
+    crater_dir: Path, tmp_path: Path
+) -> None:
+    """The docs' engine example without the guard: each worker runs the script again, whose
+    first run_plan now refuses the output the parent wrote (an InputError in the worker, not
+    multiprocessing's bootstrapping message); the parent still names the guard."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "first.tif"
+    body = (
+        f"om.run_plan(plan, om.Outputs(ortho={str(out)!r}), threads=1); "
+        "from orthomvp.engine.cluster import dask_client; dask_client(workers=1).__enter__()"
+    )
+    proc = _run(_script(tmp_path, crater_dir, body, guarded=False))
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("orthomvp.errors.InputError: the local Dask cluster's workers"), last

@@ -104,9 +104,10 @@ def dask_client(
                 raise
 
 
-BOOTSTRAP = "bootstrapping phase"
-"""What Python's multiprocessing says in a worker process that imported a main script which
-starts processes at import (no ``if __name__ == "__main__":``)."""
+REIMPORT = ("bootstrapping phase", "_fixup_main_from_path")
+"""What a worker process's traceback holds when it failed running the main script again as it
+started (multiprocessing's words for one that starts processes at import, and the function
+that runs it): a script without ``if __name__ == "__main__":``."""
 
 
 UNGUARDED = (
@@ -117,11 +118,11 @@ UNGUARDED = (
 
 
 def _unguarded(log: str) -> bool:
-    """Whether the workers' ``log`` says that they died importing a main script that starts
-    processes at import (:data:`BOOTSTRAP`)."""
+    """Whether the workers' ``log`` says that they died running the main script again
+    (:data:`REIMPORT`)."""
     try:
         with open(log, errors="replace") as f:
-            return any(BOOTSTRAP in line for line in f)
+            return any(mark in line for line in f for mark in REIMPORT)
     except OSError:
         return False
 
