@@ -111,3 +111,26 @@ def test_a_prj_that_agrees_with_the_dem_changes_nothing(tmp_path: Path) -> None:
     assert main(["ortho", *without, "-o", str(tmp_path / "b.tif"), *common]) == 0
     with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
         np.testing.assert_array_equal(a.read(), b.read())
+
+
+@pytest.mark.realdata
+def test_a_stated_crs_that_is_the_dems_needs_no_pyproj(tmp_path: Path) -> None:
+    """GDAL tells that the .prj beside the cameras is the DEM's CRS: the check imports no
+    pyproj (80 ms with its imports, a fifth of a small orthophoto's whole run)."""
+    import subprocess
+    import sys
+
+    from orthomvp.bench.peer import horizontal_dem
+
+    data = shared("ngi-aerial")
+    dem = horizontal_dem(data / "dem.tif", tmp_path / "dem.tif")
+    args = [
+        sys.executable, "-X", "importtime", "-m", "orthomvp", "-q", "ortho", str(dem),
+        str(data / "3324c_2015_1004_05_0182_RGB.tif"),
+        str(data / "orthority-format" / "ngi_xyz_opk.csv"), "--res", "24", "24",
+        "-o", str(tmp_path / "o.tif"),
+    ]  # fmt: skip
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines()}
+    assert "orthomvp.engine.stated_crs" in imported and "pyproj" not in imported

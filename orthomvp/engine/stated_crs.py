@@ -38,8 +38,9 @@ def check_stated_crs(sources: Sequence[ImageSource], dem_crs: FileCRS, dem: str)
             seen.add(file)
             if (text := stated_crs(file)) is not None:
                 stated.append((view, file, text))
+    stated = [item for item in stated if not _same(item[2], dem_crs)]
     if not stated:
-        return  # (pyproj not imported: a map-frame run may never need it)
+        return  # (pyproj not imported, 80 ms with its imports: a map-frame run needs it not)
     from pyproj import Transformer
     from pyproj.exceptions import ProjError
 
@@ -64,6 +65,18 @@ def check_stated_crs(sources: Sequence[ImageSource], dem_crs: FileCRS, dem: str)
             f"{how} in the two: cameras are taken in the DEM's CRS; reproject the DEM into "
             f"theirs (gdalwarp -t_srs {target} DEM NEW_DEM.tif) and give that one"
         )
+
+
+def _same(text: str, dem_crs: FileCRS) -> bool:
+    """Whether GDAL takes the CRS ``text`` for ``dem_crs`` itself (names aside), so that no
+    position need be compared; False where it cannot tell (then pyproj decides)."""
+    from rasterio.crs import CRS as FileCRS
+    from rasterio.errors import CRSError
+
+    try:
+        return bool(FileCRS.from_user_input(text) == dem_crs)
+    except (CRSError, TypeError, ValueError):
+        return False
 
 
 def _name(crs: object) -> str:
