@@ -348,3 +348,14 @@ def test_an_image_left_out_of_the_check_is_said_once(crater_dir: Path, tmp_path:
     assert alone.returncode == 0, alone.stderr
     median = re.compile(r"median NCC .*")
     assert median.findall(proc.stdout) == median.findall(alone.stdout) != []
+
+
+def test_prefix_files_take_a_suffix_given_for_one_of_the_pair() -> None:
+    """`-o check.csv` wrote check.csv.csv: a .csv or .png given names the pair's stem; other
+    dots stay in the name (`-o results_eps0.5`)."""
+    from orthomvp.cli.options import prefix_files
+
+    for given, stem in [("out/check.csv", "out/check"), ("check.PNG", "check"),
+                        ("results_eps0.5", "results_eps0.5"), ("a.b", "a.b"), (".csv", ".csv")]:  # fmt: skip
+        table, figure = prefix_files(Path(given))
+        assert (table, figure) == (Path(stem + ".csv"), Path(stem + ".png")), given

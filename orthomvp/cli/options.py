@@ -62,8 +62,13 @@ class PrefixPath(click.Path):
 
 def prefix_files(prefix: Path) -> tuple[Path, Path]:
     """The table and plot of an output ``prefix``: PREFIX.csv and PREFIX.png (the suffixes
-    added to the whole name, so ``eps0.5`` gives ``eps0.5.csv``)."""
-    return prefix.with_name(prefix.name + ".csv"), prefix.with_name(prefix.name + ".png")
+    added to the whole name, so ``eps0.5`` gives ``eps0.5.csv``; a ``.csv`` or ``.png`` given
+    with it is taken for the one of the pair it names, so ``check.csv`` gives ``check.csv``
+    and ``check.png``)."""
+    name = prefix.name
+    if Path(name).suffix.lower() in (".csv", ".png") and Path(name).stem:
+        name = Path(name).stem
+    return prefix.with_name(name + ".csv"), prefix.with_name(name + ".png")
 
 
 CAMERA_HELP = (
@@ -352,7 +357,7 @@ def prefix_option(default: str) -> Callable[[F], F]:
         type=PrefixPath(path_type=Path),
         default=Path(default),
         metavar="PREFIX",
-        help="output prefix: writes PREFIX.csv and PREFIX.png",
+        help="output prefix: writes PREFIX.csv and PREFIX.png (-o out.csv names the same pair)",
     )
 
 
