@@ -355,7 +355,10 @@ def test_prefix_files_take_a_suffix_given_for_one_of_the_pair() -> None:
     dots stay in the name (`-o results_eps0.5`)."""
     from orthomvp.cli.options import prefix_files
 
-    for given, stem in [("out/check.csv", "out/check"), ("check.PNG", "check"),
-                        ("results_eps0.5", "results_eps0.5"), ("a.b", "a.b"), (".csv", ".csv")]:  # fmt: skip
+    cases = [
+        ("out/check.csv", "out/check"), ("check.PNG", "check"),
+        ("results_eps0.5", "results_eps0.5"), ("a.b", "a.b"), (".csv", ".csv"),
+    ]  # fmt: skip
+    for given, stem in cases:
         table, figure = prefix_files(Path(given))
         assert (table, figure) == (Path(stem + ".csv"), Path(stem + ".png")), given
