@@ -88,3 +88,30 @@ def test_a_window_too_large_is_named_as_such(scene: Path, tmp_path: Path) -> Non
     proc = run(*args, "--hwin", "400", "--tile", "16")
     assert_one_line_error(proc, "choose a smaller --hwin (every post's patch holds 801 squared")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_levels_beyond_the_images_warn(scene: Path, tmp_path: Path) -> None:
+    """Found by a new user's audit: --levels beyond what the images hold was capped in
+    silence. One warning line says how many the smallest image holds; the fit then equals the
+    one asked for with that many."""
+    from orthomvp.mvp.problem import MIN_LEVEL_SIZE, levels_for
+
+    with rasterio.open(scene / "fore2.tif") as src:
+        side = min(src.width, src.height)
+    levels = levels_for(side, 10)
+    assert levels < 10
+    out, same = tmp_path / "ten.tif", tmp_path / "same.tif"
+    args = ["fit", str(scene / "start.tif"), *pairs(scene), "--hwin", "4"]
+    proc = run(*args, "-o", str(out), "--levels", "10")
+    assert proc.returncode == 0, proc.stderr
+    warned = [line for line in proc.stderr.splitlines() if "warning" in line]
+    assert warned == [
+        f"orthomvp: warning: --levels 10: the smallest image that sees the DEM ({side} px a "
+        f"side) holds {levels} pyramid level(s) of at least {MIN_LEVEL_SIZE} px; fitting with "
+        f"{levels}"
+    ]
+    proc = run("-q", *args, "-o", str(same), "--levels", str(levels))
+    assert proc.returncode == 0 and proc.stderr == ""
+    with rasterio.open(out) as a, rasterio.open(same) as b:
+        assert np.array_equal(a.read(), b.read(), equal_nan=True)

@@ -32,6 +32,7 @@ the flatness thresholds) come from one pass over each image in blocks when plann
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -57,12 +58,12 @@ from orthomvp.engine.tiling import (
     largest_dem_window,
     peak_bytes,
 )
-from orthomvp.errors import GeometryError, InputError
+from orthomvp.errors import GeometryError, InputError, OrthoMVPWarning
 from orthomvp.geometry.datum import HeightOptions
 from orthomvp.geometry.vectors import perimeter
 from orthomvp.mvp import FitOptions
 from orthomvp.mvp.fit import TILE as BATCH
-from orthomvp.mvp.problem import levels_for
+from orthomvp.mvp.problem import MIN_LEVEL_SIZE, levels_for
 from orthomvp.mvp.views import view_statistics, window_for
 from orthomvp.occlusion.paths import Rays, VisibilityPath
 from orthomvp.validate import of_type
@@ -365,6 +366,14 @@ def plan_fit(
         if again is not None and again[-1] == seen:  # (else one more sees it: the first plan)
             opts, jobs, boxes, reach, elevation, seen = again
     levels = opts.levels
+    if asked > max(levels, FitOptions().levels):  # (the default adapts in silence)
+        side = min(min(sources[k].width, sources[k].height) for k, s in enumerate(seen) if s)
+        warnings.warn(
+            f"--levels {asked}: the smallest image that sees the DEM ({side} px a side) holds "
+            f"{levels} pyramid level(s) of at least {MIN_LEVEL_SIZE} px; fitting with {levels}",
+            OrthoMVPWarning,
+            stacklevel=3,
+        )
     if sum(seen) == 1:  # (none: check_plan says why)
         raise GeometryError(
             f"only 1 of the {len(sources)} images sees the DEM ({sources[seen.index(True)].path}): "
