@@ -408,3 +408,22 @@ def test_info_names_heights_shifted_for_the_cameras(crater_dir: Path) -> None:
     assert plain.returncode == shifted.returncode == 0, shifted.stderr
     assert "shifted for the cameras" in shifted.stdout
     assert "shifted for the cameras" not in plain.stdout
+
+
+def test_info_of_radii_and_a_map_frame_on_degrees_say_so(tmp_path: Path) -> None:
+    """Found by a new user's audit: `info --radius-values` said "vertical datum: none (heights
+    above the ellipsoid)", and the map frame on a degree CRS was refused in Python's words."""
+    from orthomvp.cli.info import text_lines
+    from orthomvp.engine.info import describe
+
+    path = tmp_path / "radii.tif"
+    values = 1737400.0 + np.arange(64, dtype=np.float32).reshape(8, 8)
+    profile = dict(driver="GTiff", width=8, height=8, count=1, dtype="float32")
+    profile |= {"crs": "+proj=longlat +R=1737400 +no_defs"}
+    profile["transform"] = Affine(0.01, 0, 10.0, 0, -0.01, 20.0)
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(values, 1)
+    lines = text_lines(describe(path, radius_values=True))
+    assert "  vertical datum: none (radii)" in lines
+    with pytest.raises(InputError, match=r"the map frame \(--world map\) needs a projected CRS"):
+        Terrain.read(path, world="map")

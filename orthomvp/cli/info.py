@@ -66,7 +66,7 @@ def text_lines(feature: dict[str, Any]) -> list[str]:
         f"{body['semi_minor_m']:,.1f} m",
         f"  values:        {d['heights']}; {d['height_range'][0]:,.1f} to "
         f"{d['height_range'][1]:,.1f} m",
-        f"  vertical datum: {d['vertical_datum'] or 'none (heights above the ellipsoid)'}",
+        f"  vertical datum: {d['vertical_datum'] or _no_datum(d['heights'])}",
         f"  post spacing:  {sx:.6g} x {sy:.6g} {d['units']} ({mx:.3g} x {my:.3g} m)",
         f"  extent:        longitude {lon0:.5f} to {lon1:.5f}, latitude {lat0:.5f} to {lat1:.5f}"
         " (degrees)",
@@ -106,3 +106,8 @@ def text_lines(feature: dict[str, Any]) -> list[str]:
         "(left bottom right top)",
     ]
     return lines
+
+
+def _no_datum(heights: str) -> str:
+    """The vertical datum line of a DEM without one: heights above the ellipsoid, or radii."""
+    return "none (radii)" if heights.startswith("radius") else "none (heights above the ellipsoid)"

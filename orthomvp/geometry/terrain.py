@@ -102,7 +102,7 @@ class Terrain:
         if not (self.crs.is_geographic or self.crs.is_projected):
             raise InputError(f"{self.name}: CRS is neither geographic nor projected")
         if self.world == WorldFrame.MAP and not self.crs.is_projected:
-            raise InputError(f"{self.name}: world='map' needs a projected CRS")
+            raise InputError(f"{self.name}: the map frame (--world map) needs a projected CRS")
         if self.transform.b != 0 or self.transform.d != 0:
             raise InputError(f"{self.name}: rotated georeferences are not supported")
         if not np.isfinite(vals).any():
