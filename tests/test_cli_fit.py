@@ -115,3 +115,18 @@ def test_levels_beyond_the_images_warn(scene: Path, tmp_path: Path) -> None:
     assert proc.returncode == 0 and proc.stderr == ""
     with rasterio.open(out) as a, rasterio.open(same) as b:
         assert np.array_equal(a.read(), b.read(), equal_nan=True)
+
+
+def test_the_summary_says_when_the_input_heights_were_moved() -> None:
+    """Found by a new user's audit: with --height-offset the change was measured from the
+    moved heights, which the output holds too, and the line did not say so."""
+    from orthomvp.engine.fit import FitReport, _input_heights
+    from orthomvp.geometry.datum import HeightShift
+
+    assert _input_heights(None) == ""
+    moved = _input_heights(HeightShift(offset=28.0))
+    assert moved == "the DEM's heights moved by +28 m for the cameras, as the output holds them"
+    assert "the geoid undulation and -1.5 m" in _input_heights(HeightShift(-1.5, "WKT"))
+    line = FitReport(posts=4, fitted=2, input_heights=moved).line("x.tif")
+    assert f"fitted - input ({moved}): median" in line
+    assert "fitted - input: median" in FitReport(posts=4, fitted=2).line("x.tif")

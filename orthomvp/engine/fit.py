@@ -49,6 +49,7 @@ from orthomvp.engine.writer import (
     plan_inputs,
 )
 from orthomvp.errors import GeometryError, InputError
+from orthomvp.geometry.datum import HeightShift
 from orthomvp.io.output_checks import (
     API_FLAGS,
     Output,
@@ -354,6 +355,9 @@ class FitReport:
     rms_shift: float = math.nan
     median_sigma: float = math.nan
     refits: int = 0
+    input_heights: str = ""
+    """What the input heights are where the DEM's were shifted for the cameras (the output
+    holds such heights too), else empty."""
 
     def line(self, output: str | Path) -> str:
         """The one-line summary that ``orthomvp fit`` prints: the change is fitted minus input
@@ -361,7 +365,8 @@ class FitReport:
         uncertainty (see :mod:`orthomvp.mvp.fit`), both in metres."""
         return (
             f"wrote {output}: {self.fitted:,} of {self.posts:,} posts fitted "
-            f"({self.converged:,} converged); height change, fitted - input: median "
+            f"({self.converged:,} converged); height change, fitted - input"
+            f"{f' ({self.input_heights})' if self.input_heights else ''}: median "
             f"{self.median_shift:+.2f} m, RMS {self.rms_shift:.2f} m; median 1-sigma height "
             f"uncertainty {self.median_sigma:.2f} m (from the plane fit's covariance and "
             "residual)"
@@ -405,7 +410,7 @@ def run_fit(
     peak = check_memory(plan, need, at_once, advice)
     start = time.perf_counter()
     rows, cols = plan.grid.shape
-    report = FitReport(posts=rows * cols)
+    report = FitReport(posts=rows * cols, input_heights=_input_heights(plan.dem.shift))
     inside, seen = [0] * len(plan.views), [0] * len(plan.views)
     twice = 0
     squares = 0.0
@@ -461,3 +466,14 @@ def run_fit(
     report.rms_shift = math.sqrt(squares / report.fitted)
     report.seconds = time.perf_counter() - start
     return report
+
+
+def _input_heights(shift: HeightShift | None) -> str:
+    """:attr:`FitReport.input_heights` for a DEM read with ``shift``."""
+    if shift is None:
+        return ""
+    parts = (["the geoid undulation"] if shift.wkt else []) + (
+        [f"{shift.offset:+g} m"] if shift.offset else []
+    )
+    moved = " and ".join(parts) or "+0 m"
+    return f"the DEM's heights moved by {moved} for the cameras, as the output holds them"
