@@ -369,7 +369,7 @@ class FitReport:
             f"{f' ({self.input_heights})' if self.input_heights else ''}: median "
             f"{self.median_shift:+.2f} m, RMS {self.rms_shift:.2f} m; median 1-sigma height "
             f"uncertainty {self.median_sigma:.2f} m (from the plane fit's covariance and "
-            "residual)"
+            "residual: its noise, not its bias)"
         )
 
 
