@@ -197,6 +197,42 @@ def test_from_camera_view_through_an_isis_frame_cube(tmp_path: Path) -> None:
     argv = ["-q", "render", str(dem), "--camera", str(cube), "--view", "from-camera"]
     assert main([*argv, "--size", "200", "200", "-o", str(out)]) == 0
     assert out.stat().st_size > 1000
+    # without --size: the image's own aspect, 1024 px on the long side (it was an internal
+    # error, found in review: the size came from a pinhole camera's focal lengths)
+    assert main([*argv, "-o", str(tmp_path / "sized.png")]) == 0
+    rows, cols = plt_image(tmp_path / "sized.png").shape[:2]
+    assert max(rows, cols) == 1024 and abs(cols / rows - width / height) < 2e-3
+
+
+def plt_image(path: Path) -> np.ndarray:
+    import matplotlib.image
+
+    return matplotlib.image.imread(path)
+
+
+@pytest.mark.realdata
+def test_from_camera_view_refuses_a_mirrored_csm_frame(tmp_path: Path) -> None:
+    """usgscsm's orbital framer images the ground mirrored against its boresight (lines run
+    against boresight x samples): no view through a lens shows that, and the view is refused
+    in one InputError (it was an image 1.5e10 px off, VTK's field of view clamped)."""
+    import rasterio
+    from affine import Affine
+
+    from orthomvp.camera import read_camera
+    from orthomvp.geometry.terrain import Terrain
+
+    n, step = 64, 0.12 / 64
+    y, x = np.mgrid[0:n, 0:n]
+    heights = (200 * np.exp(-((x - 40) ** 2 + (y - 20) ** 2) / 60.0)).astype("float32")
+    profile = dict(driver="GTiff", width=n, height=n, count=1, dtype="float32")
+    profile |= {"crs": "+proj=longlat +R=1000000 +no_defs"}
+    profile["transform"] = Affine(step, 0, -0.06, 0, -step, 0.06)
+    with rasterio.open(tmp_path / "dem.tif", "w", **profile) as ds:
+        ds.write(heights, 1)
+    camera = read_camera(shared("csm", "orbitalFramer.json"))
+    terrain = Terrain.read(tmp_path / "dem.tif")
+    with pytest.raises(InputError, match="its image is mirrored"):
+        snapshot(terrain, cameras=[camera], options=SnapshotOptions(view="from-camera"))
 
 
 def test_vertical_exaggeration_scales_relief(crater: Scene) -> None:

@@ -47,6 +47,7 @@ from orthomvp.present.viewpoint import (
     Rect,
     camera_glyph,
     default_azimuth,
+    frame_view,
     grid_frame,
     image_rect,
     view_dem,
@@ -304,9 +305,8 @@ def _default_size(
     view the camera's aspect with 1024 pixels on the long side."""
     if opts.view != View.FROM_CAMERA:
         return DEFAULT_SIZE
-    u0, v0, u1, v1 = rects[opts.view_camera]
-    cam = cameras[opts.view_camera]
-    aspect = (u1 - u0) / cam.fu / ((v1 - v0) / cam.fv)
+    _, _, _, _, (tl, tr, tt, tb) = frame_view(cameras[opts.view_camera], rects[opts.view_camera])
+    aspect = (tr - tl) / (tb - tt)
     return (1024, round(1024 / aspect)) if aspect >= 1 else (round(1024 * aspect), 1024)
 
 

@@ -197,6 +197,38 @@ def view_dem(
     cam.up = screen_up
 
 
+def frame_view(
+    camera: Camera, rect: Rect
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, float, float, float]]:
+    """Where ``camera``, a frame camera (one centre), looks through ``rect``: its centre, image
+    right (+u), down (+v) and axis (unit vectors, world), and the tangents (left, right, top,
+    bottom) of ``rect``'s edges at unit depth. A pinhole camera gives them from its model; a
+    CSM or ISIS frame camera its centre and axis (``boresight``) from its model, its image axes
+    and field of view from its rays through ``rect``'s edges' midpoints (lens distortion
+    ignored in both). InputError for rays that fail, or an image mirrored against its axis
+    (v not along axis x u), which a view cannot show."""
+    u0, v0, u1, v1 = rect
+    if isinstance(camera, PinholeCamera):
+        a = camera.world_to_image_axes
+        (tl, tr), (tt, tb) = pixel_tangents(camera, np.array([u0, u1]), np.array([v0, v1]))
+        return camera.center, a[0], a[1], a[2], (tl, tr, tt, tb)
+    um, vm = (u0 + u1) / 2, (v0 + v1) / 2
+    starts, dirs = camera.ray(np.array([[u0, vm], [u1, vm], [um, v0], [um, v1]]))
+    if not np.isfinite(dirs).all():
+        raise InputError("the from-camera view needs the camera's rays at its image edges")
+    axis = camera.boresight
+    t = dirs / (dirs @ axis)[:, None] - axis  # offsets on the image plane at unit depth
+    right = (t[1] - t[0]) / np.linalg.norm(t[1] - t[0])
+    down = np.cross(axis, right)  # image u x v = w
+    if float((t[3] - t[2]) @ down) <= 0:
+        raise InputError(
+            "the from-camera view cannot show this camera: its image is mirrored (its lines "
+            "run against boresight x samples); choose another --view"
+        )
+    (tl, tr), (tt, tb) = t[:2] @ right, t[2:] @ down
+    return starts[0], right, down, axis, (float(tl), float(tr), float(tt), float(tb))
+
+
 def view_from_camera(
     plotter: pv.Plotter,
     camera: Camera,
@@ -204,26 +236,9 @@ def view_from_camera(
     origin: np.ndarray,
 ) -> None:
     """Look through ``camera``, a frame camera (one centre): its centre, axis, image 'up' (-v)
-    and the field of view of ``rect``, whose centre is put at the middle of the snapshot. A
-    pinhole camera gives them from its model; a CSM or ISIS frame camera its centre and axis
-    (``boresight``) from its model, its image axes and field of view from its rays through
-    ``rect``'s edges' midpoints (lens distortion ignored in both)."""
-    u0, v0, u1, v1 = rect
-    if isinstance(camera, PinholeCamera):
-        a = camera.world_to_image_axes
-        (tl, tr), (tt, tb) = pixel_tangents(camera, np.array([u0, u1]), np.array([v0, v1]))
-        centre, right, down, axis = camera.center, a[0], a[1], a[2]
-    else:
-        um, vm = (u0 + u1) / 2, (v0 + v1) / 2
-        starts, dirs = camera.ray(np.array([[u0, vm], [u1, vm], [um, v0], [um, v1]]))
-        if not np.isfinite(dirs).all():
-            raise InputError("the from-camera view needs the camera's rays at its image edges")
-        axis = camera.boresight
-        t = dirs / (dirs @ axis)[:, None] - axis  # offsets on the image plane at unit depth
-        right = (t[1] - t[0]) / np.linalg.norm(t[1] - t[0])
-        down = np.cross(axis, right)  # image u x v = w
-        (tl, tr), (tt, tb) = t[:2] @ right, t[2:] @ down
-        centre = starts[0]
+    and the field of view of ``rect`` (:func:`frame_view`), whose centre is put at the middle
+    of the snapshot."""
+    centre, right, down, axis, (tl, tr, tt, tb) = frame_view(camera, rect)
     half = (tb - tt) / 2  # tangent of half the vertical field of view
     width, height = plotter.window_size
     cam = plotter.camera
