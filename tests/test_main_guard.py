@@ -83,3 +83,33 @@ def test_a_local_dask_cluster_whose_workers_fail_rerunning_the_script(
     proc = _run(_script(tmp_path, crater_dir, body, guarded=False))
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("orthomvp.errors.InputError: the local Dask cluster's workers"), last
+    assert "running the main script again, as every worker does, they failed (" in last
+    assert "the output file of ortho exists" in last and 'if __name__ == "__main__":' in last
+
+
+def test_the_guard_is_named_only_where_it_can_be_the_cause(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Found in review: every worker death got the hint, under the command line too. Only a
+    pool broken before any tile came back, under a script run as a file, names the guard."""
+    import concurrent.futures as cf
+    import types
+
+    from orthomvp.engine.cluster import WorkerError, worker_deaths
+
+    def message(main: types.ModuleType, *, started: bool) -> str:
+        monkeypatch.setitem(sys.modules, "__main__", main)
+        with pytest.raises(WorkerError) as caught, worker_deaths(started=started):
+            raise cf.process.BrokenProcessPool("a process died")
+        return str(caught.value)
+
+    script = types.ModuleType("__main__")
+    script.__file__, script.__spec__ = "/home/me/run.py", None
+    assert "if run.py starts this run at import" in message(script, started=False)
+    assert "__main__" not in message(script, started=True)
+    entry = types.ModuleType("__main__")
+    entry.__file__, entry.__spec__ = "/venv/bin/orthomvp", None
+    assert "__main__" not in message(entry, started=False)
+    module = types.ModuleType("__main__")
+    module.__file__, module.__spec__ = "/x/pkg/__main__.py", object()
+    assert "__main__" not in message(module, started=False)

@@ -11,6 +11,7 @@ import contextlib
 import importlib
 import logging
 import os
+import re
 import sys
 import tempfile
 import time
@@ -93,8 +94,9 @@ def dask_client(
                     except BaseException as exc:
                         _forget_clusters()
                         log = os.path.join(scratch, "workers.log")
-                        if isinstance(exc, RuntimeError) and _unguarded(log):
-                            raise InputError(UNGUARDED) from exc
+                        failure = _start_failure(log) if isinstance(exc, RuntimeError) else None
+                        if failure is not None:
+                            raise failure from exc
                         raise
                 with cluster, distributed.Client(cluster) as client:
                     _warm_up(client, "the local cluster")
@@ -104,27 +106,39 @@ def dask_client(
                 raise
 
 
-REIMPORT = ("bootstrapping phase", "_fixup_main_from_path")
-"""What a worker process's traceback holds when it failed running the main script again as it
-started (multiprocessing's words for one that starts processes at import, and the function
-that runs it): a script without ``if __name__ == "__main__":``."""
+BOOTSTRAP = "bootstrapping phase"
+"""multiprocessing's words in a worker process that ran a main script which starts processes
+at import: a script without ``if __name__ == "__main__":``."""
+RERUN = "_fixup_main_from_path"
+"""The function in a worker's traceback that failed running the main script again."""
+_ERROR_LINE = re.compile(r"^[A-Za-z_][\w.]*(Error|Exception): ")
 
 
-UNGUARDED = (
-    "the local Dask cluster's workers could not start: they import the main script again, "
-    "so a script that starts a cluster needs its code under 'if __name__ == \"__main__\":'"
-)
-"""The error for a local cluster started by a script without the ``__main__`` guard."""
-
-
-def _unguarded(log: str) -> bool:
-    """Whether the workers' ``log`` says that they died running the main script again
-    (:data:`REIMPORT`)."""
+def _start_failure(log: str) -> InputError | None:
+    """The error for a local cluster whose workers did not start, from their ``log``: a
+    script without the ``__main__`` guard (multiprocessing's bootstrapping message), or a
+    worker that failed running the main script again (its last error line, and the guard as
+    the likely cure); None where the log says neither."""
     try:
         with open(log, errors="replace") as f:
-            return any(mark in line for line in f for mark in REIMPORT)
+            lines = [line.strip() for line in f]
     except OSError:
-        return False
+        return None
+    head = "the local Dask cluster's workers could not start"
+    guard = "'if __name__ == \"__main__\":'"
+    if any(BOOTSTRAP in line for line in lines):
+        return InputError(
+            f"{head}: they import the main script again, so a script that starts a cluster "
+            f"needs its code under {guard}"
+        )
+    if not any(RERUN in line for line in lines):
+        return None
+    errors = [line for line in lines if _ERROR_LINE.match(line) and "failed to start" not in line]
+    reason = f" ({errors[-1][:200]})" if errors else ""
+    return InputError(
+        f"{head}: running the main script again, as every worker does, they failed{reason}; "
+        f"if the script starts the cluster at import, put its code under {guard}"
+    )
 
 
 @contextlib.contextmanager
@@ -336,9 +350,10 @@ def identity(value: Any) -> Any:
 
 
 @contextlib.contextmanager
-def worker_deaths() -> Iterator[None]:
+def worker_deaths(*, started: bool = True) -> Iterator[None]:
     """Within the block, an exception that says a worker died (:func:`_died`, from its pool or
-    cluster) becomes one WorkerError line; any other passes as it is."""
+    cluster) becomes one WorkerError line; any other passes as it is. Before any tile came
+    back (not ``started``) a broken pool under a script names the ``__main__`` guard."""
     try:
         yield
     except Exception as exc:
@@ -351,7 +366,8 @@ def worker_deaths() -> Iterator[None]:
             ) from None
         raise WorkerError(
             f"a worker died while running a tile ({type(exc).__name__}: "
-            f"{' '.join(str(exc).split())[:200]}){_guard_hint(exc)}; nothing was written"
+            f"{' '.join(str(exc).split())[:200]}){'' if started else _guard_hint(exc)}; "
+            "nothing was written"
         ) from None
 
 
@@ -359,8 +375,14 @@ def _guard_hint(exc: BaseException) -> str:
     """For a process pool broken under a script (a ``__main__`` module with a file): the
     usual cause, a script without the ``__main__`` guard, whose every worker process imports
     it again and so starts its own run."""
-    script = getattr(sys.modules.get("__main__"), "__file__", None)
-    if not isinstance(exc, cf.BrokenExecutor) or script is None:
+    main = sys.modules.get("__main__")
+    script = getattr(main, "__file__", None)
+    if (
+        not isinstance(exc, cf.BrokenExecutor)
+        or script is None
+        or getattr(main, "__spec__", None) is not None  # (python -m MODULE)
+        or Path(script).name == "orthomvp"  # (the command line's entry point)
+    ):
         return ""
     return (
         f" (if {Path(script).name} starts this run at import, put its code under "

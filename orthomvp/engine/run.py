@@ -252,26 +252,29 @@ def results(
     worker would go where the plan it depends on lies, pile onto one worker and wait there
     for work stealing (measured: a worker idle for a second between 3-second tiles)."""
     queue, pending, index_of = list(reversed(jobs)), set(), {}
+    done_count = 0  # tiles whose results came back: a worker died then, not as it started
 
     def top_up() -> None:
         while queue and len(pending) < limit:
             index = queue.pop()
             if copies is not None:
                 copies.started(index)
-            with worker_deaths():  # a broken pool refuses new work
+            with worker_deaths(started=bool(done_count)):  # a broken pool refuses new work
                 future = submit(index, *args)
             pending.add(future)
             index_of[future] = index
 
     top_up()
     while pending:  # empty only once the queue is (top_up refills it up to the limit)
-        with worker_deaths():  # Dask's wait raises for futures cancelled with their scheduler
+        with worker_deaths(started=bool(done_count)):  # (Dask's wait raises for futures
+            # cancelled with their scheduler)
             done, rest = wait(pending)
         pending.intersection_update(rest)
         top_up()
         for future in done:
-            with worker_deaths():
+            with worker_deaths(started=bool(done_count)):
                 result = tile_result(future)
+            done_count += 1
             index = index_of.pop(future)
             if copies is not None:
                 copies.finished(index)
