@@ -113,3 +113,31 @@ def test_the_guard_is_named_only_where_it_can_be_the_cause(
     module = types.ModuleType("__main__")
     module.__file__, module.__spec__ = "/x/pkg/__main__.py", object()
     assert "__main__" not in message(module, started=False)
+
+
+def test_plan_folders_of_killed_runs_are_removed(
+    crater_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Found in review: the plan's folder for the worker processes stayed in the temporary
+    folder when the run was killed outright (SIGKILL runs no cleanup). The next run removes
+    those of processes that are gone, keeps a live one's, and leaves none of its own."""
+    import os
+    import tempfile
+
+    import orthomvp as om
+    from orthomvp.io.outputs import _HOST
+
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    dead = scratch / f"orthomvp-plan-{int(gone.stdout)}-{_HOST}-abc"
+    live = scratch / f"orthomvp-plan-{os.getppid()}-{_HOST}-def"
+    for folder in (dead, live):
+        folder.mkdir()
+        (folder / "plan.pickle").write_bytes(b"x" * 100)
+    d = crater_dir
+    plan = om.plan_ortho(d / "dem.tif", [(d / "oblique.tif", d / "oblique.tsai")], progress=False)
+    om.run_plan(plan, om.Outputs(ortho=tmp_path / "o.tif"), processes=2, progress=False)
+    assert sorted(p.name for p in scratch.iterdir()) == [live.name]

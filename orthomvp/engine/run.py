@@ -14,7 +14,6 @@ import os
 import pickle
 import signal
 import sys
-import tempfile
 import threading
 import time
 import warnings
@@ -44,6 +43,7 @@ from orthomvp.engine.survey import survey
 from orthomvp.engine.tile import TileResult, empty_result, run_tile
 from orthomvp.engine.writer import Outputs, output_bytes, output_set, plan_inputs
 from orthomvp.errors import GeometryError, InputError, LeftOutWarning
+from orthomvp.io.outputs import process_scratch
 from orthomvp.io.raster import held_rasters
 from orthomvp.ortho.balance import Correction
 from orthomvp.ortho.holes import FLAGS
@@ -209,10 +209,14 @@ def executor(
     if processes:
         import multiprocessing
 
-        folder = scope.enter_context(tempfile.TemporaryDirectory(prefix="orthomvp-plan-"))
+        folder = scope.enter_context(process_scratch("plan"))
         plan_file = os.path.join(folder, "plan.pickle")
-        with open(plan_file, "wb") as f:
-            pickle.dump(plan, f, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            with open(plan_file, "wb") as f:
+                pickle.dump(plan, f, protocol=pickle.HIGHEST_PROTOCOL)
+        except BaseException:
+            scope.close()
+            raise
         ctx = multiprocessing.get_context("spawn")
         pool: cf.Executor = cf.ProcessPoolExecutor(
             processes, mp_context=ctx, initializer=_worker_init, initargs=(plan_file, os.getpid())

@@ -18,6 +18,7 @@ import itertools
 import os
 import shutil
 import stat
+import tempfile
 import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -125,6 +126,25 @@ def _alive(pid: int) -> bool:
     except PermissionError:  # another user's
         return True
     return True
+
+
+def process_scratch(tag: str) -> tempfile.TemporaryDirectory:
+    """A temporary directory of this process in the system's temporary folder (removed when
+    the returned object is cleaned up), named ``orthomvp-TAG-PID-HOST-...``; those of ``tag``
+    that runs on this machine left when they were killed (SIGKILL: no cleanup ran) are
+    removed first, as :func:`remove_stale` does beside outputs."""
+    prefix = f"orthomvp-{tag}-"
+    try:
+        entries = [e for e in os.scandir(tempfile.gettempdir()) if e.name.startswith(prefix)]
+    except OSError:
+        entries = []
+    for entry in entries:
+        pid, _, rest = entry.name[len(prefix) :].partition("-")
+        if pid.isdigit() and rest.startswith(f"{_HOST}-") and not _alive(int(pid)):
+            shutil.rmtree(entry.path, ignore_errors=True)
+    return tempfile.TemporaryDirectory(
+        prefix=f"{prefix}{os.getpid()}-{_HOST}-", ignore_cleanup_errors=True
+    )
 
 
 def remove_stale(path: Path) -> list[Path]:
