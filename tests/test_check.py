@@ -362,3 +362,17 @@ def test_prefix_files_take_a_suffix_given_for_one_of_the_pair() -> None:
     for given, stem in cases:
         table, figure = prefix_files(Path(given))
         assert (table, figure) == (Path(stem + ".csv"), Path(stem + ".png")), given
+
+
+def test_the_default_prefix_beside_a_folder_of_its_name(
+    city_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Found in review: in a folder holding a check/ folder, check without -o was refused as
+    "-o names a directory", an option the user never gave; it writes check.csv and check.png
+    beside that folder."""
+    files = [str(city_dir / f"{n}.{ext}") for n in NAMES[:2] for ext in ("tif", "tsai")]
+    (tmp_path / "check").mkdir()
+    monkeypatch.chdir(tmp_path)
+    proc = run("-q", "check", str(city_dir / "dem.tif"), *files, "--eps", "2")
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["check", "check.csv", "check.png"]

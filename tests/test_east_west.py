@@ -69,7 +69,7 @@ def test_metres_far_from_the_equator_warn_and_the_suggested_degrees_are_square(
     (warning,) = caught
     text = str(warning.message)
     assert f"{east:.3g} m apart east-west" in text and "200 m north-south" in text
-    assert "--crs" in text
+    assert "--crs with a polar stereographic CRS of the body (+proj=stere +lat_0=90)" in text
     x, y = (float(v) for v in re.search(r"--res (\S+)deg (\S+)deg", text).groups())
     square, quiet = _grid(dem, (f"{x}deg", f"{y}deg"))
     east, north = _spacing(square)

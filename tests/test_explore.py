@@ -355,3 +355,22 @@ def test_interactive_save_follows_the_same_rule(tmp_path: Path) -> None:
     ]
     assert kept.read_bytes() == b"old" and camera.read_bytes() == b"camera"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cam.csv", "old.png", "x.csv", "x.png"]
+
+
+def test_a_camera_over_another_part_of_the_body_is_named_by_its_number(
+    crater_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """explore does not leave images out: a camera over the far side is refused up front, by
+    its own number (found in review: it failed later, as "camera 1")."""
+    from dataclasses import replace
+
+    from orthomvp.camera import load_view, write_tsai
+
+    d = crater_dir
+    oblique = load_view(d / "oblique.tif", d / "oblique.tsai")[1]
+    write_tsai(replace(oblique, center=-oblique.center), tmp_path / "far.tsai")
+    args = ["explore", str(d / "dem.tif"), str(d / "oblique.tif"), str(d / "oblique.tsai")]
+    args += [str(d / "nadir.tif"), str(tmp_path / "far.tsai"), "-c", "views"]
+    assert main(args) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "camera 2 is beyond the DEM's horizon (over longitude" in line

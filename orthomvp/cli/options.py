@@ -42,13 +42,22 @@ OUT_FILE = FilePath(path_type=Path)
 
 
 class PrefixPath(click.Path):
-    """The prefix of a table and its plot (PREFIX.csv, PREFIX.png): a prefix that names a
-    directory (``.``, one ending in ``/``, an existing directory) is refused."""
+    """The prefix of a table and its plot (PREFIX.csv, PREFIX.png): a prefix given that names
+    a directory (``.``, one ending in ``/``, an existing directory) is refused."""
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         path = super().convert(value, param, ctx)
-        if isinstance(path, Path) and (
-            str(value).endswith(("/", os.sep)) or path.name in ("", ".", "..") or path.is_dir()
+        given = not (  # (a folder named as the default is no mistake of the user's)
+            ctx is not None
+            and param is not None
+            and ctx.get_parameter_source(param.name) == click.core.ParameterSource.DEFAULT
+        )
+        if (
+            given
+            and isinstance(path, Path)
+            and (
+                str(value).endswith(("/", os.sep)) or path.name in ("", ".", "..") or path.is_dir()
+            )
         ):
             example = Path(value) / "results"
             self.fail(
@@ -188,11 +197,12 @@ class DemInput:
             "height_offset": self.height_offset,
         }
 
-    def read(self, cameras: Sequence[Camera] = ()) -> Terrain:
+    def read(self, cameras: Sequence[Camera] = (), *, spare: bool = False) -> Terrain:
         """The DEM; ``auto`` picks the world frame from the ``cameras``' centres (see
         :func:`orthomvp.geometry.world.detect_world`), body-fixed when there are none. In the body
         frame every camera must sit above the DEM
-        (:func:`orthomvp.geometry.world.check_cameras_above`)."""
+        (:func:`orthomvp.geometry.world.check_cameras_above`; with ``spare``, a command that
+        can do without them, cameras over another part of the body pass)."""
         from dataclasses import replace
 
         from orthomvp.camera import camera_centres
@@ -206,7 +216,7 @@ class DemInput:
             centres, views = camera_centres(cameras)
             if self.world == "auto":
                 world = detect_world(raw, centres, views)
-            check_cameras_above(replace(raw, world=world), centres, views, spare=len(cameras) > 1)
+            check_cameras_above(replace(raw, world=world), centres, views, spare=spare)
             if self.height_offset is None and self.vertical_datum == "auto":
                 from orthomvp.camera.rpc import check_map_frame_heights
                 from orthomvp.io.raster import open_raster

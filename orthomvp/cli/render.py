@@ -157,7 +157,7 @@ def render(
             f"--view from-camera needs --camera-index between 1 and the number of --camera "
             f"files ({len(models)}), got {camera_index}"
         )
-    terrain = dem.read(models)
+    terrain = dem.read(models, spare=True)  # (a camera elsewhere is drawn where it is)
     rasters = {
         key: on_dem_grid(path, terrain, f"--{key} raster")
         for key, path in given.items()

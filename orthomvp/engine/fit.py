@@ -400,11 +400,11 @@ def run_fit(
     sched = schedule(plan.tiles, threads, processes, client, inflight)
     workers, jobs, at_once, inner = sched.workers, sched.jobs, sched.at_once, sched.inner
     need = plan.peak_memory(at_once, sched.processes, inner)
-    patches = plan.patch_bytes(inner) * (at_once + sched.processes)
-    advice = (
+    largest = max((plan.tile_bytes(job, inner) for job in plan.tiles), default=0)
+    advice = (  # (patches come a batch of posts at a time: smaller tiles do not shrink them)
         f"choose a smaller --hwin (every post's patch holds {2 * plan.options.hwin + 1} squared "
         "samples of each image) or fewer threads/processes"
-        if 2 * patches > need
+        if 2 * plan.patch_bytes(inner) > largest
         else "use smaller tiles or fewer threads/processes"
     )
     peak = check_memory(plan, need, at_once, advice)

@@ -173,7 +173,8 @@ def east_west_text(
         f"where its posts lie {_metres_text(east)} apart east-west and {_metres_text(north)} "
         "north-south (metres convert to degrees at the equator): for square posts give "
         f"--res {square:.3g}deg {res[1] * degrees:.3g}deg, "
-        "or a polar stereographic CRS with --crs"
+        f"or --crs with a polar stereographic CRS of the body (+proj=stere +lat_0="
+        f"{90 if latitude > 0 else -90})"
     )
 
 
