@@ -83,3 +83,27 @@ def test_an_obj_does_not_replace_a_material_or_image_beside_it(
     with pytest.raises(InputError, match=r"first\.(mtl|png): the output file"):
         export_mesh(mesh, tmp_path / "first.obj", texture)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == beside
+
+
+def test_tables_and_figures_refuse_existing_files_unless_told(tmp_path: Path) -> None:
+    """check's and eps_study's ``save`` (through ``save_with_table``) replaced any file: both
+    files are refused when either exists, and nothing is written then."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from orthomvp.present.figures import save_with_table
+
+    table, figure = tmp_path / "t.csv", tmp_path / "t.png"
+    rows = [{"eps": 1.0, "n": 3}]
+    save_with_table(plt.figure(), figure, rows, ["eps", "n"], table)
+    assert table.read_text() == "eps,n\n1,3\n"
+    table.write_text("mine")
+    figure.unlink()
+    with pytest.raises(InputError, match=r"t\.csv: the output file of table exists"):
+        save_with_table(plt.figure(), figure, rows, ["eps", "n"], table)
+    assert table.read_text() == "mine" and not figure.exists()
+    save_with_table(plt.figure(), figure, rows, ["eps", "n"], table, overwrite=True)
+    assert table.read_text() == "eps,n\n1,3\n" and figure.stat().st_size > 100
+    assert plt.get_fignums() == []  # (every figure closed, refused or written)

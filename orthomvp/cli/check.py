@@ -111,7 +111,7 @@ def check(
             f"eps {e:g} posts: median NCC {_text(vis)} at posts visible in both, {_text(occ)} at "
             "posts called occluded (naive value)"
         )
-    lib.save(result, csv, png)
+    lib.save(result, csv, png, overwrite=True)  # (checked with the command's options)
     say(f"wrote {csv} and {png}")
 
 

@@ -65,7 +65,7 @@ def eps_study(
     check_outputs([Output("-o", csv, ()), Output("-o", png, ())], overwrite=overwrite)
     values = eps or epsstudy.DEFAULT_EPS_VALUES
     rows = epsstudy.eps_study(scene, eps_values=values, noise=dem_noise)
-    epsstudy.save(rows, csv, png)
+    epsstudy.save(rows, csv, png, overwrite=True)  # (checked with the command's options)
     for r in rows:
         if r["eps"] == "default":
             say(

@@ -42,10 +42,21 @@ def save_with_table(
     rows: Sequence[dict],
     fields: Sequence[str],
     table: str | Path,  # noqa: ANN001
+    *,
+    overwrite: bool = False,
 ) -> None:
     """Write ``rows`` (dicts with keys ``fields``; floats to 6 significant digits) as CSV to
     ``table`` and the figure ``fig`` to ``figure`` (the format by its suffix, PNG without one),
-    atomically as one set (:func:`orthomvp.io.outputs.write_set`); the figure is closed."""
+    atomically as one set (:func:`orthomvp.io.outputs.write_set`); the figure is closed. A
+    file that exists is refused (InputError) unless ``overwrite``, as every output."""
+    from orthomvp.io.output_checks import API_FLAGS, Output, check_outputs
+
+    try:
+        outputs = [Output("table", Path(table), ()), Output("figure", Path(figure), ())]
+        check_outputs(outputs, overwrite=overwrite, flags=API_FLAGS)
+    except BaseException:
+        _pyplot().close(fig)
+        raise
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(fields))
     writer.writeheader()

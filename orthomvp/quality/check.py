@@ -174,10 +174,13 @@ def _rows(
     return out
 
 
-def save(result: CheckResult, table: str | Path, figure: str | Path) -> None:
+def save(
+    result: CheckResult, table: str | Path, figure: str | Path, *, overwrite: bool = False
+) -> None:
     """Write the check's rows as CSV (``table``) and its :func:`plot` (``figure``, PNG or
-    another format matplotlib writes, by the suffix), atomically as a set."""
-    save_with_table(plot(result), figure, result.rows, CSV_FIELDS, table)
+    another format matplotlib writes, by the suffix), atomically as a set; files that exist
+    are refused unless ``overwrite``."""
+    save_with_table(plot(result), figure, result.rows, CSV_FIELDS, table, overwrite=overwrite)
 
 
 def plot(result: CheckResult) -> Figure:

@@ -87,10 +87,18 @@ def _values(values: object) -> tuple:
     return values
 
 
-def save(rows: list[dict], table: str | Path, figure: str | Path, title: str = "") -> None:
+def save(
+    rows: list[dict],
+    table: str | Path,
+    figure: str | Path,
+    title: str = "",
+    *,
+    overwrite: bool = False,
+) -> None:
     """Write the study as CSV (``table``) and its :func:`plot` (``figure``, PNG or another
-    format matplotlib writes, by the suffix), atomically as a set."""
-    save_with_table(plot(rows, title), figure, rows, CSV_FIELDS, table)
+    format matplotlib writes, by the suffix), atomically as a set; files that exist are
+    refused unless ``overwrite``."""
+    save_with_table(plot(rows, title), figure, rows, CSV_FIELDS, table, overwrite=overwrite)
 
 
 def plot(rows: list[dict], title: str = "") -> Figure:
