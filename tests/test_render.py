@@ -342,6 +342,8 @@ def test_cli_bad_inputs_exit_2_without_output(
         ["--heights", dem],  # no --truth
         ["--camera", str(d / "nadir.tsai"), "--view", "from-camera", "--camera-index", "2"],
         ["--exaggerate", "-1"],
+        ["--error-limit", "5"],  # no height error to colour (found by an audit: ignored)
+        ["--rays", "4"],  # no camera to draw rays from
     ]
     for extra in cases:
         assert main(["render", dem, "-o", str(out), "--size", "64", "48", *extra]) == 2, extra

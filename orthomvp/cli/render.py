@@ -145,6 +145,10 @@ def render(
 
     if (heights is None) != (truth is None):
         raise usage_error("--heights and --truth go together: the error is FITTED - TRUTH")
+    if error_limit is not None and heights is None:
+        raise usage_error("--error-limit applies to the height error only (--heights, --truth)")
+    if rays and not cameras:
+        raise usage_error("--rays draws rays from cameras: give --camera")
     given = {"ortho": ortho, "visibility": visibility, "heights": heights, "truth": truth}
     inputs = [("DEM", dem.path)] + [(f"--{key}", path) for key, path in given.items()]
     inputs += [(f"--camera {k}", path) for k, path in enumerate(cameras, start=1)]
