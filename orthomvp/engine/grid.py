@@ -167,11 +167,23 @@ class DemSource:
     def post_spacing(self) -> float:
         """Metres between neighbouring posts at the DEM centre (mean of both directions),
         at the median height: what :meth:`Terrain.post_spacing` gives for the whole DEM."""
-        rows, cols = self.shape
+        return float(np.mean(self.ground_spacing()))
+
+    def ground_spacing(
+        self,
+        to_dem: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+        shape: tuple[int, int] | None = None,
+    ) -> tuple[float, float]:
+        """World distances (along columns, along rows) between neighbouring posts at the
+        centre of a grid of ``shape`` whose positions ``to_dem`` maps into this DEM (default:
+        the DEM's own grid), at the DEM's median height."""
+        rows, cols = self.shape if shape is None else shape
         c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-        h = np.full(3, nan_median(self.preview.values))
-        p = self.to_world(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]), h)
-        return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
+        c, r = np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1])
+        if to_dem is not None:
+            c, r = to_dem(c, r)
+        p = self.to_world(c, r, np.full(3, nan_median(self.preview.values)))
+        return float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0]))
 
 
 def _blocks(rows: int, cols: int) -> Iterator[tuple[int, int]]:

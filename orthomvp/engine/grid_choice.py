@@ -144,11 +144,7 @@ def read_source(
 def grid_spacing(grid: OutputGrid, dem: DemSource) -> float:
     """Metres between neighbouring output posts at the grid centre (mean of both directions)
     at the DEM's median height, as :meth:`Terrain.post_spacing` gives for a regridded DEM."""
-    rows, cols = grid.shape
-    c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-    c, r = grid_to_dem(grid, dem)(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
-    p = dem.to_world(c, r, np.full(3, nan_median(dem.preview.values)))
-    return float(np.mean([np.linalg.norm(p[1] - p[0]), np.linalg.norm(p[2] - p[0])]))
+    return float(np.mean(dem.ground_spacing(grid_to_dem(grid, dem), grid.shape)))
 
 
 def dem_extent_metres(dem: DemSource, radius: float) -> float:
@@ -185,15 +181,15 @@ def choose_grid(
     if lengths is not None:
         units, metres = to_units(lengths, out_crs, radius)
         check_res(lengths, metres, out_crs, radius, dem_extent_metres(dem, radius))
-    # a spacing from metres, whose posts may crowd east-west on a geographic CRS
-    from_metres = lengths is None or any(length.unit == "m" for length in lengths)
+    # a spacing given in metres, whose posts may crowd east-west on a geographic CRS
+    in_metres = lengths is not None and any(length.unit == "m" for length in lengths)
     if grid == "dem" or (units is not None and bounds is not None):
-        return _checked(output_grid(dem, units, bounds, crs), radius, units and from_metres)
+        return _checked(output_grid(dem, units, bounds, crs), radius, in_metres)
     if footprints is None:
         footprints = image_footprints(dem, sources)
     windows = [f.window for f in footprints if f.window is not None]
     if not windows:
-        return _checked(output_grid(dem, units, bounds, crs), radius, units and from_metres)
+        return _checked(output_grid(dem, units, bounds, crs), radius, in_metres)
     if units is None:
         gsd = np.concatenate([f.gsd for f in footprints])
         per_unit, _ = unit_scale(out_crs, radius)
@@ -209,10 +205,11 @@ def choose_grid(
             same_body(dem, out_crs)  # (else PROJ's own error, as an internal one)
             to_out = Transformer.from_crs(as_pyproj(dem.crs), as_pyproj(out_crs), always_xy=True)
             bounds = to_out.transform_bounds(*bounds, densify_pts=21)
-    return _checked(output_grid(dem, units, bounds, crs), radius, from_metres)
+    # (the images' spacing is in metres too)
+    return _checked(output_grid(dem, units, bounds, crs), radius, in_metres or lengths is None)
 
 
-def _checked(out: OutputGrid, radius: float, from_metres: object) -> OutputGrid:
+def _checked(out: OutputGrid, radius: float, from_metres: bool) -> OutputGrid:
     """``out``, with a warning (:func:`~orthomvp.engine.units.east_west_text`) where its
     spacing came ``from_metres`` on a geographic CRS and its posts crowd east-west."""
     if from_metres and out.crs.is_geographic:

@@ -115,7 +115,7 @@ def _dem_properties(dem: DemSource, dem_crs: object | None) -> dict[str, Any]:
         "heights": heights,
         "vertical_datum": vertical,
         "post_spacing": list(spacing),
-        "post_spacing_m": _ground(dem, lambda c, r: (c, r), dem.shape, spacing, per_unit, crs),
+        "post_spacing_m": _ground(dem, None, spacing, per_unit, crs),
         "extent_lonlat": [float(lon.min()), float(lat.min()), float(lon.max()), float(lat.max())],
         "height_range": [dem.h_min, dem.h_max],
         "world": dem.world.value,
@@ -124,24 +124,21 @@ def _dem_properties(dem: DemSource, dem_crs: object | None) -> dict[str, Any]:
 
 def _ground(
     dem: DemSource,
-    to_dem: Any,
-    shape: tuple[int, int],
+    grid: Any | None,
     spacing: tuple[float, float],
     per_unit: float,
     crs: Any,
 ) -> list[float]:
-    """Metres on the ground between neighbouring posts (x, y) of a grid of ``shape`` and
-    ``spacing`` (CRS units) whose positions ``to_dem`` maps into ``dem``: on a geographic
-    ``crs`` between the body-fixed points of the posts at its centre, at the DEM's median
-    height (a degree of longitude is cos(latitude) of one of latitude), elsewhere nominal
-    (``per_unit`` metres a unit, :func:`~orthomvp.engine.units.unit_scale`)."""
+    """Metres on the ground between neighbouring posts (x, y) of the output ``grid`` (None:
+    the DEM's own) of post ``spacing`` (CRS units): on a geographic ``crs`` measured at its
+    centre (:meth:`~orthomvp.engine.grid.DemSource.ground_spacing`; a degree of longitude is
+    cos(latitude) of one of latitude), elsewhere nominal (``per_unit`` metres a unit,
+    :func:`~orthomvp.engine.units.unit_scale`)."""
     if not crs.is_geographic or dem.world != WorldFrame.BODY:
         return [s * per_unit for s in spacing]
-    rows, cols = shape
-    c0, r0 = (cols - 1) / 2, (rows - 1) / 2
-    c, r = to_dem(np.array([c0, c0 + 1, c0]), np.array([r0, r0, r0 + 1]))
-    p = dem.to_world(c, r, np.full(3, nan_median(dem.preview.values)))
-    return [float(np.linalg.norm(p[1] - p[0])), float(np.linalg.norm(p[2] - p[0]))]
+    if grid is None:
+        return list(dem.ground_spacing())
+    return list(dem.ground_spacing(grid_to_dem(grid, dem), grid.shape))
 
 
 def _datum(vertical: str) -> str:
@@ -177,9 +174,7 @@ def _image_properties(dem: DemSource, view: Any, footprint: Any, grid: Any) -> d
             "grid": {
                 "size": [cols, rows],
                 "res": [t.a, -t.e],
-                "res_m": _ground(
-                    dem, grid_to_dem(grid, dem), grid.shape, (t.a, -t.e), per_unit, grid.crs
-                ),
+                "res_m": _ground(dem, grid, (t.a, -t.e), per_unit, grid.crs),
                 "units": unit,
                 "bounds": [t.c, t.f + rows * t.e, t.c + cols * t.a, t.f],
                 "dem_share": _share(grid, dem),
