@@ -132,16 +132,9 @@ def process_scratch(tag: str) -> tempfile.TemporaryDirectory:
     """A temporary directory of this process in the system's temporary folder (removed when
     the returned object is cleaned up), named ``orthomvp-TAG-PID-HOST-...``; those of ``tag``
     that runs on this machine left when they were killed (SIGKILL: no cleanup ran) are
-    removed first, as :func:`remove_stale` does beside outputs."""
+    removed first (:func:`_remove_dead`)."""
     prefix = f"orthomvp-{tag}-"
-    try:
-        entries = [e for e in os.scandir(tempfile.gettempdir()) if e.name.startswith(prefix)]
-    except OSError:
-        entries = []
-    for entry in entries:
-        pid, _, rest = entry.name[len(prefix) :].partition("-")
-        if pid.isdigit() and rest.startswith(f"{_HOST}-") and not _alive(int(pid)):
-            shutil.rmtree(entry.path, ignore_errors=True)
+    _remove_dead(Path(tempfile.gettempdir()), prefix)
     return tempfile.TemporaryDirectory(
         prefix=f"{prefix}{os.getpid()}-{_HOST}-", ignore_cleanup_errors=True
     )
@@ -151,9 +144,14 @@ def remove_stale(path: Path) -> list[Path]:
     """Remove the temporary files and directories of ``path`` (see :func:`temp_name`) that
     runs on this machine left when they were killed (SIGKILL, a power cut): those whose
     process is gone. Returns what was removed."""
-    prefix = f".{_name_part(path)}.{TEMP_TAG}-"
+    return _remove_dead(path.parent, f".{_name_part(path)}.{TEMP_TAG}-")
+
+
+def _remove_dead(folder: Path, prefix: str) -> list[Path]:
+    """Remove the files and directories in ``folder`` named ``PREFIX + PID-HOST-...`` of
+    this machine whose process is gone; returns what was removed."""
     try:
-        entries = [e for e in os.scandir(path.parent) if e.name.startswith(prefix)]
+        entries = [e for e in os.scandir(folder) if e.name.startswith(prefix)]
     except OSError:
         return []
     removed = []
