@@ -54,16 +54,12 @@ def save_with_table(
     try:
         outputs = [Output("table", Path(table), ()), Output("figure", Path(figure), ())]
         check_outputs(outputs, overwrite=overwrite, flags=API_FLAGS)
-    except BaseException:
-        _pyplot().close(fig)
-        raise
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(fields))
-    writer.writeheader()
-    for r in rows:
-        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    fmt = Path(figure).suffix.lstrip(".") or "png"
-    try:
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=list(fields))
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+        fmt = Path(figure).suffix.lstrip(".") or "png"
         write_set(
             {
                 Path(table): lambda tmp: tmp.write_text(buf.getvalue()),
