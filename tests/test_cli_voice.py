@@ -290,16 +290,22 @@ CAMERA_KINDS = {
 """Each camera format of the registry, and the words by which --help names it."""
 
 
+def help_names(command: str, names: set[str], table: dict[str, str]) -> None:
+    """``command --help`` names every one of ``names`` (a registry's) by its words in
+    ``table``; a new entry in the registry must be named in help, and so in ``table``."""
+    assert names == set(table)
+    proc = run(command, "--help")
+    assert proc.returncode == 0
+    text = " ".join(proc.stdout.split())
+    for words in table.values():
+        assert words in text, words
+
+
 @pytest.mark.parametrize("command", ["ortho", "visibility", "mosaic", "fit", "check"])
 def test_help_names_every_camera_kind(command: str) -> None:
     from orthomvp.camera import FORMATS
 
-    assert {fmt.name for fmt in FORMATS} == set(CAMERA_KINDS)  # a new format: name it in help
-    proc = run(command, "--help")
-    assert proc.returncode == 0
-    text = " ".join(proc.stdout.split())
-    for words in CAMERA_KINDS.values():
-        assert words in text, words
+    help_names(command, {fmt.name for fmt in FORMATS}, CAMERA_KINDS)
 
 
 CUBE_INSTRUMENTS = {
@@ -319,12 +325,7 @@ CUBE_INSTRUMENTS = {
 def test_help_names_every_cube_instrument(command: str) -> None:
     from orthomvp.camera.isis import INSTRUMENTS
 
-    assert {i.name for i in INSTRUMENTS} == set(CUBE_INSTRUMENTS)  # a new one: name it in help
-    proc = run(command, "--help")
-    assert proc.returncode == 0
-    text = " ".join(proc.stdout.split())
-    for words in CUBE_INSTRUMENTS.values():
-        assert words in text, words
+    help_names(command, {i.name for i in INSTRUMENTS}, CUBE_INSTRUMENTS)
 
 
 # ------------------------------------------------------------------------------- mesh textures
